@@ -1,0 +1,31 @@
+"""HxRG noise generator: empty ramps from Rauscher (2015, PASP 127, 1144), streamed.
+
+Public API
+----------
+Detector, Subarray, PRESETS, preset
+    Geometry and the one clock (pixel read times, frame time).
+NoiseParams, NIRSPEC_DEFAULTS, ZERO_NOISE
+    Amplitudes (e-, read noise per read) with a length-independent definition.
+NoiseGenerator
+    Frame-by-frame generator (``frames``), ``cube`` convenience.
+write_noise_fits
+    Stream a ramp to FITS (float32 e- or uint16 DN), atomically.
+"""
+
+from .detector import PRESETS, Detector, Subarray, preset
+from .errors import FileFormatError, ParameterError, ScenesimError
+from .fitsio import atomic_path, package_version, to_uint16_dn, write_noise_fits
+from .generator import COMPONENTS, NoiseGenerator, root_seed
+from .params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
+from .pink import PinkSeries, pink_psd_shape, realised_psd, unit_frame_variance
+from .template import synthetic_template, template_for
+
+__all__ = [
+    "Detector", "Subarray", "PRESETS", "preset",
+    "NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE",
+    "NoiseGenerator", "COMPONENTS", "root_seed",
+    "write_noise_fits", "atomic_path", "package_version", "to_uint16_dn",
+    "PinkSeries", "pink_psd_shape", "realised_psd", "unit_frame_variance",
+    "synthetic_template", "template_for",
+    "ScenesimError", "ParameterError", "FileFormatError",
+]

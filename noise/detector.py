@@ -1,0 +1,341 @@
+"""Detector geometry and the one clock that drives everything.
+
+An HxRG is read through ``n_out`` video outputs that clock simultaneously, one pixel
+per ``dt`` seconds each (Rauscher 2015, Sec. 4 and Fig. 5).  Per output a frame is
+``(ny + nfoh)`` rows of ``(ncols_out + nroh)`` pixel times, where ``nroh`` is the
+new-row overhead (pixel times) and ``nfoh`` the new-frame overhead (rows).  The fast
+scan direction alternates between outputs (output 0 left to right, output 1 right to
+left, ...); ``reverse_scan=True`` flips all of them.  Rows are read from ``y = 0``
+upward.
+
+From this follows the read time of every pixel within a frame::
+
+    t(y, x) = (y * (ncols_out + nroh) + x_fast) * dt
+
+where ``x_fast`` is the position of column ``x`` in its output's scan order.  The same
+clock places each noise sample in the image (in each output's true time order, the
+overhead samples included) and decides when a pixel is read, hence how much charge it
+has collected.  For a full-frame H2RG with 4 outputs, ``nroh = 12`` and ``nfoh = 1``::
+
+    t_frame = (512 + 12) * (2048 + 1) * 10 us = 10.73676 s.
+
+Unlike the original NG program, ``dt`` is used everywhere (frequencies, times).
+
+Subarrays
+---------
+``window``: a box of ``nx * ny`` pixels read through a single output, so a frame is
+``(ny + nfoh) * (nx + nroh) * dt``.  ``stripe``: full-width rows ``y0 .. y0+ny-1`` read
+through all outputs, so a frame is ``(ny + nfoh) * (naxis1 / n_out + nroh) * dt``.
+Reference pixels of a subarray are those of the full array that fall inside it.
+"""
+
+import dataclasses
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from ._validate import check_float, check_int
+from .errors import ParameterError
+
+__all__ = ["Subarray", "Detector", "PRESETS", "preset"]
+
+
+@dataclass(frozen=True)
+class Subarray:
+    """A readout window on the detector, in full-frame pixel coordinates (0-based).
+
+    Parameters
+    ----------
+    kind : {'window', 'stripe'}
+        ``'window'`` is read through one output; ``'stripe'`` spans the full width and
+        is read through all outputs.
+    x0, y0 : int
+        Lower-left corner (column, row) on the full array.
+    nx, ny : int
+        Size in columns and rows.  For a stripe ``x0 = 0`` and ``nx = naxis1``.
+    name : str
+        Free label written to file headers (e.g. ``'SUB64'``).
+    """
+
+    kind: str
+    x0: int
+    y0: int
+    nx: int
+    ny: int
+    name: str = ""
+
+    def __post_init__(self):
+        if self.kind not in ("window", "stripe"):
+            raise ParameterError(
+                f"'subarray.kind' must be 'window' or 'stripe', got {self.kind!r}")
+        for field in ("x0", "y0"):
+            check_int(f"subarray.{field}", getattr(self, field), minimum=0)
+        for field in ("nx", "ny"):
+            check_int(f"subarray.{field}", getattr(self, field), minimum=1)
+
+
+@dataclass(frozen=True)
+class Detector:
+    """Frozen description of an HxRG array and how it is clocked.
+
+    Parameters
+    ----------
+    name : str
+        Label, e.g. ``'H2RG'``.
+    naxis1, naxis2 : int
+        Full-array columns and rows (pixels), reference pixels included.
+    n_out : int
+        Number of video outputs of the full array; must divide ``naxis1``.
+    nroh : int
+        New-row overhead, in pixel times (>= 0).
+    nfoh : int
+        New-frame overhead, in rows (>= 0).
+    dt : float
+        Pixel dwell time per output, seconds (1e-5 s = 100 kHz).
+    ref_border : int
+        Width of the reference-pixel border on all four sides (4 for HxRGs, 0 for none).
+    reverse_scan : bool
+        Reverse every output's fast-scan direction.
+    pixel_pitch : float
+        Pixel pitch in micrometres (used for cosmic-ray rates per cm^2).
+    subarray : Subarray or None
+        Readout window; ``None`` for full frame.
+    """
+
+    name: str = "H2RG"
+    naxis1: int = 2048
+    naxis2: int = 2048
+    n_out: int = 4
+    nroh: int = 12
+    nfoh: int = 1
+    dt: float = 1e-5
+    ref_border: int = 4
+    reverse_scan: bool = False
+    pixel_pitch: float = 18.0
+    subarray: Subarray | None = None
+
+    def __post_init__(self):
+        check_int("naxis1", self.naxis1, minimum=1)
+        check_int("naxis2", self.naxis2, minimum=1)
+        check_int("n_out", self.n_out, minimum=1)
+        check_int("nroh", self.nroh, minimum=0)
+        check_int("nfoh", self.nfoh, minimum=0)
+        check_int("ref_border", self.ref_border, minimum=0)
+        check_float("dt", self.dt, minimum=0.0, strict_min=True)
+        check_float("pixel_pitch", self.pixel_pitch, minimum=0.0, strict_min=True)
+        if self.naxis1 % self.n_out:
+            raise ParameterError(
+                f"'n_out'={self.n_out} must divide 'naxis1'={self.naxis1} "
+                f"(each output reads the same number of columns)")
+        if 2 * self.ref_border >= min(self.naxis1, self.naxis2):
+            raise ParameterError(
+                f"'ref_border'={self.ref_border} leaves no regular pixels on a "
+                f"{self.naxis2}x{self.naxis1} array")
+        sub = self.subarray
+        if sub is not None:
+            if sub.x0 + sub.nx > self.naxis1 or sub.y0 + sub.ny > self.naxis2:
+                raise ParameterError(
+                    f"'subarray' {sub.kind} x0={sub.x0}, y0={sub.y0}, nx={sub.nx}, "
+                    f"ny={sub.ny} extends outside the {self.naxis2}x{self.naxis1} "
+                    f"detector (x0+nx <= {self.naxis1} and y0+ny <= {self.naxis2} "
+                    f"required)")
+            if sub.kind == "stripe" and (sub.x0 != 0 or sub.nx != self.naxis1):
+                raise ParameterError(
+                    f"a 'stripe' subarray spans the full width: x0=0 and "
+                    f"nx={self.naxis1} required, got x0={sub.x0}, nx={sub.nx}")
+
+    # ------------------------------------------------------------------ builders
+    def window(self, x0, y0, nx, ny, name=""):
+        """Return a copy read out as a window of ``nx * ny`` pixels through one output."""
+        return dataclasses.replace(self, subarray=Subarray("window", x0, y0, nx, ny, name))
+
+    def stripe(self, y0, ny, name=""):
+        """Return a copy read out as a full-width stripe through all outputs."""
+        return dataclasses.replace(
+            self, subarray=Subarray("stripe", 0, y0, self.naxis1, ny, name))
+
+    def full_frame(self):
+        """Return a copy with no subarray."""
+        return dataclasses.replace(self, subarray=None)
+
+    # -------------------------------------------------------------- geometry
+    @property
+    def nx(self):
+        """Columns read out (pixels)."""
+        return self.naxis1 if self.subarray is None else self.subarray.nx
+
+    @property
+    def ny(self):
+        """Rows read out (pixels)."""
+        return self.naxis2 if self.subarray is None else self.subarray.ny
+
+    @property
+    def shape(self):
+        """Image shape ``(ny, nx)`` as read out."""
+        return (self.ny, self.nx)
+
+    @property
+    def x0(self):
+        """Full-frame column of the first column read out."""
+        return 0 if self.subarray is None else self.subarray.x0
+
+    @property
+    def y0(self):
+        """Full-frame row of the first row read out."""
+        return 0 if self.subarray is None else self.subarray.y0
+
+    @property
+    def n_out_active(self):
+        """Outputs used by this readout (1 for a window)."""
+        if self.subarray is not None and self.subarray.kind == "window":
+            return 1
+        return self.n_out
+
+    @property
+    def ncols_out(self):
+        """Columns per active output."""
+        return self.nx // self.n_out_active
+
+    @property
+    def row_samples(self):
+        """Pixel times per row per output, overhead included."""
+        return self.ncols_out + self.nroh
+
+    @property
+    def frame_samples(self):
+        """Pixel times per frame per output, overheads included."""
+        return (self.ny + self.nfoh) * self.row_samples
+
+    @property
+    def row_time(self):
+        """Time to clock one row, overhead included (s)."""
+        return self.row_samples * self.dt
+
+    @property
+    def frame_time(self):
+        """Time to clock one frame, overheads included (s)."""
+        return self.frame_samples * self.dt
+
+    @property
+    def subarray_name(self):
+        """``'FULL'`` or the subarray's name (or kind and size)."""
+        sub = self.subarray
+        if sub is None:
+            return "FULL"
+        return sub.name or f"{sub.kind.upper()}{sub.ny}x{sub.nx}"
+
+    def output_reversed(self, output):
+        """True if ``output`` (0-based, active outputs) scans right to left."""
+        return bool((output % 2 == 1) != self.reverse_scan)
+
+    @cached_property
+    def _sample_index(self):
+        ncol = self.ncols_out
+        col = np.arange(self.nx)
+        out = col // ncol
+        local = col % ncol
+        rev = (out % 2 == 1) != self.reverse_scan
+        fast = np.where(rev, ncol - 1 - local, local)
+        idx = np.arange(self.ny)[:, None] * self.row_samples + fast[None, :]
+        idx.setflags(write=False)
+        return idx
+
+    def pixel_sample_index(self):
+        """Index of each pixel's sample in its output's frame time line.
+
+        Returns
+        -------
+        ndarray, shape (ny, nx), int64
+            ``y * (ncols_out + nroh) + x_fast``.
+        """
+        return self._sample_index
+
+    def pixel_time(self):
+        """Read time of each pixel from the start of its frame.
+
+        Returns
+        -------
+        ndarray, shape (ny, nx), float64, seconds
+        """
+        return self._sample_index * self.dt
+
+    def output_of_column(self):
+        """Active output index of each column, shape (nx,), int."""
+        return np.arange(self.nx) // self.ncols_out
+
+    def reference_mask(self):
+        """True for reference pixels of the read-out image, shape (ny, nx), bool.
+
+        Reference pixels are the ``ref_border``-wide border of the full array.
+        """
+        b = self.ref_border
+        ys = np.arange(self.y0, self.y0 + self.ny)
+        xs = np.arange(self.x0, self.x0 + self.nx)
+        ry = (ys < b) | (ys >= self.naxis2 - b)
+        rx = (xs < b) | (xs >= self.naxis1 - b)
+        return ry[:, None] | rx[None, :]
+
+    def to_header_cards(self):
+        """``(key, value, comment)`` FITS cards describing the detector and clock."""
+        return [
+            ("DETECTOR", self.name, "detector type"),
+            ("NAXIS1D", self.naxis1, "[pix] full-array columns"),
+            ("NAXIS2D", self.naxis2, "[pix] full-array rows"),
+            ("NOUTPUTS", self.n_out_active, "video outputs used"),
+            ("NOUTFULL", self.n_out, "video outputs of the full array"),
+            ("NROH", self.nroh, "[pix times] new-row overhead"),
+            ("NFOH", self.nfoh, "[rows] new-frame overhead"),
+            ("PIXDWELL", self.dt, "[s] pixel dwell time per output"),
+            ("REFBORD", self.ref_border, "[pix] reference-pixel border width"),
+            ("REVSCAN", bool(self.reverse_scan), "fast-scan directions reversed"),
+            ("PIXPITCH", self.pixel_pitch, "[um] pixel pitch"),
+            ("SUBARRAY", self.subarray_name, "readout window"),
+            ("SUBSTRT1", self.x0 + 1, "first column (1-based, full frame)"),
+            ("SUBSTRT2", self.y0 + 1, "first row (1-based, full frame)"),
+            ("SUBSIZE1", self.nx, "[pix] columns read"),
+            ("SUBSIZE2", self.ny, "[pix] rows read"),
+            ("TFRAME", self.frame_time, "[s] frame time"),
+        ]
+
+
+#: Detector presets.  Values and their sources:
+#:
+#: ``H1RG``: 1024x1024, 18 um pixels, 16 outputs at 100 kHz (the H1RG offers 1, 2 or
+#: 16 outputs; 16 is the fast mode), JWST-like overheads nroh=12, nfoh=1, 4-pixel
+#: reference border (Teledyne HxRG family; Rauscher 2015 Sec. 4).
+#: ``H2RG``: 2048x2048, 18 um, 4 outputs at 100 kHz, nroh=12, nfoh=1, border 4: the
+#: JWST NIRSpec/NIRCam "traditional" clocking, Rauscher 2015 Table 1 and Fig. 5;
+#: frame time 10.73676 s.
+#: ``H4RG-10``: 4096x4096, 10 um, 32 outputs at 200 kHz (dt=5 us), nroh=20, nfoh=1,
+#: border 4: Roman-WFI-like; the overhead is chosen so the frame time,
+#: (128+20)*(4096+1)*5 us = 3.032 s, is close to Roman's 3.04 s frame.
+#: ``H4RG-15``: 4096x4096, 15 um, 64 outputs at 100 kHz, nroh=12, nfoh=1, border 4:
+#: a ground-based configuration; frame time (64+12)*4097*10 us = 3.114 s.
+PRESETS = {
+    "H1RG": Detector(name="H1RG", naxis1=1024, naxis2=1024, n_out=16, nroh=12, nfoh=1,
+                     dt=1e-5, ref_border=4, pixel_pitch=18.0),
+    "H2RG": Detector(name="H2RG", naxis1=2048, naxis2=2048, n_out=4, nroh=12, nfoh=1,
+                     dt=1e-5, ref_border=4, pixel_pitch=18.0),
+    "H4RG-10": Detector(name="H4RG-10", naxis1=4096, naxis2=4096, n_out=32, nroh=20,
+                        nfoh=1, dt=5e-6, ref_border=4, pixel_pitch=10.0),
+    "H4RG-15": Detector(name="H4RG-15", naxis1=4096, naxis2=4096, n_out=64, nroh=12,
+                        nfoh=1, dt=1e-5, ref_border=4, pixel_pitch=15.0),
+}
+
+
+def preset(name, **changes):
+    """Return the preset detector ``name`` with optional field ``changes``.
+
+    Examples
+    --------
+    >>> preset("H2RG", naxis1=256, naxis2=256).frame_time  # doctest: +SKIP
+    """
+    key = str(name).upper()
+    if key not in PRESETS:
+        import difflib
+        close = difflib.get_close_matches(key, PRESETS, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ParameterError(
+            f"'preset' must be one of {sorted(PRESETS)}, got {name!r}{hint}")
+    return dataclasses.replace(PRESETS[key], **changes) if changes else PRESETS[key]

@@ -1,0 +1,206 @@
+"""Noise amplitudes and their definitions (Rauscher 2015, Table 1, made length-independent).
+
+Units are electrons.  Read noise is **per read** (one frame), not CDS: the CDS noise of
+white read noise alone is ``sqrt(2) * rd_noise``.
+
+Amplitude definition
+--------------------
+Every 1/f component (``c_pink``, ``u_pink``, ``acn``, ``pca0``) is a stationary Gaussian
+process with a fixed power spectral density (PSD).  Its amplitude is the **expected
+standard deviation of the component over one frame's time line** (one output, overhead
+samples included, the frame mean removed)::
+
+    amp**2 = integral_0^f_nyq  S(f) * (1 - F_n(f)) df
+
+where ``S`` is the one-sided PSD and ``F_n`` the Fejer kernel of an ``n``-sample mean
+(``n`` = samples per frame of that series).  The PSD level therefore does not depend on
+how many frames are simulated: a 1-frame and a 100-frame cube share the same PSD.  In
+the original NG program each realisation was rescaled to a sample sigma over the whole
+cube, so its PSD level fell as the cube grew.  With this definition the paper's default
+amplitudes reproduce a NIRSpec-like single frame, as they did in the original for a
+1-frame cube.
+
+``pedestal`` is the standard deviation of a per-frame offset common to all pixels;
+``ktc`` the per-pixel standard deviation of the reset level, redrawn each integration;
+``bias_offset`` a constant reset level; ``bias_amp`` multiplies the unit-sigma
+picture-frame template to make the fixed bias pattern (as the original did).
+
+Beyond the paper: random telegraph noise (``rtn_fraction`` of regular pixels switch
+between two levels ``rtn_amp`` apart, with mean dwell times ``rtn_tau_low`` and
+``rtn_tau_high`` in seconds), a user PSD shape for the pink components
+(``pink_spectrum``: pairs of frequency in Hz and relative PSD, interpolated in log-log;
+the amplitude definition above still sets the level), and per-output amplitudes for
+``rd_noise``, ``u_pink`` and ``acn`` (a sequence of ``n_out`` values).
+"""
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import check_amplitude, check_float
+from .errors import ParameterError
+
+__all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE"]
+
+_PER_OUTPUT = ("rd_noise", "u_pink", "acn")
+_SCALAR_AMPS = ("c_pink", "pca0", "pedestal", "ktc", "bias_amp", "rtn_amp")
+
+
+def _freeze(value):
+    if isinstance(value, (list, np.ndarray)):
+        return tuple(float(v) for v in np.asarray(value, dtype=float).ravel())
+    return value
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Noise amplitudes (e-) and options for :class:`noise.NoiseGenerator`.
+
+    Parameters
+    ----------
+    rd_noise : float or sequence of float
+        White read noise per read of a regular pixel, e- rms (per output if a sequence).
+    ref_ratio : float
+        Ratio of reference-pixel to regular-pixel white noise.
+    c_pink : float
+        Correlated 1/f noise, shared by all outputs, e- (see amplitude definition).
+    u_pink : float or sequence of float
+        Uncorrelated 1/f noise, independent per output, e-.
+    acn : float or sequence of float
+        Alternating column noise: independent 1/f series on even and odd columns, e-.
+    pca0 : float
+        Picture-frame noise: template times a 1/f series sampled once per row, e-.
+    pedestal : float
+        Per-frame offset common to all pixels, e- rms.
+    ktc : float
+        kTC reset noise per pixel per integration, e- rms.
+    bias_offset : float
+        Constant reset level, e-.
+    bias_amp : float
+        Amplitude of the fixed bias pattern (template times this), e-.
+    rtn_fraction : float
+        Fraction of regular pixels with random telegraph noise, in [0, 1].
+    rtn_amp : float
+        Step between the two RTN levels, e-.
+    rtn_tau_low, rtn_tau_high : float
+        Mean dwell times in the low and high states, s.
+    f_min : float
+        Frequency (Hz) below which the 1/f PSD is flat (keeps the process stationary).
+    pink_spectrum : tuple of (float, float) pairs or None
+        User PSD shape ``((f_Hz, psd), ...)`` replacing 1/f for all pink components.
+    pca0_file : str or None
+        FITS file with the picture-frame / bias template (full array, or the read-out
+        size); ``None`` uses the synthetic template shipped with the package.
+    """
+
+    rd_noise: float | tuple = 5.2
+    ref_ratio: float = 0.8
+    c_pink: float = 3.0
+    u_pink: float | tuple = 1.0
+    acn: float | tuple = 0.5
+    pca0: float = 0.2
+    pedestal: float = 4.0
+    ktc: float = 29.0
+    bias_offset: float = 5000.0
+    bias_amp: float = 500.0
+    rtn_fraction: float = 0.0
+    rtn_amp: float = 20.0
+    rtn_tau_low: float = 1.0
+    rtn_tau_high: float = 0.3
+    f_min: float = 1e-4
+    pink_spectrum: tuple | None = None
+    pca0_file: str | None = None
+
+    def __post_init__(self):
+        for name in _PER_OUTPUT:
+            object.__setattr__(self, name, _freeze(getattr(self, name)))
+        for name in _PER_OUTPUT:
+            value = getattr(self, name)
+            if isinstance(value, tuple):
+                for v in value:
+                    if not math.isfinite(v) or v < 0:
+                        raise ParameterError(
+                            f"{name!r} must be finite and >= 0 (e-), got {value!r}")
+            else:
+                check_float(name, value, minimum=0.0)
+        for name in _SCALAR_AMPS:
+            check_float(name, getattr(self, name), minimum=0.0)
+        check_float("ref_ratio", self.ref_ratio, minimum=0.0)
+        check_float("bias_offset", self.bias_offset)
+        check_float("rtn_fraction", self.rtn_fraction, minimum=0.0, maximum=1.0)
+        check_float("rtn_tau_low", self.rtn_tau_low, minimum=0.0, strict_min=True)
+        check_float("rtn_tau_high", self.rtn_tau_high, minimum=0.0, strict_min=True)
+        check_float("f_min", self.f_min, minimum=0.0, strict_min=True)
+        if self.pink_spectrum is not None:
+            spec = np.asarray(self.pink_spectrum, dtype=float)
+            if spec.ndim != 2 or spec.shape[1] != 2 or spec.shape[0] < 2:
+                raise ParameterError(
+                    f"'pink_spectrum' must be a sequence of at least two (f_Hz, psd) "
+                    f"pairs, got shape {spec.shape}")
+            if (not np.all(np.isfinite(spec)) or np.any(spec[:, 0] <= 0)
+                    or np.any(spec[:, 1] <= 0) or np.any(np.diff(spec[:, 0]) <= 0)):
+                raise ParameterError(
+                    "'pink_spectrum' needs finite frequencies > 0, strictly increasing, "
+                    "and PSD values > 0")
+            object.__setattr__(self, "pink_spectrum",
+                               tuple((float(f), float(p)) for f, p in spec))
+
+    def per_output(self, name, n_out):
+        """Amplitude ``name`` as an array of ``n_out`` values (e-)."""
+        value = getattr(self, name)
+        if isinstance(value, tuple):
+            if len(value) != n_out:
+                raise ParameterError(
+                    f"{name!r} has {len(value)} per-output values but the readout uses "
+                    f"{n_out} outputs")
+            return np.asarray(value, dtype=float)
+        return np.full(n_out, float(value))
+
+    def enabled(self, name):
+        """True if component ``name`` has any non-zero amplitude."""
+        value = getattr(self, name)
+        if isinstance(value, tuple):
+            return any(v > 0 for v in value)
+        return value > 0
+
+    def replace(self, **changes):
+        """Return a copy with ``changes`` applied (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_header_cards(self):
+        """``(key, value, comment)`` FITS cards recording every parameter."""
+        def val(v):
+            if isinstance(v, tuple):
+                return ",".join(f"{x:g}" for x in v) if not isinstance(v[0], tuple) else \
+                    ";".join(f"{a:g}:{b:g}" for a, b in v)
+            return v
+        cards = [
+            ("RDNOISE", val(self.rd_noise), "[e-] white read noise per read (not CDS)"),
+            ("REFRATIO", self.ref_ratio, "reference/regular white-noise ratio"),
+            ("C_PINK", self.c_pink, "[e-] correlated 1/f, sigma per frame"),
+            ("U_PINK", val(self.u_pink), "[e-] uncorrelated 1/f, sigma per frame"),
+            ("ACN", val(self.acn), "[e-] alternating column noise, sigma per frame"),
+            ("PCA0AMP", self.pca0, "[e-] picture-frame noise, sigma per frame"),
+            ("PEDESTAL", self.pedestal, "[e-] per-frame pedestal sigma"),
+            ("KTCNOISE", self.ktc, "[e-] kTC reset noise per integration"),
+            ("BIASOFF", self.bias_offset, "[e-] bias offset"),
+            ("BIASAMP", self.bias_amp, "[e-] bias pattern amplitude"),
+            ("RTNFRAC", self.rtn_fraction, "fraction of RTN pixels"),
+            ("RTNAMP", self.rtn_amp, "[e-] RTN step"),
+            ("RTNTLOW", self.rtn_tau_low, "[s] RTN mean dwell, low state"),
+            ("RTNTHIGH", self.rtn_tau_high, "[s] RTN mean dwell, high state"),
+            ("FMIN", self.f_min, "[Hz] 1/f PSD flat below this"),
+            ("PINKSPEC", "user" if self.pink_spectrum else "1/f", "pink PSD shape"),
+            ("PCA0FILE", self.pca0_file or "synthetic", "picture-frame template"),
+        ]
+        return cards
+
+
+#: The paper's defaults (Rauscher 2015, Table 1): a NIRSpec-like H2RG + SIDECAR.
+NIRSPEC_DEFAULTS = NoiseParams()
+
+#: Every component off: an empty, noise-free ramp.
+ZERO_NOISE = NoiseParams(rd_noise=0.0, ref_ratio=0.8, c_pink=0.0, u_pink=0.0, acn=0.0,
+                         pca0=0.0, pedestal=0.0, ktc=0.0, bias_offset=0.0, bias_amp=0.0)

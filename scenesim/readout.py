@@ -1,0 +1,763 @@
+"""Readout patterns: which frames are read, and how they are averaged into resultants.
+
+One object covers both conventions in use for HxRG ramps:
+
+* **JWST MULTIACCUM** (NFRAMES, NGROUPS, GROUPGAP, NSKIP/DROPFRM1, NINTS): each group
+  averages ``nframes`` consecutive frames, then ``groupgap`` frames are dropped.
+* **Roman-style multi-accumulation (MA) tables**: a list of ``(first_read, nreads)``
+  resultants of unequal size, possibly skipping reads between resultants.
+
+Model
+-----
+An integration starts with a reset.  Reads (frames) are counted from the reset,
+0-based: read 0 is the first read after the reset.  A **resultant** is the average of
+a list of reads; the resultants of a readout use strictly increasing read indices
+(within and across resultants).  The readout is repeated for ``nints`` integrations,
+with a reset between them.  Reads that no resultant uses are never materialised by
+the simulator (charge still accumulates across them and the noise time line still
+runs through them), so only :attr:`Readout.needed_reads` are produced.
+
+MULTIACCUM group ``g`` (0-based) with ``nskip`` frames dropped after the reset uses::
+
+    start = nskip + g * (nframes + groupgap);   reads start .. start + nframes - 1
+
+Read times (``docs/CONVENTIONS.md``), seconds from the pixel's own reset:
+
+* rolling reset (default, JWST-like): each pixel is reset one frame time before its
+  first read, so read ``k`` is at ``(k + 1) * t_frame`` for every pixel;
+* global reset: all pixels are reset at the start of the first read frame, so read
+  ``k`` of a pixel with clock offset ``t_pix`` (``noise.Detector.pixel_time()``) is at
+  ``k * t_frame + t_pix``, i.e. the rolling times shifted by ``t_pix - t_frame``.
+
+Exposure time line: each integration is one reset frame slot followed by its
+``nreads`` read slots; read ``k`` of integration ``i`` sits in absolute frame slot
+``i * (1 + nreads) + 1 + k`` (:meth:`Readout.frame_slots`).
+
+Resultant times (Brandt 2024, PASP 136, 045004, eqs. 28-29)
+------------------------------------------------------------
+For a resultant of ``N`` reads at sorted times ``t_1 < ... < t_N``:
+
+* mean time ``t_bar = (1/N) sum_k t_k``;
+* ``tau = (1/N^2) sum_{k=1}^{N} (2N - 2k + 1) t_k``, so that the Poisson variance of
+  the resultant for a constant rate ``f`` is ``f * tau``.  It follows from
+  ``Var = (f/N^2) sum_j sum_k min(t_j, t_k)``: the time ``t_k`` is the minimum of
+  ``2(N - k) + 1`` of the ``N^2`` ordered pairs.
+
+For ``N`` reads evenly spaced by ``d`` from ``t_1``:
+``t_bar = t_1 + d (N - 1)/2`` and ``tau = t_1 + d (N - 1)(2N - 1)/(6N)``.
+Adding a constant to every read time adds it to both ``t_bar`` and ``tau`` (the
+weights of ``tau`` sum to 1), which is why a global reset only shifts them.
+
+Named patterns
+--------------
+NIRCam and NIRSpec MULTIACCUM patterns, ``(NFRAMES, GROUPGAP)``, all with
+``nskip = 0`` (JDox "NIRCam Detector Readout Patterns" and "NIRSpec Detector Readout
+Patterns").  Instrument limits on NGROUPS are not enforced.
+
+==========  ========  =========  ==========
+pattern     NFRAMES   GROUPGAP   instrument
+==========  ========  =========  ==========
+RAPID       1         0          NIRCam
+BRIGHT1     1         1          NIRCam
+BRIGHT2     2         0          NIRCam
+SHALLOW2    2         3          NIRCam
+SHALLOW4    4         1          NIRCam
+MEDIUM2     2         8          NIRCam
+MEDIUM8     8         2          NIRCam
+DEEP2       2         18         NIRCam
+DEEP8       8         12         NIRCam
+NRSRAPID    1         0          NIRSpec
+NRS         4         0          NIRSpec
+==========  ========  =========  ==========
+
+Roman-like tables
+-----------------
+:data:`ROMAN_LIKE_TABLE` and :data:`ROMAN_LIKE_SKIP_TABLE` are **illustrative**
+multi-accumulation tables in the style of Roman WFI (uneven resultants, the last ones
+longest); they are not official Roman MA tables.
+
+* ``ROMAN_LIKE_TABLE``: 9 contiguous resultants of 1, 2, 3, 4, 6, 6, 8, 8, 6 reads
+  covering reads 0..43 (44 reads).
+* ``ROMAN_LIKE_SKIP_TABLE``: 6 resultants of 1, 1, 2, 4, 4, 8 reads that skip reads
+  2, 5-7, 12-15 and 20-27: 20 reads used out of 36.
+"""
+
+import difflib
+import math
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+from astropy.table import Table
+
+from noise.errors import FileFormatError, ParameterError
+
+__all__ = [
+    "Readout",
+    "NAMED_PATTERNS",
+    "ROMAN_LIKE_TABLE",
+    "ROMAN_LIKE_SKIP_TABLE",
+    "RESET_MODES",
+]
+
+#: Reset modes accepted by :class:`Readout`.
+RESET_MODES = ("rolling", "global")
+
+#: Named MULTIACCUM patterns: upper-case name -> ``(nframes, groupgap)``.
+NAMED_PATTERNS = {
+    "RAPID": (1, 0),
+    "BRIGHT1": (1, 1),
+    "BRIGHT2": (2, 0),
+    "SHALLOW2": (2, 3),
+    "SHALLOW4": (4, 1),
+    "MEDIUM2": (2, 8),
+    "MEDIUM8": (8, 2),
+    "DEEP2": (2, 18),
+    "DEEP8": (8, 12),
+    "NRSRAPID": (1, 0),
+    "NRS": (4, 0),
+}
+
+#: Illustrative Roman-style MA table (not an official Roman table): ``(first_read,
+#: nreads)`` pairs, 0-based, 9 contiguous resultants over 44 reads.
+ROMAN_LIKE_TABLE = ((0, 1), (1, 2), (3, 3), (6, 4), (10, 6), (16, 6), (22, 8), (30, 8),
+                    (38, 6))
+
+#: Illustrative Roman-style MA table that skips reads between resultants (not an
+#: official Roman table): 6 resultants, 20 reads used out of 36.
+ROMAN_LIKE_SKIP_TABLE = ((0, 1), (1, 1), (3, 2), (8, 4), (16, 4), (28, 8))
+
+
+# ---------------------------------------------------------------------- validators
+def _check_int(name, value, minimum):
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ParameterError(f"{name!r} must be an integer >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ParameterError(f"{name!r} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _check_reset_mode(value):
+    if value not in RESET_MODES:
+        raise ParameterError(
+            f"'reset_mode' must be one of {list(RESET_MODES)}, got {value!r}")
+    return value
+
+
+def _check_name(value):
+    if not isinstance(value, str) or not value:
+        raise ParameterError(f"'name' must be a non-empty string, got {value!r}")
+    return value
+
+
+def _check_t_frame(value):
+    if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+            or not math.isfinite(value) or value <= 0):
+        raise ParameterError(
+            f"'t_frame' must be a finite number of seconds > 0, got {value!r}")
+    return float(value)
+
+
+def _check_pixel_time(value):
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"'pixel_time' must be a number or array of seconds >= 0, got {value!r}"
+        ) from exc
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        bad = arr if arr.ndim == 0 else arr[~(np.isfinite(arr) & (arr >= 0))][0]
+        raise ParameterError(
+            f"'pixel_time' must be finite and >= 0 seconds, got {float(bad)!r}")
+    return arr
+
+
+def _check_resultants(name, value):
+    """Normalise ``value`` to a tuple of tuples of int and check the read order."""
+    if isinstance(value, (str, bytes)) or not _is_sequence(value):
+        raise ParameterError(
+            f"{name!r} must be a non-empty sequence of read-index sequences, "
+            f"got {value!r}")
+    out = []
+    previous = -1
+    for r, res in enumerate(value):
+        if isinstance(res, (str, bytes)) or not _is_sequence(res):
+            raise ParameterError(
+                f"{name!r}: resultant {r} must be a sequence of read indices, "
+                f"got {res!r}")
+        reads = []
+        for k in res:
+            if isinstance(k, bool) or not isinstance(k, numbers.Integral):
+                raise ParameterError(
+                    f"{name!r}: resultant {r} read indices must be integers >= 0, "
+                    f"got {k!r}")
+            k = int(k)
+            if k < 0:
+                raise ParameterError(
+                    f"{name!r}: resultant {r} read indices must be >= 0 (0 is the "
+                    f"first read after reset), got {k}")
+            if k <= previous:
+                raise ParameterError(
+                    f"{name!r}: read indices must be strictly increasing within and "
+                    f"across resultants; resultant {r} has read {k} after read "
+                    f"{previous}")
+            reads.append(k)
+            previous = k
+        if not reads:
+            raise ParameterError(
+                f"{name!r}: resultant {r} is empty; every resultant needs >= 1 read")
+        out.append(tuple(reads))
+    if not out:
+        raise ParameterError(f"{name!r} must contain >= 1 resultant, got {value!r}")
+    return tuple(out)
+
+
+def _is_sequence(value):
+    try:
+        len(value)
+        iter(value)
+    except TypeError:
+        return False
+    return True
+
+
+def _multiaccum_reads(nframes, ngroups, groupgap, nskip):
+    step = nframes + groupgap
+    return tuple(tuple(range(nskip + g * step, nskip + g * step + nframes))
+                 for g in range(ngroups))
+
+
+# ---------------------------------------------------------------------- Readout
+@dataclass(frozen=True)
+class Readout:
+    """Frozen description of a readout: resultants, integrations and reset mode.
+
+    Parameters
+    ----------
+    resultants : sequence of sequence of int
+        Read indices (0-based, counted from reset) averaged into each resultant;
+        strictly increasing within and across resultants.  Stored as a tuple of
+        tuples.
+    nints : int
+        Number of integrations (>= 1), with a reset before each.
+    reset_mode : {'rolling', 'global'}
+        Rolling reset (each pixel reset one frame before its first read) or global
+        reset (all pixels at once); see the module notes for the read times.
+    name : str
+        Pattern name written to the ``READPATT`` keyword.
+    nframes : int or None
+        Frames per group of a MULTIACCUM pattern (>= 1); ``None`` otherwise.  When
+        set, ``resultants`` must be exactly the MULTIACCUM pattern of ``nframes``,
+        ``groupgap`` and ``nskip``.
+    groupgap : int or None
+        Frames dropped between groups of a MULTIACCUM pattern (>= 0); set together
+        with ``nframes``, ``None`` otherwise.
+    nskip : int
+        Frames dropped after each reset before the first group (JWST ``DROPFRM1``,
+        >= 0); the first read used must be >= ``nskip``.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        On any invalid field, naming the field, the bad value and what is allowed.
+
+    Notes
+    -----
+    Prefer the constructors :meth:`multiaccum`, :meth:`named`, :meth:`from_ma_table`
+    and :meth:`from_reads`.
+    """
+
+    resultants: tuple[tuple[int, ...], ...]
+    nints: int = 1
+    reset_mode: str = "rolling"
+    name: str = "CUSTOM"
+    nframes: int | None = None
+    groupgap: int | None = None
+    nskip: int = 0
+
+    def __post_init__(self):
+        res = _check_resultants("resultants", self.resultants)
+        object.__setattr__(self, "resultants", res)
+        object.__setattr__(self, "nints", _check_int("nints", self.nints, 1))
+        _check_reset_mode(self.reset_mode)
+        _check_name(self.name)
+        object.__setattr__(self, "nskip", _check_int("nskip", self.nskip, 0))
+        if (self.nframes is None) != (self.groupgap is None):
+            raise ParameterError(
+                f"'nframes' and 'groupgap' are MULTIACCUM metadata and must be both "
+                f"set or both None, got nframes={self.nframes!r}, "
+                f"groupgap={self.groupgap!r}")
+        if self.nframes is not None:
+            object.__setattr__(self, "nframes", _check_int("nframes", self.nframes, 1))
+            object.__setattr__(self, "groupgap",
+                               _check_int("groupgap", self.groupgap, 0))
+            expected = _multiaccum_reads(self.nframes, len(res), self.groupgap,
+                                         self.nskip)
+            if res != expected:
+                raise ParameterError(
+                    f"'resultants' {res!r} do not match the MULTIACCUM pattern of "
+                    f"nframes={self.nframes}, groupgap={self.groupgap}, "
+                    f"nskip={self.nskip}, which is {expected!r}")
+        if res[0][0] < self.nskip:
+            raise ParameterError(
+                f"'nskip'={self.nskip} frames are dropped after reset, so the first "
+                f"read used must be >= {self.nskip}; got first read {res[0][0]} "
+                f"(allowed nskip: 0..{res[0][0]})")
+
+    # ------------------------------------------------------------ constructors
+    @classmethod
+    def multiaccum(cls, nframes, ngroups, *, groupgap=0, nskip=0, nints=1,
+                   reset_mode="rolling", name="CUSTOM"):
+        """JWST MULTIACCUM readout.
+
+        Parameters
+        ----------
+        nframes : int
+            Frames averaged per group (>= 1).
+        ngroups : int
+            Groups (resultants) per integration (>= 1).
+        groupgap : int, keyword-only
+            Frames dropped between groups (>= 0).
+        nskip : int, keyword-only
+            Frames dropped after reset before the first group (>= 0, ``DROPFRM1``).
+        nints : int, keyword-only
+            Integrations (>= 1).
+        reset_mode : {'rolling', 'global'}, keyword-only
+        name : str, keyword-only
+            ``READPATT`` value.
+
+        Returns
+        -------
+        Readout
+            Group ``g`` averages reads ``nskip + g*(nframes+groupgap)`` to
+            ``nskip + g*(nframes+groupgap) + nframes - 1``.
+        """
+        nframes = _check_int("nframes", nframes, 1)
+        ngroups = _check_int("ngroups", ngroups, 1)
+        groupgap = _check_int("groupgap", groupgap, 0)
+        nskip = _check_int("nskip", nskip, 0)
+        return cls(_multiaccum_reads(nframes, ngroups, groupgap, nskip), nints=nints,
+                   reset_mode=reset_mode, name=name, nframes=nframes,
+                   groupgap=groupgap, nskip=nskip)
+
+    @classmethod
+    def named(cls, pattern, ngroups, *, nints=1, reset_mode="rolling"):
+        """A named NIRCam or NIRSpec MULTIACCUM pattern (case-insensitive).
+
+        Parameters
+        ----------
+        pattern : str
+            One of :data:`NAMED_PATTERNS` (e.g. ``'DEEP8'``, ``'nrsrapid'``).
+        ngroups : int
+            Groups per integration (>= 1; instrument limits are not enforced).
+        nints : int, keyword-only
+        reset_mode : {'rolling', 'global'}, keyword-only
+
+        Returns
+        -------
+        Readout
+            With ``name`` the upper-case pattern name and ``nskip = 0``.
+        """
+        key = pattern.upper() if isinstance(pattern, str) else None
+        if key not in NAMED_PATTERNS:
+            close = difflib.get_close_matches(str(key or pattern), NAMED_PATTERNS, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ParameterError(
+                f"'pattern' must be one of {sorted(NAMED_PATTERNS)} (case-insensitive), "
+                f"got {pattern!r}{hint}")
+        nframes, groupgap = NAMED_PATTERNS[key]
+        return cls.multiaccum(nframes, ngroups, groupgap=groupgap, nskip=0,
+                              nints=nints, reset_mode=reset_mode, name=key)
+
+    @classmethod
+    def from_ma_table(cls, table, *, nints=1, reset_mode="rolling", name="MA_TABLE"):
+        """Readout from a multi-accumulation table of ``(first_read, nreads)`` pairs.
+
+        Parameters
+        ----------
+        table : sequence of (int, int)
+            Per resultant, the first read (0-based, from reset) and the number of
+            consecutive reads averaged (>= 1).  Reads may be skipped between
+            resultants but resultants must not overlap or go backwards.
+        nints : int, keyword-only
+        reset_mode : {'rolling', 'global'}, keyword-only
+        name : str, keyword-only
+            ``READPATT`` value.
+
+        Returns
+        -------
+        Readout
+        """
+        if isinstance(table, (str, bytes)) or not _is_sequence(table) or len(table) == 0:
+            raise ParameterError(
+                f"'table' must be a non-empty sequence of (first_read, nreads) pairs, "
+                f"got {table!r}")
+        reads = []
+        previous_last = -1
+        for r, entry in enumerate(table):
+            if isinstance(entry, (str, bytes)) or not _is_sequence(entry) \
+                    or len(entry) != 2:
+                raise ParameterError(
+                    f"'table' entry {r} must be a (first_read, nreads) pair, "
+                    f"got {entry!r}")
+            first = _check_int(f"table[{r}] first_read", entry[0], 0)
+            n = _check_int(f"table[{r}] nreads", entry[1], 1)
+            if first <= previous_last:
+                raise ParameterError(
+                    f"'table' has non-increasing reads: entry {r} starts at read "
+                    f"{first} but the previous resultant ends at read {previous_last}; "
+                    f"first_read must be >= {previous_last + 1}")
+            reads.append(tuple(range(first, first + n)))
+            previous_last = first + n - 1
+        return cls(tuple(reads), nints=nints, reset_mode=reset_mode, name=name)
+
+    @classmethod
+    def from_reads(cls, read_lists, *, nints=1, reset_mode="rolling", name="CUSTOM"):
+        """Readout from explicit read-index lists, one per resultant.
+
+        Parameters
+        ----------
+        read_lists : sequence of sequence of int
+            Read indices (0-based, from reset), strictly increasing within and
+            across resultants.
+        nints : int, keyword-only
+        reset_mode : {'rolling', 'global'}, keyword-only
+        name : str, keyword-only
+
+        Returns
+        -------
+        Readout
+        """
+        return cls(_check_resultants("read_lists", read_lists), nints=nints,
+                   reset_mode=reset_mode, name=name)
+
+    # ------------------------------------------------------------ structure
+    @property
+    def is_multiaccum(self):
+        """True if this is a JWST MULTIACCUM pattern (``nframes`` is set)."""
+        return self.nframes is not None
+
+    @property
+    def ngroups(self):
+        """Number of resultants per integration (int)."""
+        return len(self.resultants)
+
+    @property
+    def nreads(self):
+        """Frames per integration up to the last needed read: ``max index + 1`` (int).
+
+        Skipped reads and the ``nskip`` dropped frames are counted.
+        """
+        return self.resultants[-1][-1] + 1
+
+    @property
+    def needed_reads(self):
+        """Sorted read indices that some resultant uses, tuple of int."""
+        return tuple(k for res in self.resultants for k in res)
+
+    @property
+    def n_per_resultant(self):
+        """Reads per resultant, ndarray of shape (ngroups,), int64."""
+        return np.array([len(res) for res in self.resultants], dtype=np.int64)
+
+    @property
+    def is_uniform(self):
+        """True if all resultants have the same read layout and evenly spaced starts.
+
+        "Same layout" means identical read offsets relative to the resultant's first
+        read (hence the same size); then ``t_bar`` and ``tau`` are evenly spaced too.
+        A single resultant is uniform.
+        """
+        res = self.resultants
+        shape = tuple(k - res[0][0] for k in res[0])
+        if any(tuple(k - r[0] for k in r) != shape for r in res[1:]):
+            return False
+        starts = [r[0] for r in res]
+        return len(set(np.diff(starts).tolist())) <= 1
+
+    # ------------------------------------------------------------ times
+    def _needed_base_times(self, t_frame):
+        """Times of the needed reads for a pixel at clock offset 0, shape (nneeded,)."""
+        k = np.asarray(self.needed_reads, dtype=np.float64)
+        if self.reset_mode == "rolling":
+            return (k + 1.0) * t_frame
+        return k * t_frame
+
+    def _broadcast(self, base, pix):
+        """``base`` (n,) plus the pixel offset of the reset mode: shape (n,) + S."""
+        offset = pix if self.reset_mode == "global" else np.zeros_like(pix)
+        return base.reshape(base.shape + (1,) * pix.ndim) + offset
+
+    def read_times(self, t_frame, pixel_time=0.0):
+        """Time of every read of every resultant, from the pixel's reset.
+
+        Parameters
+        ----------
+        t_frame : float
+            Frame time, seconds (> 0).
+        pixel_time : float or ndarray, shape S, seconds
+            Clock offset of the pixel within its frame (``Detector.pixel_time()``).
+            Used by the global reset only; with a rolling reset every pixel has the
+            same times and ``pixel_time`` only sets the output shape.
+
+        Returns
+        -------
+        list of ndarray
+            One array per resultant, shape ``(n_r,) + S``, float64, seconds:
+            ``(k + 1) * t_frame`` (rolling) or ``k * t_frame + pixel_time`` (global).
+        """
+        t_frame = _check_t_frame(t_frame)
+        pix = _check_pixel_time(pixel_time)
+        times = self._broadcast(self._needed_base_times(t_frame), pix)
+        return np.split(times, np.cumsum(self.n_per_resultant)[:-1], axis=0)
+
+    def _per_resultant(self, t_frame, weights_fn):
+        base = self._needed_base_times(t_frame)
+        out = np.empty(self.ngroups)
+        start = 0
+        for r, n in enumerate(self.n_per_resultant):
+            out[r] = weights_fn(int(n)) @ base[start:start + n]
+            start += n
+        return out
+
+    def mean_times(self, t_frame, pixel_time=0.0):
+        """Mean read time ``t_bar`` of each resultant, from the pixel's reset.
+
+        Parameters
+        ----------
+        t_frame : float
+            Frame time, seconds (> 0).
+        pixel_time : float or ndarray, shape S, seconds
+            As in :meth:`read_times`.
+
+        Returns
+        -------
+        ndarray, shape (ngroups,) + S, float64, seconds
+        """
+        t_frame = _check_t_frame(t_frame)
+        pix = _check_pixel_time(pixel_time)
+        base = self._per_resultant(t_frame, lambda n: np.full(n, 1.0 / n))
+        return self._broadcast(base, pix)
+
+    def tau(self, t_frame, pixel_time=0.0):
+        """Brandt (2024) ``tau`` of each resultant: Poisson variance per unit rate.
+
+        ``tau = (1/N^2) sum_{k=1}^{N} (2N - 2k + 1) t_k`` over the resultant's sorted
+        read times; the variance of a resultant from a constant rate ``f`` (e-/s) is
+        ``f * tau`` (e-^2).
+
+        Parameters
+        ----------
+        t_frame : float
+            Frame time, seconds (> 0).
+        pixel_time : float or ndarray, shape S, seconds
+            As in :meth:`read_times`.
+
+        Returns
+        -------
+        ndarray, shape (ngroups,) + S, float64, seconds
+        """
+        t_frame = _check_t_frame(t_frame)
+        pix = _check_pixel_time(pixel_time)
+
+        def weights(n):
+            k = np.arange(1, n + 1)
+            return (2 * n - 2 * k + 1) / float(n * n)
+
+        base = self._per_resultant(t_frame, weights)
+        return self._broadcast(base, pix)
+
+    def tgroup(self, t_frame):
+        """Time between the starts of consecutive groups, seconds (float).
+
+        ``(nframes + groupgap) * t_frame`` for MULTIACCUM patterns; otherwise the
+        mean spacing of ``t_bar``, ``(t_bar[-1] - t_bar[0]) / (ngroups - 1)``, and for
+        a single custom resultant the time it spans,
+        ``(last - first + 1) * t_frame``.
+        """
+        t_frame = _check_t_frame(t_frame)
+        if self.is_multiaccum:
+            return (self.nframes + self.groupgap) * t_frame
+        if self.ngroups == 1:
+            res = self.resultants[0]
+            return (res[-1] - res[0] + 1) * t_frame
+        tbar = self.mean_times(t_frame)
+        return float((tbar[-1] - tbar[0]) / (self.ngroups - 1))
+
+    def frame_slots(self):
+        """Absolute frame slot of every needed read of every integration.
+
+        Returns
+        -------
+        ndarray, shape (nints, len(needed_reads)), int64
+            ``i * (1 + nreads) + 1 + k`` for integration ``i`` and read ``k``; slot
+            ``i * (1 + nreads)`` is the reset of integration ``i``.
+        """
+        k = np.asarray(self.needed_reads, dtype=np.int64)
+        i = np.arange(self.nints, dtype=np.int64)
+        return i[:, None] * (1 + self.nreads) + 1 + k[None, :]
+
+    def resultant_matrix(self):
+        """Weights that average the needed reads into resultants.
+
+        Returns
+        -------
+        ndarray, shape (ngroups, len(needed_reads)), float64
+            Row ``r`` is ``1/N_r`` on the reads of resultant ``r`` and 0 elsewhere;
+            ``resultants = M @ reads`` for reads stacked along the first axis.
+        """
+        n = self.n_per_resultant
+        rows = np.repeat(np.arange(self.ngroups), n)
+        mat = np.zeros((self.ngroups, int(n.sum())))
+        mat[rows, np.arange(int(n.sum()))] = 1.0 / n[rows]
+        return mat
+
+    # ------------------------------------------------------------ files
+    def _groupgap_card(self):
+        if self.is_multiaccum:
+            return self.groupgap
+        if self.ngroups == 1:
+            return 0
+        return self.resultants[1][0] - self.resultants[0][-1] - 1
+
+    def to_header_cards(self, t_frame):
+        """``(key, value, comment)`` FITS cards describing the readout.
+
+        For non-MULTIACCUM readouts ``NFRAMES`` is the size of the first resultant and
+        ``GROUPGAP`` the number of reads skipped between the first two resultants;
+        the full description is the read table (:meth:`read_table`).
+
+        Parameters
+        ----------
+        t_frame : float
+            Frame time, seconds (> 0).
+
+        Returns
+        -------
+        list of (str, int | float | str, str)
+        """
+        t_frame = _check_t_frame(t_frame)
+        tbar = self.mean_times(t_frame)
+        nframes = self.nframes if self.is_multiaccum else len(self.resultants[0])
+        return [
+            ("NINTS", self.nints, "integrations in exposure"),
+            ("NGROUPS", self.ngroups, "groups (resultants) per integration"),
+            ("NFRAMES", nframes, "frames per group"),
+            ("GROUPGAP", self._groupgap_card(), "frames dropped between groups"),
+            ("DROPFRM1", self.nskip, "frames dropped after reset"),
+            ("READPATT", self.name, "readout pattern"),
+            ("TFRAME", t_frame, "[s] frame time"),
+            ("TGROUP", self.tgroup(t_frame), "[s] time between group starts"),
+            ("RESETMD", self.reset_mode, "reset mode (rolling or global)"),
+            ("NREADS", self.nreads, "frames per integration to last read used"),
+            ("EFFINTTM", float(tbar[-1] - tbar[0]),
+             "[s] effective integration time tbar_last - tbar_first"),
+        ]
+
+    def read_table(self, t_frame):
+        """Table describing every resultant, one row each.
+
+        Times are from the pixel's reset.  With a rolling reset they hold for every
+        pixel; with a global reset they are those of a pixel at clock offset 0 (add
+        the pixel's ``pixel_time``, or call :meth:`read_times` with it).
+
+        Parameters
+        ----------
+        t_frame : float
+            Frame time, seconds (> 0).
+
+        Returns
+        -------
+        astropy.table.Table
+            Columns ``RESULTANT`` (0-based index), ``NREADS``, ``FIRST_READ``,
+            ``READS`` (int64 array of length ``max N``, padded with -1), ``TMEAN``
+            (s), ``TAU`` (s) and ``READ_TIMES`` (float64 array, padded with NaN, s).
+            ``meta`` holds ``NINTS``, ``READPATT``, ``RESETMD``, ``DROPFRM1``,
+            ``TFRAME``, ``MULTIACC`` (bool) and, for MULTIACCUM patterns only,
+            ``NFRAMES`` and ``GROUPGAP`` (read back by :meth:`from_read_table`).
+        """
+        t_frame = _check_t_frame(t_frame)
+        n = self.n_per_resultant
+        width = int(n.max())
+        reads = np.full((self.ngroups, width), -1, dtype=np.int64)
+        times = np.full((self.ngroups, width), np.nan)
+        for r, (res, t) in enumerate(zip(self.resultants, self.read_times(t_frame))):
+            reads[r, :len(res)] = res
+            times[r, :len(res)] = t
+        table = Table()
+        table["RESULTANT"] = np.arange(self.ngroups, dtype=np.int64)
+        table["NREADS"] = n
+        table["FIRST_READ"] = np.array([res[0] for res in self.resultants],
+                                       dtype=np.int64)
+        table["READS"] = reads
+        table["TMEAN"] = self.mean_times(t_frame)
+        table["TMEAN"].unit = "s"
+        table["TAU"] = self.tau(t_frame)
+        table["TAU"].unit = "s"
+        table["READ_TIMES"] = times
+        table["READ_TIMES"].unit = "s"
+        table.meta.update({"NINTS": self.nints, "READPATT": self.name,
+                           "RESETMD": self.reset_mode, "DROPFRM1": self.nskip,
+                           "TFRAME": t_frame, "MULTIACC": self.is_multiaccum})
+        if self.is_multiaccum:
+            table.meta.update({"NFRAMES": self.nframes, "GROUPGAP": self.groupgap})
+        return table
+
+    @classmethod
+    def from_read_table(cls, table, *, nints, reset_mode, name):
+        """Rebuild a readout from a table written by :meth:`read_table`.
+
+        Parameters
+        ----------
+        table : astropy.table.Table or FITS record array
+            Needs a ``READS`` column (read indices per row, padded with negative
+            values); ``NREADS`` and ``FIRST_READ`` are checked when present.
+            ``meta`` (or the FITS header of the table HDU) may hold ``DROPFRM1``;
+            ``NFRAMES`` and ``GROUPGAP`` are used only when ``MULTIACC`` is true
+            (so header cards of a custom readout copied beside the table are
+            harmless).
+        nints : int, keyword-only
+        reset_mode : {'rolling', 'global'}, keyword-only
+        name : str, keyword-only
+
+        Returns
+        -------
+        Readout
+
+        Raises
+        ------
+        noise.errors.ParameterError
+            For bad ``nints``, ``reset_mode`` or ``name``.
+        noise.errors.FileFormatError
+            If the table lacks ``READS`` or describes an invalid readout.
+        """
+        nints = _check_int("nints", nints, 1)
+        _check_reset_mode(reset_mode)
+        _check_name(name)
+        try:
+            tab = table if isinstance(table, Table) else Table(table)
+        except Exception as exc:  # astropy raises several types for non-tables
+            raise FileFormatError(
+                f"'table' must be an astropy Table or FITS table with a 'READS' "
+                f"column, got {type(table).__name__}") from exc
+        if "READS" not in tab.colnames:
+            raise FileFormatError(
+                f"'table' has no 'READS' column; columns are {tab.colnames}")
+        reads = np.asarray(tab["READS"])
+        reads = reads.reshape(len(reads), -1)
+        read_lists = [tuple(int(k) for k in row if k >= 0) for row in reads]
+        for col, values in (("NREADS", [len(r) for r in read_lists]),
+                            ("FIRST_READ", [r[0] if r else -1 for r in read_lists])):
+            if col in tab.colnames and list(np.asarray(tab[col]).tolist()) != values:
+                raise FileFormatError(
+                    f"'table' column {col!r} = {np.asarray(tab[col]).tolist()} does "
+                    f"not match the 'READS' column, which gives {values}")
+        meta = {str(k).upper(): v for k, v in tab.meta.items()}
+        multiaccum = bool(meta.get("MULTIACC", False))
+        try:
+            return cls(tuple(read_lists), nints=nints, reset_mode=reset_mode, name=name,
+                       nframes=meta.get("NFRAMES") if multiaccum else None,
+                       groupgap=meta.get("GROUPGAP") if multiaccum else None,
+                       nskip=meta.get("DROPFRM1", 0))
+        except ParameterError as exc:
+            raise FileFormatError(f"'table' describes an invalid readout: {exc}") from exc
