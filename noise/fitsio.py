@@ -99,7 +99,7 @@ class StreamingFITS:
         if name:
             hdr["EXTNAME"] = name
         for key, value, comment in cards:
-            hdr[key] = (value, comment)
+            hdr[key] = (value, _fit_comment(key, value, comment))
         return hdr
 
     def begin_image(self, shape, dtype, cards=(), name=None):
@@ -140,6 +140,13 @@ class StreamingFITS:
         if isinstance(hdu, fits.PrimaryHDU):
             hdu = fits.ImageHDU(hdu.data, hdu.header)
         self.f.write(_hdu_bytes(hdu))
+
+
+def _fit_comment(key, value, comment):
+    """Shorten ``comment`` so the card fits in 80 characters (no truncation warning)."""
+    used = len(fits.Card(key, value).image.rstrip())
+    room = 80 - used - 3
+    return comment[:room] if room > 0 else ""
 
 
 def _hdu_bytes(hdu):

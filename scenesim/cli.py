@@ -1,0 +1,190 @@
+"""The ``scenesim`` command.
+
+Subcommands::
+
+    scenesim noise --preset H2RG --frames 5 -o dark.fits     empty ramp (noise only)
+    scenesim run SCENE.toml [-o OUT] [--seed N]              simulate a scene (+fit, compare)
+    scenesim fit EXPOSURE.fits [-o OUT] [--refpix none|median|jwst] [--fitter cds|ols|gls]
+    scenesim compare FIT.fits TRUTH.fits [--plots DIR]       fit vs. injected truth
+    scenesim bench [WORKLOAD ...] [--quick]                  run time against error
+
+Errors in the input are reported in one line (exit status 2) before any work starts.
+"""
+
+import argparse
+import sys
+import time
+
+from noise.errors import ScenesimError
+
+__all__ = ["main"]
+
+
+def _noise(args):
+    import noise
+
+    det = noise.preset(args.preset)
+    changes = {}
+    if args.naxis:
+        changes.update(naxis1=args.naxis, naxis2=args.naxis)
+    if args.n_out:
+        changes["n_out"] = args.n_out
+    if changes:
+        import dataclasses
+        det = dataclasses.replace(det, **changes)
+    params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
+        rd_noise=5.2)
+    gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
+    t0 = time.perf_counter()
+    bar = None
+    cb = None
+    total = args.frames * args.nints
+    if not args.quiet and total >= 3:
+        from tqdm import tqdm
+        bar = tqdm(total=total, unit="frame", desc="noise", leave=False)
+
+        def cb(n):
+            bar.n = n
+            bar.refresh()
+    try:
+        noise.write_noise_fits(args.output, gen, args.frames, nints=args.nints,
+                               unit=args.unit, gain=args.gain, progress=cb)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(f"wrote {args.output}: {args.nints} x {args.frames} frames of "
+              f"{det.ny}x{det.nx} ({det.name}, {det.n_out_active} outputs, "
+              f"t_frame={det.frame_time:.5f} s) in {time.perf_counter() - t0:.1f} s; "
+              f"seed entropy {gen.entropy}")
+    return 0
+
+
+def _run(args):
+    from .engine import EngineOptions
+    from .run import run_scene
+    from .scene import load_scene
+
+    scene = load_scene(args.scene)
+    options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above)
+    res = run_scene(scene, output=args.output, seed=args.seed, options=options,
+                    progress=not args.quiet, fit=args.fit, refpix=args.refpix,
+                    compare=True if args.compare else None, plots=args.plots)
+    if not args.quiet:
+        eng = res.engine
+        print(f"scene {args.scene}: {eng.detector.ny}x{eng.detector.nx}, "
+              f"{eng.readout.nints} int x {eng.readout.ngroups} resultants "
+              f"({eng.readout.name}), seed entropy {eng.entropy}, "
+              f"{res.seconds:.1f} s")
+        for label, path in (("exposure", res.exposure), ("truth", res.truth),
+                            ("fit", res.fit)):
+            if path:
+                print(f"  {label}: {path}")
+        if res.report is not None:
+            print(res.report.format())
+    return 0
+
+
+def _fit(args):
+    from .fitting import fit_exposure_file
+
+    out = args.output or _default_fit_path(args.exposure, args.fitter)
+    fit_exposure_file(args.exposure, out, fitter=args.fitter, refpix=args.refpix,
+                      jump_threshold=args.jump_threshold)
+    print(f"wrote {out}")
+    return 0
+
+
+def _default_fit_path(path, fitter):
+    import os
+    stem, ext = os.path.splitext(path)
+    return f"{stem}_{fitter}{ext or '.fits'}"
+
+
+def _compare(args):
+    from .compare import compare_files
+
+    report = compare_files(args.fit, args.truth, plots=args.plots,
+                           exposure=args.exposure)
+    print(report.format())
+    return 0
+
+
+def _bench(args):
+    from .bench import main as bench_main
+
+    return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
+                      threads=args.threads)
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="scenesim", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    q = sub.add_parser("noise", help="write an empty (noise-only) HxRG ramp")
+    q.add_argument("--preset", default="H2RG", help="H1RG, H2RG, H4RG-10, H4RG-15")
+    q.add_argument("--frames", type=int, default=5, help="read frames per integration")
+    q.add_argument("--nints", type=int, default=1, help="integrations")
+    q.add_argument("--naxis", type=int, default=0, help="square array size override")
+    q.add_argument("--n-out", type=int, default=0, help="outputs override")
+    q.add_argument("--noise", choices=("nirspec", "white"), default="nirspec",
+                   help="paper defaults (all components) or white read noise only")
+    q.add_argument("--unit", choices=("e", "DN"), default="e")
+    q.add_argument("--gain", type=float, default=1.0, help="e-/DN for --unit DN")
+    q.add_argument("--seed", type=int, default=None)
+    q.add_argument("--threads", type=int, default=None)
+    q.add_argument("-o", "--output", required=True)
+    q.add_argument("-q", "--quiet", action="store_true")
+    q.set_defaults(func=_noise)
+
+    r = sub.add_parser("run", help="simulate a scene file (TOML)")
+    r.add_argument("scene")
+    r.add_argument("-o", "--output", default=None, help="exposure file")
+    r.add_argument("--seed", type=int, default=None)
+    r.add_argument("--fit", choices=("cds", "ols", "gls"), default=None)
+    r.add_argument("--refpix", choices=("none", "median", "jwst"), default=None)
+    r.add_argument("--compare", action="store_true", help="compare the fit with truth")
+    r.add_argument("--plots", default=None, help="directory for comparison PNGs")
+    r.add_argument("--gauss-above", type=float, default=None,
+                   help="approximation: Gaussian instead of Poisson above this mean (e-)")
+    r.add_argument("--threads", type=int, default=None)
+    r.add_argument("-q", "--quiet", action="store_true")
+    r.set_defaults(func=_run)
+
+    f = sub.add_parser("fit", help="fit up-the-ramp slopes of an exposure")
+    f.add_argument("exposure")
+    f.add_argument("-o", "--output", default=None)
+    f.add_argument("--refpix", choices=("none", "median", "jwst"), default="jwst")
+    f.add_argument("--fitter", default="gls", help="cds, ols or gls")
+    f.add_argument("--jump-threshold", type=float, default=5.0,
+                   help="jump detection threshold in sigma (0 = off)")
+    f.set_defaults(func=_fit)
+
+    c = sub.add_parser("compare", help="compare a slope file with the truth file")
+    c.add_argument("fit")
+    c.add_argument("truth")
+    c.add_argument("--exposure", default=None, help="exposure (for photometry errors)")
+    c.add_argument("--plots", default=None)
+    c.set_defaults(func=_compare)
+
+    b = sub.add_parser("bench", help="benchmarks: run time against error")
+    b.add_argument("workloads", nargs="*")
+    b.add_argument("--quick", action="store_true")
+    b.add_argument("--out", default="bench_out")
+    b.add_argument("--threads", type=int, default=None)
+    b.set_defaults(func=_bench)
+    return p
+
+
+def main(argv=None):
+    """Entry point of the ``scenesim`` console command."""
+    args = _parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ScenesimError as exc:
+        print(f"scenesim {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,451 @@
+"""The charge engine: Poisson arrivals at each pixel's own read time, read by read.
+
+Physics (DESIGN.md sections 2 and 5)
+------------------------------------
+Pixel ``p`` of integration ``i`` is read at absolute times ``s * t_frame + t_pix(p)``
+for the frame slots ``s`` of the needed reads (``noise.Detector.pixel_time`` gives
+``t_pix``).  Between two consecutive needed reads (or the reset and the first read)
+the charge collected is an independent Poisson draw with mean
+``integral rate_p(t) dt`` over that pixel's own interval: ``rate * dt`` for constant
+rates (dark current, background, static sources) plus, for sources with a light curve,
+the stamp weight times the light curve's exact integral over the interval.  Charge is
+accumulated as integers; pixels whose rate is 0 draw nothing, reads no resultant uses
+are never materialised (their charge is part of the next needed interval).
+
+Reset: *rolling* (default) resets each pixel one frame time before its first read;
+*global* resets all pixels at the start of the first read frame, so the first read's
+integration time is ``k * t_frame + t_pix(p)``.
+
+Cosmic rays deposit charge at a time ``T``: a pixel sees it in the first of its reads
+whose time is after ``T``; a hit before the pixel's reset is erased by the reset.
+
+After the charge of each read is known, effects apply in physical order: (1) saturation
+at the full well, (2) polynomial nonlinearity, (3) IPC (3x3), (4) flat/QE, then (5)
+the noise frame from :mod:`noise` (bias, kTC, pedestal, 1/f, ACN, white) is added,
+(6) electrons become DN through the gain, (7) the ADC rounds and clips to uint16.
+Reads are digitised one by one and averaged into resultants (rounded), like on-board
+frame averaging.  Only a few frames are held in memory; finished resultants are
+written straight to the output file.
+
+Randomness: one root ``SeedSequence``; the noise generator uses spawn key ``(1,)``,
+Poisson draws ``(2, integration, read, row-chunk)``, so results do not depend on
+threads or chunking.
+"""
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from noise.errors import ParameterError
+from noise.generator import NoiseGenerator, root_seed
+
+from . import effects as fx
+
+__all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine"]
+
+_ROWS = 32   # rows per Poisson stream (fixed, so results do not depend on threads)
+
+
+@dataclass(frozen=True, eq=False)
+class VariableSource:
+    """A source whose flux follows a light curve.
+
+    Parameters
+    ----------
+    index : ndarray of int
+        Flat pixel indices of its stamp on the read-out image.
+    weight : ndarray of float
+        Rate at relative flux 1 in each stamp pixel, e-/s.
+    light_curve : scenesim.lightcurve.LightCurve
+        Relative flux versus time (s from the start of the exposure).
+    """
+
+    index: np.ndarray
+    weight: np.ndarray
+    light_curve: object
+
+
+@dataclass(frozen=True, eq=False)
+class CosmicRayHits:
+    """Charge deposits: absolute time (s from exposure start), flat pixel index, e-."""
+
+    time: np.ndarray
+    index: np.ndarray
+    charge: np.ndarray
+
+    @classmethod
+    def empty(cls):
+        return cls(np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0))
+
+
+@dataclass(frozen=True)
+class EngineOptions:
+    """Explicit approximations (the exact path is the default).
+
+    Parameters
+    ----------
+    gauss_above : float or None
+        Draw ``N(lambda, lambda)`` rounded to integers instead of Poisson where the
+        mean per interval exceeds this (e-).  ``None``: always Poisson (exact).
+    shot_noise : bool
+        ``False`` accumulates the expected charge (float, no Poisson draws): a
+        noise-free reference ramp for validating fitters and files.
+    threads : int or None
+        Worker threads (default: all cores).  Results do not depend on it.
+    """
+
+    gauss_above: float | None = None
+    shot_noise: bool = True
+    threads: int | None = None
+
+
+@dataclass
+class _Resultant:
+    reads: tuple
+    dn_sum: np.ndarray = None
+    charge_sum: np.ndarray = None
+    noise_sum: np.ndarray = None
+    count: int = 0
+
+
+class ChargeEngine:
+    """Simulate the resultants of one exposure, streaming them to callbacks.
+
+    Parameters
+    ----------
+    detector : noise.Detector
+    readout : scenesim.readout.Readout
+    noise_params : noise.NoiseParams or None
+        ``None`` (or all amplitudes 0) adds no noise.
+    rate : float or ndarray (ny, nx)
+        Constant rate, e-/s (dark + background + static sources).  Reference pixels
+        are forced to 0 (they collect no charge).
+    variable_sources : sequence of VariableSource
+    cosmic_rays : CosmicRayHits or None
+    full_well : float, ndarray (ny, nx) or None
+        Saturation level, e-.
+    nonlinearity : scenesim.effects.Nonlinearity or None
+    ipc_kernel : ndarray (3, 3) or None
+    flat : float, ndarray (ny, nx) or None
+    gain : float
+        e-/DN.
+    adc_bits : int
+    rng : int, SeedSequence, Generator or None
+    options : EngineOptions
+    """
+
+    def __init__(self, detector, readout, *, noise_params=None, rate=0.0,
+                 variable_sources=(), cosmic_rays=None, full_well=None,
+                 nonlinearity=None, ipc_kernel=None, flat=None, gain=1.0, adc_bits=16,
+                 rng=None, options=EngineOptions()):
+        self.detector = detector
+        self.readout = readout
+        shape = detector.shape
+        self.refmask = detector.reference_mask()
+        self._tpix = detector.pixel_time()
+        rate = np.broadcast_to(np.asarray(rate, dtype=np.float64), shape).copy()
+        if not np.all(np.isfinite(rate)) or np.any(rate < 0):
+            bad = rate[~np.isfinite(rate) | (rate < 0)].ravel()[0]
+            raise ParameterError(
+                f"'rate' must be finite and >= 0 e-/s everywhere, found {bad!r}")
+        rate[self.refmask] = 0.0
+        self.rate = rate
+        self.variable = [self._check_variable(v) for v in variable_sources]
+        self.cosmic_rays = cosmic_rays if cosmic_rays is not None else CosmicRayHits.empty()
+        if gain is None or not np.isfinite(gain) or gain <= 0:
+            raise ParameterError(f"'gain' must be > 0 e-/DN, got {gain!r}")
+        self.gain = float(gain)
+        self.adc_bits = int(adc_bits)
+        if full_well is not None:
+            full_well = np.asarray(full_well, dtype=np.float64)
+            if not np.all(np.isfinite(full_well)) or np.any(full_well <= 0):
+                raise ParameterError("'full_well' must be finite and > 0 e-")
+        self.full_well = full_well
+        self.nonlinearity = nonlinearity if (nonlinearity is not None
+                                             and not nonlinearity.is_linear) else None
+        self.ipc_kernel = None if ipc_kernel is None else np.asarray(ipc_kernel, float)
+        if flat is not None:
+            flat = np.asarray(flat, dtype=np.float64)
+            if not np.all(np.isfinite(flat)) or np.any(flat < 0):
+                raise ParameterError("'flat' must be finite and >= 0")
+            if flat.ndim == 0 and flat == 1.0:
+                flat = None
+        self.flat = flat
+        self.options = options
+        self.entropy, self.key = root_seed(rng)
+        threads = options.threads if options.threads is not None else (os.cpu_count() or 1)
+        self.threads = max(1, int(threads))
+        self.noise = None
+        if noise_params is not None and _any_noise(noise_params):
+            self.noise = NoiseGenerator(
+                detector, noise_params, threads=self.threads,
+                rng=np.random.SeedSequence(self.entropy, spawn_key=self.key + (1,)))
+        # pixels with charge, per row chunk (skip pixels with no charge)
+        has = self.rate > 0
+        for v in self.variable:
+            has.ravel()[v.index] = True
+        self._has_charge = bool(has.any()) or self.cosmic_rays.time.size > 0
+        self._chunks = []
+        for c0 in range(0, detector.ny, _ROWS):
+            c1 = min(c0 + _ROWS, detector.ny)
+            sub = has[c0:c1]
+            if sub.all():
+                self._chunks.append((c0, c1, None))
+            elif sub.any():
+                self._chunks.append((c0, c1, np.flatnonzero(sub)))
+        self._dtype = np.int64 if self._max_charge() > 2e9 else np.int32
+        if not options.shot_noise:
+            self._dtype = np.float64
+
+    # ----------------------------------------------------------------- checks
+    def _check_variable(self, v):
+        n = self.detector.ny * self.detector.nx
+        idx = np.asarray(v.index, dtype=np.int64)
+        w = np.asarray(v.weight, dtype=np.float64)
+        if idx.shape != w.shape or (idx.size and (idx.min() < 0 or idx.max() >= n)):
+            raise ParameterError("variable source stamp indices are out of range")
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ParameterError("variable source weights must be finite and >= 0 e-/s")
+        keep = ~self.refmask.ravel()[idx]
+        return VariableSource(idx[keep], w[keep], v.light_curve)
+
+    def _max_charge(self):
+        t_total = (self.readout.nreads + 1) * self.detector.frame_time
+        peak = float(self.rate.max()) if self.rate.size else 0.0
+        for v in self.variable:
+            if v.weight.size:
+                peak += float(v.weight.max()) * float(np.max(v.light_curve.flux))
+        return peak * t_total * 1.5 + float(np.sum(self.cosmic_rays.charge))
+
+    # ------------------------------------------------------------------ times
+    def read_slot(self, integration, read):
+        """Absolute frame slot of ``read`` of ``integration``."""
+        return integration * (1 + self.readout.nreads) + 1 + read
+
+    def _times(self, integration, prev_read, read, index):
+        """Interval ``(t_prev, t_now]`` (absolute s) of the pixels at flat ``index``."""
+        det = self.detector
+        tf = det.frame_time
+        slot = self.read_slot(integration, read)
+        t_now = slot * tf + self._tpix.reshape(-1)[index]
+        if prev_read is not None:
+            t_prev = t_now - tf * (read - prev_read)
+        elif self.readout.reset_mode == "global":
+            t_prev = np.full_like(t_now, (slot - read) * tf)
+        else:
+            t_prev = t_now - tf * (read + 1)
+        return t_prev, t_now
+
+    def _dt(self, prev_read, read, rows):
+        """Interval length (s) for the pixels of ``rows``: a scalar unless global reset."""
+        tf = self.detector.frame_time
+        if prev_read is not None:
+            return tf * (read - prev_read)
+        if self.readout.reset_mode == "global":
+            return read * tf + self._tpix[rows]
+        return tf * (read + 1)
+
+    def _variable_means(self, integration, prev_read, read):
+        """Sorted flat indices and expected charge (e-) of light-curve sources."""
+        if not self.variable:
+            return None
+        idx = np.concatenate([v.index for v in self.variable])
+        val = np.concatenate([
+            v.weight * v.light_curve.integral(*self._times(integration, prev_read, read,
+                                                           v.index))
+            for v in self.variable])
+        uniq, inv = np.unique(idx, return_inverse=True)
+        return uniq, np.bincount(inv, weights=val, minlength=uniq.size)
+
+    # ---------------------------------------------------------------- charge
+    def _poisson(self, acc, integration, prev_read, read, pool):
+        gauss = self.options.gauss_above
+        nx = self.detector.nx
+        extra = self._variable_means(integration, prev_read, read)
+
+        def task(chunk):
+            c0, c1, idx = chunk
+            g = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+                self.entropy, spawn_key=self.key + (2, integration, read, c0 // _ROWS))))
+            rows = slice(c0, c1)
+            lam = (self.rate[rows] * self._dt(prev_read, read, rows)).reshape(-1)
+            if extra is not None:
+                lo, hi = np.searchsorted(extra[0], [c0 * nx, c1 * nx])
+                lam[extra[0][lo:hi] - c0 * nx] += extra[1][lo:hi]
+            vals = lam if idx is None else lam[idx]
+            if not self.options.shot_noise:
+                draw = vals
+            elif gauss is None:
+                draw = g.poisson(vals)
+            else:
+                draw = _poisson_or_gauss(g, vals, gauss)
+            tgt = acc[rows].reshape(-1)
+            if idx is None:
+                tgt += draw.astype(acc.dtype, copy=False)
+            else:
+                tgt[idx] += draw.astype(acc.dtype, copy=False)
+
+        if pool is not None and len(self._chunks) > 1:
+            list(pool.map(task, self._chunks))
+        else:
+            for c in self._chunks:
+                task(c)
+
+    def _add_cosmic_rays(self, acc, integration, prev_read, read):
+        """Add the deposits whose time falls in each pixel's interval; mask of those."""
+        cr = self.cosmic_rays
+        if cr.time.size == 0:
+            return None
+        tp, tn = self._times(integration, prev_read, read, cr.index)
+        hit = (cr.time > tp) & (cr.time <= tn)
+        if hit.any():
+            np.add.at(acc.reshape(-1), cr.index[hit],
+                      np.rint(cr.charge[hit]).astype(acc.dtype))
+        return hit
+
+    def _effects(self, acc, sat_read, integration, read):
+        q = acc.astype(np.float32)
+        if self.full_well is not None:
+            sat = q >= self.full_well
+            newly = sat & (sat_read[integration] < 0)
+            sat_read[integration][newly] = read
+            q = np.minimum(q, self.full_well).astype(np.float32)
+        if self.nonlinearity is not None:
+            q = self.nonlinearity.apply(q).astype(np.float32)
+        if self.ipc_kernel is not None:
+            q = fx.apply_ipc(q, self.ipc_kernel).astype(np.float32)
+        if self.flat is not None:
+            q = (q * self.flat).astype(np.float32)
+        return q
+
+    # ------------------------------------------------------------------- run
+    def run(self, *, on_resultant, save_charge=False, save_noise=False, progress=None):
+        """Simulate every resultant of every integration, in time order.
+
+        Parameters
+        ----------
+        on_resultant : callable
+            ``on_resultant(integration, resultant, dn, charge, noise)`` with ``dn`` the
+            uint16 resultant (ny, nx), and ``charge``/``noise`` the noise-free charge and
+            noise-only resultants (float32 e-) when requested, else ``None``.
+        progress : callable, optional
+            Called with the number of reads done after each read.
+
+        Returns
+        -------
+        dict
+            ``sat_read``: (nints, ny, nx) int16 first saturated read index (-1: never);
+            ``cr_seen``: bool per cosmic-ray deposit, True if any read saw it.
+        """
+        det, ro = self.detector, self.readout
+        shape = det.shape
+        nints = ro.nints
+        needed = list(ro.needed_reads)
+        read_to_res = {}
+        for r, reads in enumerate(ro.resultants):
+            for k in reads:
+                read_to_res[k] = r
+        sat_read = np.full((nints,) + shape, -1, dtype=np.int16)
+        cr_seen = np.zeros(self.cosmic_rays.time.size, dtype=bool)
+        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        noise_iter = None
+        if self.noise is not None:
+            noise_iter = self.noise.frames(ro.nreads, needed, nints=nints)
+        maxdn = 2 ** self.adc_bits - 1
+        done = 0
+        try:
+            for i in range(nints):
+                acc = np.zeros(shape, dtype=self._dtype)
+                prev = None
+                res = [_Resultant(tuple(r)) for r in ro.resultants]
+                for k in needed:
+                    charge = None
+                    if self._has_charge:
+                        if self._chunks:
+                            self._poisson(acc, i, prev, k, pool)
+                        hit = self._add_cosmic_rays(acc, i, prev, k)
+                        if hit is not None:
+                            cr_seen |= hit
+                        charge = self._effects(acc, sat_read, i, k)
+                    prev = k
+                    frame_e = charge
+                    nframe = None
+                    if noise_iter is not None:
+                        _, kk, nframe = next(noise_iter)
+                        frame_e = nframe if charge is None else charge + nframe
+                    if frame_e is None:
+                        frame_e = np.zeros(shape, dtype=np.float32)
+                    dn = np.clip(np.rint(frame_e / np.float32(self.gain)), 0, maxdn)
+                    rr = res[read_to_res[k]]
+                    rr.dn_sum = dn.astype(np.float64) if rr.dn_sum is None else rr.dn_sum + dn
+                    if save_charge:
+                        c = charge if charge is not None else np.zeros(shape, np.float32)
+                        rr.charge_sum = c.astype(np.float64) if rr.charge_sum is None \
+                            else rr.charge_sum + c
+                    if save_noise:
+                        nz = nframe if nframe is not None else np.zeros(shape, np.float32)
+                        rr.noise_sum = nz.astype(np.float64) if rr.noise_sum is None \
+                            else rr.noise_sum + nz
+                    rr.count += 1
+                    if rr.count == len(rr.reads):
+                        r_index = read_to_res[k]
+                        out_dn = np.clip(np.rint(rr.dn_sum / rr.count), 0,
+                                         maxdn).astype(np.uint16)
+                        ch = (rr.charge_sum / rr.count).astype(np.float32) \
+                            if save_charge else None
+                        nz = (rr.noise_sum / rr.count).astype(np.float32) \
+                            if save_noise else None
+                        on_resultant(i, r_index, out_dn, ch, nz)
+                        res[r_index] = None
+                    done += 1
+                    if progress is not None:
+                        progress(done)
+        finally:
+            if pool is not None:
+                pool.shutdown()
+            if noise_iter is not None:
+                noise_iter.close()
+        return {"sat_read": sat_read, "cr_seen": cr_seen}
+
+    def expected_rate(self, t1=None, t2=None):
+        """Expected rate (e-/s) per pixel before IPC/flat; light curves averaged over
+        ``[t1, t2]`` (default: the whole exposure).  Shape (ny, nx), float64."""
+        det, ro = self.detector, self.readout
+        if t1 is None:
+            t1 = 0.0
+        if t2 is None:
+            t2 = ro.nints * (1 + ro.nreads) * det.frame_time
+        rate = self.rate.copy()
+        for v in self.variable:
+            mean = float(v.light_curve.integral(np.array([t1]), np.array([t2]))[0]) / (t2 - t1)
+            np.add.at(rate.ravel(), v.index, v.weight * mean)
+        return rate
+
+    def measured_rate(self, rate):
+        """``rate`` after IPC and flat (what a linear fit should recover), e-/s."""
+        out = np.asarray(rate, dtype=np.float64)
+        if self.ipc_kernel is not None:
+            out = fx.apply_ipc(out, self.ipc_kernel)
+        if self.flat is not None:
+            out = out * self.flat
+        return out
+
+
+def _poisson_or_gauss(g, lam, threshold):
+    """Poisson below ``threshold``, rounded Gaussian N(lam, lam) above (approximation)."""
+    out = np.empty(lam.shape, dtype=np.int64)
+    big = lam > threshold
+    out[~big] = g.poisson(lam[~big])
+    if big.any():
+        z = g.standard_normal(int(big.sum()), dtype=np.float32)
+        out[big] = np.maximum(np.rint(lam[big] + np.sqrt(lam[big]) * z), 0)
+    return out
+
+
+def _any_noise(p):
+    return any(p.enabled(n) for n in ("rd_noise", "u_pink", "acn")) or any(
+        getattr(p, n) > 0 for n in ("c_pink", "pca0", "pedestal", "ktc", "bias_amp")) or (
+        p.bias_offset != 0) or (p.rtn_fraction > 0 and p.rtn_amp > 0)
+

@@ -1,0 +1,253 @@
+"""Exposure and truth files.
+
+Exposure: the JWST level-1b "uncal" layout, readable by astropy and by the JWST
+calibration library's ramp fitting without changing its layout:
+
+* primary HDU (no data) with the exposure keywords: NINTS, NGROUPS, NFRAMES, GROUPGAP,
+  DROPFRM1, TFRAME, TGROUP, READPATT, NOUTPUTS, DETECTOR, SUBARRAY (+ SUBSTRT/SUBSIZE),
+  GAIN (e-/DN), RDNOISE (e- per read, not CDS), SEED, SCENE and SSIMVER, plus every
+  detector and noise parameter;
+* ``SCI``: uint16 DN, shape (nints, ngroups, ny, nx), streamed resultant by resultant;
+* ``READS``: one row per resultant with its read indices, read times and mean time (the
+  per-resultant read times that uneven patterns need).
+
+Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s per pixel before IPC and flat),
+``RATE_IPC`` (after IPC and flat: what a linear ramp fit should recover), ``SATREAD``
+(first saturated read per pixel and integration, -1 if none), ``SATGROUP`` (first
+resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
+read saw it), ``SOURCES`` (the catalogue as rendered), and optionally ``CHARGE``
+(noise-free charge resultants, e-) and ``NOISE`` (noise-only resultants, e-).
+
+Every file is written to a temporary file and renamed when complete.
+"""
+
+import contextlib
+import os
+import shutil
+import tempfile
+
+import numpy as np
+from astropy.io import fits
+from astropy.table import Table
+
+from noise._validate import check_writable
+from noise.fitsio import StreamingFITS, atomic_path
+
+__all__ = ["write_exposure", "truth_path_for", "read_exposure", "read_truth"]
+
+
+def truth_path_for(path):
+    """``dir/stem_truth.fits`` for exposure ``dir/stem.fits``."""
+    stem, ext = os.path.splitext(os.fspath(path))
+    return f"{stem}_truth{ext or '.fits'}"
+
+
+class _RawCube:
+    """Big-endian float32 data appended to a temporary file, copied into FITS later."""
+
+    def __init__(self, directory):
+        fd, self.path = tempfile.mkstemp(prefix=".tmp-", suffix=".raw", dir=directory)
+        self.f = os.fdopen(fd, "wb")
+
+    def write(self, data):
+        self.f.write(np.asarray(data, dtype=">f4").tobytes())
+
+    def copy_into(self, stream, shape, name, cards):
+        self.f.close()
+        stream.begin_image(shape, np.float32, cards, name=name)
+        with open(self.path, "rb") as f:
+            stream.f.flush()
+            shutil.copyfileobj(f, stream.f, 16 << 20)
+        stream._remaining = 0
+        stream._written = int(np.prod(shape)) * 4
+        stream.end_image()
+
+    def discard(self):
+        with contextlib.suppress(OSError):
+            self.f.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self.path)
+
+
+def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
+                   save_noise=False, sources=None, progress=None, overwrite=True):
+    """Run ``engine`` and stream its resultants to ``path`` (and the truth file).
+
+    Parameters
+    ----------
+    engine : scenesim.engine.ChargeEngine
+    path : str or None
+        Exposure file; ``None`` writes no ramp file (truth and in-memory result only).
+    cards : sequence of (key, value, comment)
+        Extra primary-header cards (scene, seed, ...).
+    truth_path : str or None
+        Truth file; ``None`` writes none.
+    save_charge, save_noise : bool
+        Add the noise-free charge and the noise-only resultants to the truth file.
+    sources : astropy.table.Table or None
+        Rendered source catalogue for the truth file.
+    progress : callable, optional
+        Called with the number of reads done.
+
+    Returns
+    -------
+    dict with ``sat_read`` and ``cr_seen`` (see ``ChargeEngine.run``) and, when ``path``
+    is None, ``sci`` (nints, ngroups, ny, nx) uint16 held in memory.
+    """
+    det, ro = engine.detector, engine.readout
+    if path is not None:
+        check_writable("output path", path, overwrite=overwrite)
+    if truth_path is not None:
+        check_writable("truth path", truth_path, overwrite=overwrite)
+    shape = (ro.nints, ro.ngroups) + det.shape
+    t_frame = det.frame_time
+    header = _header_cards(engine, cards)
+    stack = contextlib.ExitStack()
+    raws = {}
+    with stack:
+        stream = None
+        sci_mem = None
+        if path is not None:
+            tmp = stack.enter_context(atomic_path(path, overwrite=overwrite))
+            fobj = stack.enter_context(open(tmp, "wb"))
+            stream = StreamingFITS(fobj)
+            stream.begin_image((), np.uint8, header)
+            stream.end_image()
+            stream.begin_image(shape, np.uint16,
+                               [("BUNIT", "DN", "raw counts")], name="SCI")
+        else:
+            sci_mem = np.empty(shape, dtype=np.uint16)
+        tdir = os.path.dirname(os.path.abspath(truth_path or path or "."))
+        try:
+            if truth_path is not None and save_charge:
+                raws["CHARGE"] = _RawCube(tdir)
+            if truth_path is not None and save_noise:
+                raws["NOISE"] = _RawCube(tdir)
+
+            def on_resultant(i, r, dn, charge, noise_frame):
+                if stream is not None:
+                    stream.write(dn)
+                else:
+                    sci_mem[i, r] = dn
+                if "CHARGE" in raws:
+                    raws["CHARGE"].write(charge)
+                if "NOISE" in raws:
+                    raws["NOISE"].write(noise_frame)
+
+            out = engine.run(on_resultant=on_resultant, save_charge="CHARGE" in raws,
+                             save_noise="NOISE" in raws, progress=progress)
+            if stream is not None:
+                stream.end_image()
+                table = ro.read_table(t_frame)
+                hdu = fits.BinTableHDU(table, name="READS")
+                stream.append_hdu(hdu)
+            if truth_path is not None:
+                _write_truth(engine, truth_path, header, out, raws, sources, overwrite)
+        finally:
+            for raw in raws.values():
+                raw.discard()
+    if sci_mem is not None:
+        out["sci"] = sci_mem
+    return out
+
+
+def _header_cards(engine, cards):
+    det, ro = engine.detector, engine.readout
+    t_frame = det.frame_time
+    out = [("TELESCOP", "scenesim", "simulated HxRG exposure"),
+           ("ORIGIN", "scenesim", "")]
+    seen = set()
+    for key, value, comment in list(det.to_header_cards()) + list(
+            ro.to_header_cards(t_frame)):
+        if key not in seen:
+            out.append((key, value, comment))
+            seen.add(key)
+    out.append(("GAIN", engine.gain, "[e-/DN] conversion gain"))
+    out.append(("ADCBITS", engine.adc_bits, "ADC bits"))
+    if engine.noise is not None:
+        for key, value, comment in engine.noise.params.to_header_cards():
+            out.append((key, value, comment))
+    else:
+        out.append(("RDNOISE", 0.0, "[e-] white read noise per read (not CDS)"))
+    out.append(("SEEDENT", str(engine.entropy), "root SeedSequence entropy"))
+    out.append(("FULLWELL", float(np.max(engine.full_well)) if engine.full_well is not None
+                else 0.0, "[e-] full well (max over pixels; 0 = none)"))
+    out.append(("IPC", engine.ipc_kernel is not None, "IPC applied"))
+    out.append(("NONLIN", engine.nonlinearity is not None, "nonlinearity applied"))
+    out.append(("GAUSSAB", engine.options.gauss_above or 0.0,
+                "[e-] Gaussian above this mean (0 = exact Poisson)"))
+    for key, value, comment in cards:
+        out = [c for c in out if c[0] != key]
+        out.append((key, value, comment))
+    return out
+
+
+def _write_truth(engine, path, header, out, raws, sources, overwrite):
+    det, ro = engine.detector, engine.readout
+    rate = engine.expected_rate()
+    rate_ipc = engine.measured_rate(rate)
+    read_to_res = {k: r for r, reads in enumerate(ro.resultants) for k in reads}
+    sat = out["sat_read"]
+    lut = np.full(ro.nreads + 1, -1, dtype=np.int16)
+    for k, r in read_to_res.items():
+        lut[k] = r
+    satgroup = np.where(sat >= 0, lut[np.clip(sat, 0, ro.nreads)], -1).astype(np.int16)
+    cr = engine.cosmic_rays
+    nx = det.nx
+    crs = Table({"TIME": cr.time, "X": cr.index % nx, "Y": cr.index // nx,
+                 "CHARGE": cr.charge, "SEEN": out["cr_seen"]})
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
+        s = StreamingFITS(f)
+        s.begin_image((), np.uint8, list(header) + [("FILETYPE", "truth", "")])
+        s.end_image()
+        for name, data, unit in (("RATE", rate, "electron/s"),
+                                 ("RATE_IPC", rate_ipc, "electron/s")):
+            s.begin_image(data.shape, np.float32, [("BUNIT", unit, "")], name=name)
+            s.write(data.astype(np.float32))
+            s.end_image()
+        for name, data in (("SATREAD", sat), ("SATGROUP", satgroup)):
+            s.begin_image(data.shape, np.int16, [("BUNIT", "index", "-1: never")],
+                          name=name)
+            s.write(data)
+            s.end_image()
+        s.append_hdu(fits.BinTableHDU(crs, name="CRS"))
+        src = sources if sources is not None else Table({"x": [], "y": [], "flux": []})
+        s.append_hdu(fits.BinTableHDU(Table(src), name="SOURCES"))
+        shape = (ro.nints, ro.ngroups) + det.shape
+        for name, raw in raws.items():
+            raw.copy_into(s, shape, name, [("BUNIT", "electron", "")])
+
+
+def read_exposure(path):
+    """Load an exposure: ``(sci uint16 (nints, ngroups, ny, nx), header, reads Table)``."""
+    from noise.errors import FileFormatError
+    if not os.path.isfile(path):
+        raise FileFormatError(f"exposure file {path!r} does not exist")
+    with fits.open(path) as hdul:
+        names = [h.name for h in hdul]
+        for need in ("SCI", "READS"):
+            if need not in names:
+                raise FileFormatError(
+                    f"exposure file {path!r} has no {need!r} extension (found {names})")
+        sci = np.asarray(hdul["SCI"].data)
+        header = hdul[0].header.copy()
+        reads = Table(hdul["READS"].data)
+    return sci, header, reads
+
+
+def read_truth(path):
+    """Load a truth file as a dict of arrays/tables keyed by extension name."""
+    from noise.errors import FileFormatError
+    if not os.path.isfile(path):
+        raise FileFormatError(f"truth file {path!r} does not exist")
+    out = {}
+    with fits.open(path) as hdul:
+        out["header"] = hdul[0].header.copy()
+        for h in hdul[1:]:
+            if isinstance(h, fits.BinTableHDU):
+                out[h.name] = Table(h.data)
+            else:
+                out[h.name] = np.asarray(h.data)
+    if "RATE" not in out:
+        raise FileFormatError(f"truth file {path!r} has no 'RATE' extension")
+    return out

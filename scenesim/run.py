@@ -1,0 +1,249 @@
+"""Orchestrator: a validated :class:`~scenesim.scene.Scene` in, files out.
+
+Stages, each in its own module: rates (:mod:`scenesim.sources`, :mod:`scenesim.psf`,
+:mod:`scenesim.lightcurve`), discrete events (:mod:`scenesim.cosmic`), charge and
+effects read by read (:mod:`scenesim.engine`, :mod:`scenesim.effects`), noise
+(:mod:`noise`), files (:mod:`scenesim.exposure`), then optionally fitting
+(:mod:`scenesim.fit`) and the comparison with truth (:mod:`scenesim.compare`).
+
+Random streams: the scene seed is the root ``SeedSequence``; spawn keys ``(0,)`` the
+engine (noise ``(0, 1)``, Poisson ``(0, 2, ...)``), ``(3,)`` cosmic rays, ``(4,)`` hot
+pixels.  Changing one part of a scene does not shift the draws of the others.
+"""
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from astropy.table import vstack
+
+from noise.errors import ParameterError
+
+from .engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
+from .exposure import write_exposure
+
+__all__ = ["build_engine", "run_scene", "RunResult", "build_light_curve"]
+
+
+@dataclass
+class RunResult:
+    """What a run produced: paths (None when not written) and timings (s)."""
+
+    exposure: str | None
+    truth: str | None
+    fit: str | None
+    report: object
+    seconds: float
+    engine: ChargeEngine
+
+
+def _stream(seed, *key):
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=key)))
+
+
+def build_light_curve(cfg):
+    """A :class:`scenesim.lightcurve.LightCurve` from a ``LightCurveConfig``."""
+    from .lightcurve import LightCurve
+
+    if cfg.kind == "transit":
+        return LightCurve.transit(cfg.t0, cfg.duration, cfg.depth, cfg.ingress)
+    if cfg.kind == "step":
+        return LightCurve.step(cfg.t_on, before=cfg.before if cfg.before is not None else 0.0,
+                               after=cfg.after if cfg.after is not None else 1.0)
+    if cfg.kind == "flare":
+        return LightCurve.flare(cfg.t0, cfg.amplitude, cfg.rise, cfg.decay)
+    t, f = cfg.samples()
+    return LightCurve(t, f)
+
+
+def _rates(scene, seed):
+    """Static rate map (e-/s), variable sources, rendered catalogue."""
+    from . import psf as psfmod
+    from .scene import load_map
+    from .sources import draw_hot_pixels
+
+    det = scene.detector
+    src = scene.sources
+    refmask = det.reference_mask()
+    rate = load_map(src.dark_current, det, name="dark_current")
+    rate = rate + load_map(src.background, det, name="background")
+    if src.hot_pixel_fraction > 0:
+        rate = rate + draw_hot_pixels(det.shape, src.hot_pixel_fraction,
+                                      rate=src.hot_pixel_rate, rng=_stream(seed, 4),
+                                      refmask=refmask)
+    stars = src.star_table()
+    variable = []
+    rendered = None
+    if len(stars):
+        psf = src.psf.build()
+        static = stars["light_curve"] == ""
+        rendered_parts = []
+        if static.any():
+            img, info = psfmod.render_point_sources(
+                det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
+                psf, min_rate=src.psf.min_rate)
+            rate = rate + img
+            info["light_curve"] = [""] * len(info)
+            rendered_parts.append(info)
+        curves = {}
+        for row in stars[~static]:
+            name = str(row["light_curve"])
+            if name not in curves:
+                curves[name] = build_light_curve(src.light_curve(name))
+            img, info = psfmod.render_point_sources(
+                det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
+                min_rate=src.psf.min_rate)
+            idx = np.flatnonzero(img)
+            variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))
+            info["light_curve"] = [name]
+            rendered_parts.append(info)
+        rendered = vstack(rendered_parts) if rendered_parts else None
+    rate = np.where(refmask, 0.0, rate)
+    return rate, variable, rendered
+
+
+def _cosmic_rays(scene, seed, t_total):
+    eff = scene.effects
+    if eff.cosmic_ray_rate <= 0:
+        return None
+    from .cosmic import CosmicRayModel, draw_cosmic_rays
+
+    det = scene.detector
+    median, sigma = eff.cosmic_ray_charge
+    model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_median=median,
+                           charge_sigma=sigma)
+    table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
+                             rng=_stream(seed, 3), refmask=det.reference_mask())
+    index = np.asarray(table["Y"], dtype=np.int64) * det.nx + np.asarray(table["X"],
+                                                                          dtype=np.int64)
+    return CosmicRayHits(np.asarray(table["TIME"], dtype=float), index,
+                         np.asarray(table["CHARGE"], dtype=float))
+
+
+def build_engine(scene, *, options=EngineOptions()):
+    """Everything needed to run ``scene``: ``(engine, rendered_catalogue)``.
+
+    ``scene.seed`` must be set (see :meth:`Scene.ensure_seed`).
+    """
+    from .scene import load_map
+
+    if scene.seed is None:
+        raise ParameterError("'seed' must be set before building the engine; call "
+                             "scene.ensure_seed()")
+    det = scene.detector
+    readout = scene.readout.build()
+    seed = scene.seed
+    rate, variable, rendered = _rates(scene, seed)
+    t_total = readout.nints * (1 + readout.nreads) * det.frame_time
+    crs = _cosmic_rays(scene, seed, t_total)
+    eff = scene.effects
+    full_well = None
+    if eff.full_well is not None:
+        full_well = load_map(eff.full_well, det, name="full_well", allow_zero=False)
+        if full_well.ndim == 2 and np.all(full_well == full_well.flat[0]):
+            full_well = np.float64(full_well.flat[0])
+    flat = None
+    if eff.flat != 1.0:
+        flat = load_map(eff.flat, det, name="flat")
+    nl = eff.nonlinearity_model()
+    if full_well is not None and not nl.is_linear:
+        nl.check_monotonic(float(np.max(full_well)))
+    engine = ChargeEngine(
+        det, readout, noise_params=scene.noise, rate=rate, variable_sources=variable,
+        cosmic_rays=crs, full_well=full_well, nonlinearity=nl, ipc_kernel=eff.ipc(),
+        flat=flat, gain=eff.gain, adc_bits=eff.adc_bits,
+        rng=np.random.SeedSequence(seed, spawn_key=(0,)), options=options)
+    return engine, rendered
+
+
+def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progress=True,
+              fit=None, refpix=None, compare=None, plots=None):
+    """Run ``scene``: simulate, write the exposure and truth, then fit and compare.
+
+    Parameters
+    ----------
+    scene : Scene
+    output : str, optional
+        Exposure path (overrides ``[output] path``).
+    seed : int, optional
+        Overrides the scene's seed.
+    progress : bool
+        Show a progress bar on long runs (tqdm, on stderr).
+    fit, refpix, compare : optional
+        Override ``[output] fit``, ``refpix`` and ``compare``.
+    plots : str, optional
+        Directory for the comparison's PNG figures.
+
+    Returns
+    -------
+    RunResult
+    """
+    import dataclasses
+
+    t0 = time.perf_counter()
+    out_cfg = scene.output
+    changes = {}
+    if output is not None:
+        changes["path"] = os.fspath(output)
+    if fit is not None:
+        changes["fit"] = fit
+    if refpix is not None:
+        changes["refpix"] = refpix
+    if compare is not None:
+        changes["compare"] = compare
+    if changes:
+        out_cfg = dataclasses.replace(out_cfg, **changes)
+    if seed is not None:
+        scene = scene.replace(seed=seed)
+    scene = scene.ensure_seed().replace(output=out_cfg)
+    engine, rendered = build_engine(scene, options=options)
+    ro = engine.readout
+    # file names decided (and checked) before any work
+    exp_path = out_cfg.path if (out_cfg.ramp or out_cfg.fit) else None
+    keep_ramp = out_cfg.ramp
+    if exp_path is None and not out_cfg.truth:
+        raise ParameterError("nothing to write: set [output] ramp, truth or fit")
+    tmp_ramp = None
+    if not keep_ramp and exp_path is not None:
+        # slopes only: the ramp is written to a temporary file and removed after the fit
+        stem, ext = os.path.splitext(exp_path)
+        tmp_ramp = f"{stem}.ramp-tmp{ext}"
+        exp_path = tmp_ramp
+    truth_path = out_cfg.truth_path if out_cfg.truth else None
+    cards = scene.to_header_cards()
+    nreads = ro.nints * len(ro.needed_reads)
+    bar = None
+    cb = None
+    if progress and nreads >= 20:
+        from tqdm import tqdm
+        bar = tqdm(total=nreads, unit="read", desc="simulate", leave=False)
+
+        def cb(n, bar=bar):
+            bar.n = n
+            bar.refresh()
+    try:
+        write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
+                       save_charge=out_cfg.save_charge, save_noise=out_cfg.save_noise,
+                       sources=rendered, progress=cb)
+    finally:
+        if bar is not None:
+            bar.close()
+    fit_path = report = None
+    try:
+        if out_cfg.fit:
+            from .fitting import fit_exposure_file
+            stem, ext = os.path.splitext(out_cfg.path)
+            fit_path = f"{stem}_{out_cfg.fit}{ext or '.fits'}"
+            fit_exposure_file(exp_path, fit_path, fitter=out_cfg.fit,
+                              refpix=out_cfg.refpix)
+            if out_cfg.compare and truth_path is not None:
+                from .compare import compare_files
+                report = compare_files(fit_path, truth_path, plots=plots,
+                                       exposure=exp_path if keep_ramp else None)
+    finally:
+        if tmp_ramp is not None and os.path.exists(tmp_ramp):
+            os.unlink(tmp_ramp)
+    return RunResult(exp_path if keep_ramp else None, truth_path, fit_path, report,
+                     time.perf_counter() - t0, engine)
+
