@@ -38,7 +38,7 @@ import numpy as np
 from ._validate import check_float, check_int
 from .errors import ParameterError
 
-__all__ = ["Subarray", "Detector", "PRESETS", "preset"]
+__all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header"]
 
 
 @dataclass(frozen=True)
@@ -291,12 +291,35 @@ class Detector:
             ("REVSCAN", bool(self.reverse_scan), "fast-scan directions reversed"),
             ("PIXPITCH", self.pixel_pitch, "[um] pixel pitch"),
             ("SUBARRAY", self.subarray_name, "readout window"),
+            ("SUBKIND", "full" if self.subarray is None else self.subarray.kind,
+             "full, window or stripe"),
             ("SUBSTRT1", self.x0 + 1, "first column (1-based, full frame)"),
             ("SUBSTRT2", self.y0 + 1, "first row (1-based, full frame)"),
             ("SUBSIZE1", self.nx, "[pix] columns read"),
             ("SUBSIZE2", self.ny, "[pix] rows read"),
             ("TFRAME", self.frame_time, "[s] frame time"),
         ]
+
+
+def detector_from_header(header):
+    """Rebuild the :class:`Detector` recorded by :meth:`Detector.to_header_cards`."""
+    from .errors import FileFormatError
+
+    try:
+        det = Detector(
+            name=str(header["DETECTOR"]), naxis1=int(header["NAXIS1D"]),
+            naxis2=int(header["NAXIS2D"]), n_out=int(header["NOUTFULL"]),
+            nroh=int(header["NROH"]), nfoh=int(header["NFOH"]),
+            dt=float(header["PIXDWELL"]), ref_border=int(header["REFBORD"]),
+            reverse_scan=bool(header["REVSCAN"]), pixel_pitch=float(header["PIXPITCH"]))
+        kind = str(header.get("SUBKIND", "full"))
+    except KeyError as exc:
+        raise FileFormatError(f"header lacks detector keyword {exc.args[0]!r}") from exc
+    if kind != "full":
+        det = dataclasses.replace(det, subarray=Subarray(
+            kind, int(header["SUBSTRT1"]) - 1, int(header["SUBSTRT2"]) - 1,
+            int(header["SUBSIZE1"]), int(header["SUBSIZE2"]), str(header["SUBARRAY"])))
+    return det
 
 
 #: Detector presets.  Values and their sources:
