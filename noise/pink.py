@@ -347,8 +347,14 @@ class PinkSeries:
         p0 = (start // _D) * _D
         q = -(-(start + n - p0) // _D)                  # coarse cells covered
         c = self._level_get(j, p0 // _D, q + 3)         # child samples i-1 .. i+2
-        win = np.lib.stride_tricks.sliding_window_view(c, 4, axis=-1)[:, :q, :]
-        y = np.matmul(win, self._weights).reshape(self.nseries, q * _D)
+        # explicit 4-tap sum: a BLAS matmul would leave OpenBLAS threads spinning on
+        # the cores our own worker threads need
+        w = self._weights
+        y = c[:, 0:q, None] * w[0]
+        y += c[:, 1:q + 1, None] * w[1]
+        y += c[:, 2:q + 2, None] * w[2]
+        y += c[:, 3:q + 3, None] * w[3]
+        y = y.reshape(self.nseries, q * _D)
         return y[:, start - p0:start - p0 + n]
 
     def get(self, start, n):
