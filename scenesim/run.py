@@ -211,7 +211,11 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
         tmp_ramp = f"{stem}.ramp-tmp{ext}"
         exp_path = tmp_ramp
     truth_path = out_cfg.truth_path if out_cfg.truth else None
-    cards = scene.to_header_cards()
+    cards = list(scene.to_header_cards())
+    if scene.sources.psf.kind == "gaussian":
+        cards.append(("PSFFWHM", scene.sources.psf.fwhm, "[pix] Gaussian PSF FWHM"))
+    elif scene.sources.psf.kind == "airy":
+        cards.append(("PSFAIRY", scene.sources.psf.radius, "[pix] Airy first dark ring"))
     nreads = ro.nints * len(ro.needed_reads)
     bar = None
     cb = None

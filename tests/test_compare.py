@@ -1,0 +1,299 @@
+"""Tests of scenesim.compare against closed forms on synthetic fit and truth files.
+
+Synthetic fits are ``truth + sqrt(V) * N(0, 1)`` with a known ``V``.  The optimal
+variance is checked in two limits with closed forms:
+
+* rate 0, single reads at ``t_k = (k + 1) t_frame`` (k = 0..n-1): white noise only, the
+  GLS slope is the least-squares slope, ``V = 12 sigma^2 / (t_frame^2 n (n^2 - 1))``;
+* read noise 0: pure Poisson, the charge between the first and last read is all the
+  information, ``V = f / (t_last - t_first)``.
+
+Both are divided by ``nints`` for independent integrations.
+"""
+
+import math
+import os
+
+import numpy as np
+import pytest
+from astropy.io import fits
+from astropy.table import Table
+from scipy.special import erf
+
+from noise.errors import FileFormatError, ParameterError
+from scenesim.compare import Report, compare, compare_files
+from scenesim.fit import DO_NOT_USE, JUMP_DET, FitResult, write_fit
+
+NG, TF, NINTS, GAIN = 6, 10.0, 2, 2.0
+
+
+def _header(rdnoise, **extra):
+    cards = {"NINTS": NINTS, "NGROUPS": NG, "NFRAMES": 1, "GROUPGAP": 0, "DROPFRM1": 0,
+             "TFRAME": TF, "READPATT": "RAPID", "RESETMD": "rolling",
+             "RDNOISE": rdnoise, "GAIN": GAIN}
+    cards.update(extra)
+    return cards
+
+
+def _write_truth(path, rate, header, crs=None, sources=None):
+    prim = fits.PrimaryHDU()
+    for k, v in header.items():
+        prim.header[k] = v
+    if crs is None:
+        crs = Table({"TIME": [0.0], "X": [0], "Y": [0], "CHARGE": [0.0], "SEEN": [False]})
+    if sources is None:
+        sources = Table({"x": [], "y": [], "flux": []})
+    hdul = fits.HDUList([prim,
+                         fits.ImageHDU(rate.astype(np.float32), name="RATE"),
+                         fits.ImageHDU(rate.astype(np.float32), name="RATE_IPC"),
+                         fits.BinTableHDU(crs, name="CRS"),
+                         fits.BinTableHDU(sources, name="SOURCES")])
+    hdul.writeto(path)
+    return str(path)
+
+
+def _write_fit(path, slope, var, dq=None, rn=1.0):
+    shape = slope.shape
+    z = np.zeros(shape, np.float32)
+    res = FitResult(slope=slope.astype(np.float32), var_read=var.astype(np.float32),
+                    var_poisson=z, chi2=np.ones(shape, np.float32),
+                    dof=np.full(shape, 9, np.int32),
+                    dq=(np.zeros(shape, np.uint32) if dq is None else dq.astype(np.uint32)),
+                    slope_ints=np.stack([slope] * NINTS).astype(np.float32),
+                    var_ints=np.stack([var] * NINTS).astype(np.float32),
+                    n_jumps=np.zeros(shape, np.int32), gain=GAIN, read_noise=rn,
+                    fitter="gls")
+    write_fit(str(path), res)
+    return str(path)
+
+
+def _row(report, lo):
+    return next(r for r in report.rows if r["lo"] == lo)
+
+
+def test_read_noise_limit_table(tmp_path):
+    """Rate 0: V_opt = 12 sigma^2 / (tf^2 n (n^2-1)) / nints; OLS = GLS there."""
+    rng = np.random.default_rng(11)
+    sigma = 12.0
+    shape = (40, 50)
+    rate = np.zeros(shape)
+    v_opt = 12 * sigma ** 2 / (TF ** 2 * NG * (NG ** 2 - 1)) / NINTS
+    slope = rate + math.sqrt(v_opt) * rng.standard_normal(shape)
+    # reported variance twice the truth: the chi2_rep column must see it (~0.5)
+    fit = _write_fit(tmp_path / "fit.fits", slope, np.full(shape, 2 * v_opt), rn=sigma)
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(sigma))
+    rep = compare_files(fit, truth)
+    assert isinstance(rep, Report)
+    row = _row(rep, 0.0)
+    n = row["n"]
+    assert n == 2000
+    # mean of n unit normals: standard error 1/sqrt(n); 5 sigma
+    assert abs(row["bias_opt"]) < 5 / math.sqrt(n)
+    # sample std of n unit normals: standard error 1/sqrt(2n); 5 sigma
+    assert abs(row["std_opt"] - 1) < 5 / math.sqrt(2 * n)
+    # z_rep = z / sqrt(2): mean of z^2/2 has standard error sqrt(2/n)/2; 5 sigma
+    assert abs(row["chi2_rep"] - 0.5) < 5 * math.sqrt(2 / n) / 2
+    assert abs(row["bias_rep"]) < 5 / math.sqrt(2 * n)
+    # white noise, single reads: equal weights are optimal (exact up to rounding)
+    assert row["ols_ratio"] == pytest.approx(1.0, rel=1e-9)
+    assert row["chi2_fit"] == pytest.approx(1.0)
+    assert row["frac_flagged"] == 0.0
+    assert all(r["n"] == 0 for r in rep.rows if r["lo"] > 0)
+    text = rep.format()
+    assert "bias_opt" in text and "MULTIACCUM" in text
+    d = rep.to_dict()
+    assert d["rows"][0]["n"] == 2000
+
+
+def test_poisson_limit_and_jwst_layout(tmp_path):
+    """Read noise 0: V_opt = f / (t_last - t_first) / nints; JWST rate file in DN/s."""
+    rng = np.random.default_rng(12)
+    shape = (40, 50)
+    rate = np.where(rng.random(shape) < 0.5, 5.0, 500.0)
+    v_opt = rate / ((NG - 1) * TF) / NINTS
+    slope = rate + np.sqrt(v_opt) * rng.standard_normal(shape)
+    dq = np.zeros(shape, np.uint32)
+    dq[:2] = DO_NOT_USE          # 100 unusable pixels, left out of the statistics
+    slope[:2] = 1e6
+    prim = fits.PrimaryHDU()
+    hdul = fits.HDUList([prim, fits.ImageHDU(slope / GAIN, name="SCI"),
+                         fits.ImageHDU(np.sqrt(v_opt) / GAIN, name="ERR"),
+                         fits.ImageHDU(dq, name="DQ"),
+                         fits.ImageHDU(v_opt / GAIN ** 2, name="VAR_POISSON"),
+                         fits.ImageHDU(np.zeros(shape), name="VAR_RNOISE")])
+    fit = str(tmp_path / "rate.fits")
+    hdul.writeto(fit)
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(0.0))
+    rep = compare_files(fit, truth)
+    assert "fit layout: jwst" in rep.notes
+    for lo in (1.0, 100.0):
+        row = _row(rep, lo)
+        n = row["n"]
+        assert 800 < n < 1100
+        assert abs(row["bias_opt"]) < 5 / math.sqrt(n)       # 5 sigma, mean of N(0,1)
+        assert abs(row["std_opt"] - 1) < 5 / math.sqrt(2 * n)  # 5 sigma, std of N(0,1)
+        # reported var = true var: mean z^2 has standard error sqrt(2/n); 5 sigma
+        assert abs(row["chi2_rep"] - 1) < 5 * math.sqrt(2 / n)
+        assert math.isnan(row["chi2_fit"])
+        # 100 flagged of 2000 regular pixels, split between the two bins
+        assert row["n_regular"] - row["n"] == pytest.approx(
+            row["frac_flagged"] * row["n_regular"])
+    assert _row(rep, 1.0)["n_regular"] + _row(rep, 100.0)["n_regular"] == 2000
+
+
+def test_jump_completeness_and_false_positives(tmp_path):
+    rng = np.random.default_rng(13)
+    shape = (30, 30)
+    sigma = 5.0
+    thr = 10 * math.sqrt(2) * sigma
+    pix = rng.choice(shape[0] * shape[1], size=60, replace=False)
+    hit, small, unseen = pix[:30], pix[30:45], pix[45:]
+    idx = np.concatenate([hit, small, unseen])
+    charge = np.concatenate([np.full(30, 3 * thr), np.full(15, 0.5 * thr),
+                             np.full(15, 3 * thr)])
+    seen = np.concatenate([np.ones(45, bool), np.zeros(15, bool)])
+    crs = Table({"TIME": np.zeros(60), "X": idx % shape[1], "Y": idx // shape[1],
+                 "CHARGE": charge, "SEEN": seen})
+    dq = np.zeros(shape[0] * shape[1], np.uint32)
+    dq[hit[:24]] |= JUMP_DET                 # 24 of 30 detectable hits found
+    clean = np.setdiff1d(np.arange(dq.size), idx)
+    dq[clean[:7]] |= JUMP_DET                # 7 false positives among clean pixels
+    dq[small[:3]] |= JUMP_DET                # neither hit nor clean: ignored
+    dq = dq.reshape(shape)
+    rate = np.full(shape, 10.0)
+    fit = _write_fit(tmp_path / "fit.fits", rate, np.ones(shape), dq=dq, rn=sigma)
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(sigma), crs=crs)
+    j = compare_files(fit, truth).jumps
+    assert j["threshold_e"] == pytest.approx(thr)
+    assert j["n_hit"] == 30 and j["completeness"] == pytest.approx(24 / 30)
+    assert j["n_clean"] == dq.size - 60
+    assert j["false_positive"] == pytest.approx(7 / (dq.size - 60))
+
+
+def _gauss_image(shape, xs, ys, fluxes, sigma):
+    """Exact pixel integrals of circular Gaussians (erf), independent of scenesim.psf."""
+    ny, nx = shape
+    out = np.zeros(shape)
+    s = math.sqrt(2) * sigma
+    xe, ye = np.arange(nx + 1) - 0.5, np.arange(ny + 1) - 0.5
+    for x, y, f in zip(xs, ys, fluxes):      # a handful of sources
+        px = np.diff(0.5 * erf((xe - x) / s))
+        py = np.diff(0.5 * erf((ye - y) / s))
+        out += f * np.outer(py, px)
+    return out
+
+
+def test_photometry_aperture_correction(tmp_path):
+    pytest.importorskip("photutils", reason="photutils is needed for photometry")
+    pytest.importorskip("scenesim.psf", reason="scenesim.psf provides encircled_energy")
+    rng = np.random.default_rng(14)
+    shape = (120, 120)
+    fwhm, radius, bkg, flux = 2.0, 4.0, 10.0, 4000.0
+    g = np.arange(20, 100, 18.0)
+    xs, ys = np.meshgrid(g, g)
+    xs = xs.ravel() + rng.uniform(-0.5, 0.5, xs.size)
+    ys = ys.ravel() + rng.uniform(-0.5, 0.5, ys.size)
+    n_src = xs.size
+    fl = np.full(n_src, flux)
+    # plus one source too close to the edge and one too faint: both excluded
+    xs, ys = np.append(xs, [3.0, 47.0]), np.append(ys, [60.0, 47.0])
+    fl = np.append(fl, [flux, 1.0])
+    sig = fwhm / (2 * math.sqrt(2 * math.log(2)))
+    rate = bkg + _gauss_image(shape, xs, ys, fl, sig)
+    var = np.full(shape, 4.0)
+    slope = rate + 2.0 * rng.standard_normal(shape)
+    sources = Table({"x": xs, "y": ys, "flux": fl})
+    fit = _write_fit(tmp_path / "fit.fits", slope, var)
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(5.0, PSFFWHM=fwhm),
+                         sources=sources)
+    p = compare_files(fit, truth).photometry
+    assert p["n"] == n_src
+    ee = 1 - math.exp(-radius ** 2 / (2 * sig ** 2))   # Gaussian encircled energy
+    assert p["aperture_correction"] == pytest.approx(ee, rel=1e-12)
+    # per-source noise: aperture sum var = 4 * area; annulus median times area adds
+    # (pi/2) * 4 / n_ann * area^2 (median efficiency); the median of the ratios has
+    # standard error 1.2533 * s / sqrt(n).  Pixelisation changes the encircled energy
+    # by < 1e-4 at r = 4.7 sigma, far below that.  5 sigma:
+    area = math.pi * radius ** 2
+    n_ann = math.pi * ((3 * radius) ** 2 - (2 * radius) ** 2)
+    s = math.sqrt(4 * area + math.pi / 2 * 4 / n_ann * area ** 2) / ee / flux
+    assert abs(p["median_ratio"] - 1) < 5 * 1.2533 * s / math.sqrt(n_src)
+    # the reported error of the median estimates the same quantity (std of a sample of
+    # 25: relative standard error 1/sqrt(2*24) ~ 0.15; allow a factor 2)
+    assert 0.5 < p["median_ratio_err"] / (1.2533 * s / math.sqrt(n_src)) < 2
+
+
+def test_plots_and_no_psf_note(tmp_path):
+    pytest.importorskip("matplotlib", reason="plots need matplotlib")
+    rng = np.random.default_rng(15)
+    shape = (32, 32)
+    rate = rng.uniform(0.5, 50, shape)
+    slope = rate + rng.standard_normal(shape)
+    sources = Table({"x": [16.0], "y": [16.0], "flux": [1000.0]})
+    fit = _write_fit(tmp_path / "fit.fits", slope, np.ones(shape))
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(5.0), sources=sources)
+    out = tmp_path / "plots"
+    out.mkdir()
+    rep = compare_files(fit, truth, plots=str(out))
+    assert sorted(os.path.basename(p) for p in rep.plots) == [
+        "noise_vs_flux.png", "residuals.png", "slope.png"]
+    assert all(os.path.getsize(p) > 1000 for p in rep.plots)
+    assert any("no aperture correction" in n for n in rep.notes)
+    assert math.isnan(rep.photometry["aperture_correction"])
+
+
+def test_bad_inputs(tmp_path):
+    rate = np.ones((10, 12))
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(5.0))
+    fit_bad_shape = _write_fit(tmp_path / "f1.fits", np.ones((10, 11)), np.ones((10, 11)))
+    with pytest.raises(FileFormatError, match="shape"):
+        compare_files(fit_bad_shape, truth)
+    # JWST-like file without DQ
+    hdul = fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(rate, name="SCI"),
+                         fits.ImageHDU(rate, name="ERR")])
+    nodq = str(tmp_path / "nodq.fits")
+    hdul.writeto(nodq)
+    with pytest.raises(FileFormatError, match="DQ"):
+        compare_files(nodq, truth)
+    # neither layout
+    other = str(tmp_path / "other.fits")
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(rate, name="FOO")]).writeto(other)
+    with pytest.raises(FileFormatError, match="SLOPE"):
+        compare_files(other, truth)
+    ok = _write_fit(tmp_path / "ok.fits", rate, np.ones_like(rate))
+    with pytest.raises(ParameterError, match="plots"):
+        compare_files(ok, truth, plots=str(tmp_path / "missing_dir"))
+    with pytest.raises(FileFormatError, match="does not exist"):
+        compare_files(str(tmp_path / "nope.fits"), truth)
+    with pytest.raises(ParameterError, match="'fit'"):
+        compare([1, 2], {"header": {}})
+
+
+def test_read_times_from_exposure(tmp_path):
+    """READS table of the exposure wins over the truth header (which says NFRAMES=1).
+
+    Rate 0, resultants of 2 reads (groupgap 1): white resultant noise sigma^2 / 2, so
+    V_opt = (sigma^2 / 2) / sum (tbar - <tbar>)^2 / nints with tbar = 10 * (1.5 + 3 g).
+    """
+    from scenesim.readout import Readout
+    rng = np.random.default_rng(16)
+    sigma, shape = 8.0, (40, 50)
+    ro = Readout.multiaccum(2, NG, groupgap=1, nints=NINTS)
+    tab = fits.table_to_hdu(ro.read_table(TF))
+    tab.name = "READS"
+    prim = fits.PrimaryHDU()
+    prim.header["NINTS"], prim.header["TFRAME"] = NINTS, TF
+    exposure = str(tmp_path / "exp.fits")
+    fits.HDUList([prim, tab]).writeto(exposure)
+    tbar = TF * (1.5 + 3 * np.arange(NG))
+    v_opt = sigma ** 2 / 2 / np.sum((tbar - tbar.mean()) ** 2) / NINTS
+    rate = np.zeros(shape)
+    slope = math.sqrt(v_opt) * rng.standard_normal(shape)
+    fit = _write_fit(tmp_path / "fit.fits", slope, np.full(shape, v_opt), rn=sigma)
+    truth = _write_truth(tmp_path / "truth.fits", rate, _header(sigma))
+    row = _row(compare_files(fit, truth, exposure=exposure), 0.0)
+    n = row["n"]
+    assert abs(row["std_opt"] - 1) < 5 / math.sqrt(2 * n)  # 5 sigma, std of N(0,1)
+    # with the header's single-read readout the ratio would be sqrt(V_opt / V_1read):
+    v1 = 12 * sigma ** 2 / (TF ** 2 * NG * (NG ** 2 - 1)) / NINTS
+    assert abs(math.sqrt(v_opt / v1) - 1) > 20 / math.sqrt(2 * n)
