@@ -102,8 +102,12 @@ def _default_fit_path(path, fitter):
 
 
 def _compare(args):
+    import os
+
     from .compare import compare_files
 
+    if args.plots:
+        os.makedirs(args.plots, exist_ok=True)
     report = compare_files(args.fit, args.truth, plots=args.plots,
                            exposure=args.exposure)
     print(report.format())

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from noise._validate import check_float
 from noise.errors import ParameterError
 from noise.generator import NoiseGenerator, root_seed
 
@@ -145,7 +146,7 @@ class ChargeEngine:
         shape = detector.shape
         self.refmask = detector.reference_mask()
         self._tpix = detector.pixel_time()
-        rate = np.broadcast_to(np.asarray(rate, dtype=np.float64), shape).copy()
+        rate = _per_pixel("rate", rate, shape).copy()
         if not np.all(np.isfinite(rate)) or np.any(rate < 0):
             bad = rate[~np.isfinite(rate) | (rate < 0)].ravel()[0]
             raise ParameterError(
@@ -153,13 +154,15 @@ class ChargeEngine:
         rate[self.refmask] = 0.0
         self.rate = rate
         self.variable = [self._check_variable(v) for v in variable_sources]
-        self.cosmic_rays = cosmic_rays if cosmic_rays is not None else CosmicRayHits.empty()
-        if gain is None or not np.isfinite(gain) or gain <= 0:
-            raise ParameterError(f"'gain' must be > 0 e-/DN, got {gain!r}")
-        self.gain = float(gain)
+        cr = cosmic_rays if cosmic_rays is not None else CosmicRayHits.empty()
+        if cr.index.size:
+            keep = ~self.refmask.reshape(-1)[cr.index]   # reference pixels collect none
+            cr = CosmicRayHits(cr.time[keep], cr.index[keep], cr.charge[keep])
+        self.cosmic_rays = cr
+        self.gain = check_float("gain", gain, minimum=0.0, strict_min=True)
         self.adc_bits = int(adc_bits)
         if full_well is not None:
-            full_well = np.asarray(full_well, dtype=np.float64)
+            full_well = _per_pixel("full_well", full_well, shape)
             if not np.all(np.isfinite(full_well)) or np.any(full_well <= 0):
                 raise ParameterError("'full_well' must be finite and > 0 e-")
         self.full_well = full_well
@@ -167,7 +170,7 @@ class ChargeEngine:
                                              and not nonlinearity.is_linear) else None
         self.ipc_kernel = None if ipc_kernel is None else np.asarray(ipc_kernel, float)
         if flat is not None:
-            flat = np.asarray(flat, dtype=np.float64)
+            flat = _per_pixel("flat", flat, shape)
             if not np.all(np.isfinite(flat)) or np.any(flat < 0):
                 raise ParameterError("'flat' must be finite and >= 0")
             if flat.ndim == 0 and flat == 1.0:
@@ -431,6 +434,17 @@ class ChargeEngine:
         if self.flat is not None:
             out = out * self.flat
         return out
+
+
+def _per_pixel(name, value, shape):
+    """``value`` as float64, a scalar or an array broadcastable to ``shape``."""
+    arr = np.asarray(value, dtype=np.float64)
+    try:
+        return arr if arr.ndim == 0 and name != "rate" else np.broadcast_to(arr, shape)
+    except ValueError as exc:
+        raise ParameterError(
+            f"{name!r} must be a scalar or an array of the image shape {shape}, got "
+            f"shape {arr.shape}") from exc
 
 
 def _poisson_or_gauss(g, lam, threshold):

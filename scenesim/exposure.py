@@ -211,8 +211,11 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
             s.write(data)
             s.end_image()
         s.append_hdu(fits.BinTableHDU(crs, name="CRS"))
-        src = sources if sources is not None else Table({"x": [], "y": [], "flux": []})
-        s.append_hdu(fits.BinTableHDU(Table(src), name="SOURCES"))
+        src = Table(sources) if sources is not None else Table({"x": [], "y": [],
+                                                                "flux": []})
+        for col in src.itercols():
+            col.unit = None        # units are documented (e-/s, pixels), not stored
+        s.append_hdu(fits.BinTableHDU(src, name="SOURCES"))
         shape = (ro.nints, ro.ngroups) + det.shape
         for name, raw in raws.items():
             raw.copy_into(s, shape, name, [("BUNIT", "electron", "")])

@@ -197,6 +197,8 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     if seed is not None:
         scene = scene.replace(seed=seed)
     scene = scene.ensure_seed().replace(output=out_cfg)
+    if plots is not None:
+        os.makedirs(plots, exist_ok=True)
     engine, rendered = build_engine(scene, options=options)
     ro = engine.readout
     # file names decided (and checked) before any work
