@@ -1,0 +1,543 @@
+"""Reference benchmarks: run time as a ratio to the random-number floor (DESIGN.md §7).
+
+Absolute times drift on a shared machine, so every number is reported next to a
+baseline measured in the same run, with the same number of threads:
+
+* the **random-number floor** of a workload is the time to draw, in bulk, the variates
+  its exact model cannot avoid.  Per materialised read: one float32 normal per pixel
+  (white noise); one normal per kept time-line sample of each enabled 1/f series
+  (correlated pink: ``frame_samples``; uncorrelated pink: ``n_out * frame_samples``;
+  ACN: ``2 * n_out * frame_samples / 2``; picture frame: ``ny + nfoh``).  Per
+  integration: one normal per pixel for kTC when enabled.  Per read interval: one
+  Poisson draw per pixel with charge, at the workload's typical (median) mean
+  ``lambda``.  The draws are split evenly across the threads, each thread with its own
+  ``Generator`` from ``SeedSequence.spawn``, filling its part of a preallocated,
+  pre-touched float32 buffer (reused in slabs of at most ``_SLAB`` variates so the
+  floor itself needs bounded memory); Poisson draws go through the same slabs.
+* the ramp **fit** is not random-number bound: its baseline is the memory-bandwidth
+  time of reading the resultant cube once (``np.sum``), labelled as such.
+
+Each case runs in a fresh ``spawn`` subprocess, so ``ru_maxrss`` is the peak resident
+memory of that case alone (it includes the ~100 MB of the interpreter and imports,
+reported separately as ``base_rss``).  The floor is measured in the parent process
+right after the case.
+
+Reference numbers of other programs (from their authors / our earlier measurements,
+not re-measured here): the original NG program (Rauscher 2015) takes 5.5 s for 1 frame,
+54 s and 2.5 GB for 10 frames, 7 min and 9.5 GB for 40 frames of a 4-output H2RG;
+romanisim 0.15 L1 takes 83-108 s and 3.4 GB for a full 4096x4096 exposure; stcal 1.20
+ramp fitting of 2048x2048x20 takes ~11 s (C OLS) and 57-95 s (likelihood).
+"""
+
+import json
+import multiprocessing as mp
+import os
+import resource
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from noise.errors import ParameterError
+
+__all__ = ["WORKLOADS", "main", "floor_seconds", "floor_counts", "run_case"]
+
+_SLAB = 1 << 24          # variates per floor slab (64 MB of float32)
+_MB = 1024.0             # ru_maxrss is in KiB on Linux
+
+#: Reference numbers of other programs, used for the comparison columns.
+REFERENCES = {
+    ("noise", 1): ("NG original", 5.5, None),
+    ("noise", 10): ("NG original", 54.0, 2500.0),
+    ("noise", 40): ("NG original", 420.0, 9500.0),
+    ("roman", "full"): ("romanisim 0.15 L1", 83.0, 3400.0),
+    ("fit", "ols"): ("stcal 1.20 C OLS", 11.0, None),
+    ("fit", "gls"): ("stcal 1.20 likelihood", 57.0, None),
+}
+
+
+# ------------------------------------------------------------------------- floor
+def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3):
+    """Random-number floor: seconds to draw the unavoidable variates in bulk.
+
+    Parameters
+    ----------
+    n_normal : int
+        float32 standard normals.
+    n_poisson : int
+        Poisson draws.
+    lam : float
+        Mean of the Poisson draws (e-), the workload's typical value (>= 0).
+    threads : int
+        Threads; the draws are split evenly, one independent Generator per thread.
+    repeats : int, keyword-only
+        Measure this many times and keep the fastest (the machine is shared; the
+        minimum is the least disturbed estimate, which makes ratios conservative).
+
+    Returns
+    -------
+    float
+        Wall seconds (page faults of the buffers are excluded by pre-touching).
+    """
+    n_normal, n_poisson, threads = int(n_normal), int(n_poisson), int(threads)
+    if n_normal < 0 or n_poisson < 0:
+        raise ParameterError(f"'n_normal' and 'n_poisson' must be >= 0, got "
+                             f"{n_normal}, {n_poisson}")
+    if not np.isfinite(lam) or lam < 0:
+        raise ParameterError(f"'lam' must be finite and >= 0, got {lam!r}")
+    if threads < 1:
+        raise ParameterError(f"'threads' must be >= 1, got {threads!r}")
+    gens = [np.random.Generator(np.random.PCG64(s))
+            for s in np.random.SeedSequence(12345).spawn(threads)]
+    slab = min(_SLAB, max(n_normal, n_poisson, 1))
+    per = -(-slab // threads)
+    bufs = [np.ones(per, dtype=np.float32) for _ in range(threads)]   # pre-touched
+    lam_arr = [np.full(min(per, 1 << 20), lam, dtype=np.float64) for _ in range(threads)]
+
+    def normal_part(t, n):
+        gens[t].standard_normal(out=bufs[t][:n], dtype=np.float32)
+
+    def poisson_part(t, n):
+        # numpy has no `out=` for poisson: draw in 1M pieces (the int64 temporaries are
+        # recycled by the allocator) and store them as float32 like the normals
+        buf, la = bufs[t], lam_arr[t]
+        for a in range(0, n, la.size):
+            b = min(n, a + la.size)
+            buf[a:b] = gens[t].poisson(la[:b - a])
+
+    def run(fn, total, pool):
+        done = 0
+        while done < total:
+            n = min(slab, total - done)
+            parts = [n // threads + (1 if t < n % threads else 0) for t in range(threads)]
+            if pool is None:
+                fn(0, parts[0])
+            else:
+                list(pool.map(fn, range(threads), parts))
+            done += n
+
+    pool = ThreadPoolExecutor(threads) if threads > 1 else None
+    try:
+        best = np.inf
+        for _ in range(max(1, int(repeats))):
+            t0 = time.perf_counter()
+            run(normal_part, n_normal, pool)
+            if n_poisson:
+                run(poisson_part, n_poisson, pool)
+            best = min(best, time.perf_counter() - t0)
+        return best
+    finally:
+        if pool is not None:
+            pool.shutdown()
+
+
+def _noise_normals_per_read(det, params):
+    """Unavoidable normals of one materialised read of the noise model (no kTC)."""
+    nout = det.n_out_active
+    L = det.frame_samples
+    n = det.ny * det.nx if params.enabled("rd_noise") else 0
+    if params.c_pink > 0:
+        n += L
+    if params.enabled("u_pink"):
+        n += int(np.count_nonzero(params.per_output("u_pink", nout) > 0)) * L
+    if params.enabled("acn"):
+        n += int(np.count_nonzero(params.per_output("acn", nout) > 0)) * 2 * (L // 2)
+    if params.pca0 > 0:
+        n += det.ny + det.nfoh
+    return n
+
+
+def floor_counts(det, params, n_reads, nints=1, charged=0, n_intervals=0):
+    """Variates the exact model cannot avoid.
+
+    Parameters
+    ----------
+    det : noise.Detector
+    params : noise.NoiseParams or None
+        ``None``: no noise.
+    n_reads : int
+        Materialised reads in total (all integrations).
+    nints : int
+        Integrations (one kTC normal per pixel each, when kTC is on).
+    charged : int
+        Pixels with charge.
+    n_intervals : int
+        Read intervals in total (all integrations).
+
+    Returns
+    -------
+    (int, int)
+        Normals and Poisson draws.
+    """
+    n_normal = 0
+    if params is not None:
+        n_normal = n_reads * _noise_normals_per_read(det, params)
+        if params.ktc > 0:
+            n_normal += nints * det.ny * det.nx
+    return int(n_normal), int(charged) * int(n_intervals)
+
+
+# --------------------------------------------------------------------- workloads
+def _timed(fn):
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return time.perf_counter() - t0, time.process_time() - c0, out
+
+
+def _typical_lambda(rate, dt):
+    """Median Poisson mean (e-) over the pixels with charge, for intervals ``dt`` (s)."""
+    r = rate[rate > 0]
+    return float(np.median(r) * dt) if r.size else 0.0
+
+
+def bench_noise(frames, threads):
+    """NG-default 4-output H2RG, ``frames`` reads streamed to FITS."""
+    import noise
+    det, params = noise.preset("H2RG"), noise.NoiseParams()
+    gen = noise.NoiseGenerator(det, params, rng=1, threads=threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        wall, cpu, _ = _timed(lambda: noise.write_noise_fits(
+            os.path.join(tmp, "noise.fits"), gen, frames))
+    nn, npo = floor_counts(det, params, frames)
+    return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo, lam=0.0,
+                detail=f"H2RG 2048x2048, 4 outputs, {frames} frames, NG defaults")
+
+
+def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
+                on_resultant=None):
+    """Run a ChargeEngine (to a temp FITS file unless ``on_resultant`` is given)."""
+    from .engine import ChargeEngine, EngineOptions
+    from .exposure import write_exposure
+    opts = options if options is not None else EngineOptions(threads=threads)
+    eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
+                       options=opts)
+    if on_resultant is not None:
+        return _timed(lambda: eng.run(on_resultant=on_resultant, save_charge=True)), eng
+    with tempfile.TemporaryDirectory() as tmp:
+        return _timed(lambda: write_exposure(eng, os.path.join(tmp, "exp.fits"))), eng
+
+
+def _engine_result(det, readout, rate, params, timing, detail):
+    wall, cpu, _ = timing
+    nints = readout.nints
+    n_reads = nints * len(readout.needed_reads)
+    charged = int(np.count_nonzero(rate[~det.reference_mask()] > 0))
+    nn, npo = floor_counts(det, params, n_reads, nints, charged, n_reads)
+    return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo,
+                lam=_typical_lambda(rate, det.frame_time), detail=detail)
+
+
+def _star_rates(shape, n, rng, log_flux):
+    """Rate map (e-/s) of ``n`` point sources with log10 flux uniform in ``log_flux``."""
+    ny, nx = shape
+    x, y = rng.uniform(0, nx - 1, n), rng.uniform(0, ny - 1, n)
+    flux = 10 ** rng.uniform(*log_flux, n)
+    try:
+        from .psf import GaussianPSF, render_point_sources
+        return render_point_sources(shape, x, y, flux, GaussianPSF(2.0))[0]
+    except ImportError:
+        img = np.zeros(shape)
+        np.add.at(img, (np.rint(y).astype(int), np.rint(x).astype(int)), flux)
+        return img
+
+
+def bench_jwst(size, threads):
+    """H2RG star field: 1000 stars over 4 decades, RAPID, full noise."""
+    import noise
+    from .readout import Readout
+    quick = size != "full"
+    det = noise.preset("H2RG", naxis1=512, naxis2=512) if quick else noise.preset("H2RG")
+    ngroups = 5 if quick else 20
+    ro = Readout.named("RAPID", ngroups)
+    rate = 0.5 + 0.01 + _star_rates(det.shape, 1000, np.random.default_rng(3), (1, 5))
+    params = noise.NoiseParams()
+    timing, _ = _run_engine(det, ro, rate, threads, params)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"H2RG {det.ny}x{det.nx}, 1000 stars 10-1e5 e-/s, bg 0.5, "
+                          f"dark 0.01, RAPID x {ngroups}, full noise")
+
+
+def bench_roman(size, threads):
+    """H4RG-10 with a 9-resultant / 44-read MA table, 0.5 % bright pixels, full noise."""
+    import noise
+    from .readout import ROMAN_LIKE_TABLE, Readout
+    quick = size != "full"
+    det = noise.preset("H4RG-10", naxis1=1024, naxis2=1024) if quick \
+        else noise.preset("H4RG-10")
+    ro = Readout.from_ma_table(ROMAN_LIKE_TABLE)
+    g = np.random.default_rng(4)
+    rate = np.ones(det.shape)
+    bright = g.random(det.shape) < 0.005
+    rate[bright] = g.uniform(100, 1000, int(bright.sum()))
+    params = noise.NoiseParams()
+    timing, _ = _run_engine(det, ro, rate, threads, params)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"H4RG-10 {det.ny}x{det.nx}, 9 resultants / 44 reads, bg 1 "
+                          f"e-/s + 0.5% at 100-1000 e-/s, full noise")
+
+
+def bench_timeseries(nints, threads):
+    """64x64 window, ``nints`` integrations of RAPID x 5, one star, full noise."""
+    import noise
+    from .readout import Readout
+    det = noise.preset("H2RG").window(992, 992, 64, 64, name="BENCH64")
+    ro = Readout.named("RAPID", 5, nints=nints)
+    rate = np.full(det.shape, 0.51)
+    try:
+        from .psf import GaussianPSF, render_point_sources
+        rate = rate + render_point_sources(det.shape, 31.5, 31.5, 1e4, GaussianPSF(2.0))[0]
+    except ImportError:
+        rate[32, 32] += 1e4
+    params = noise.NoiseParams()
+    timing, _ = _run_engine(det, ro, rate, threads, params)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"64x64 window, {nints} ints x RAPID 5, 1 star 1e4 e-/s, "
+                          f"full noise")
+
+
+def bench_fit(spec, threads):
+    """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter."""
+    import noise
+    from .fit import fit_ramps
+    size, fitter = spec
+    ngroups, rate, rn = 20, 10.0, 10.0
+    tf = noise.preset("H2RG").frame_time
+    g = np.random.default_rng(6)
+    cube = np.empty((ngroups, size, size), dtype=np.float32)
+    acc = np.zeros((size, size), dtype=np.float32)
+    for k in range(ngroups):
+        acc += g.poisson(rate * tf, (size, size)).astype(np.float32)
+        cube[k] = acc + np.float32(rn) * g.standard_normal((size, size), dtype=np.float32)
+    times = [np.array([(k + 1) * tf]) for k in range(ngroups)]
+    t0 = time.perf_counter()
+    cube.sum(dtype=np.float64)
+    baseline = time.perf_counter() - t0
+    wall, cpu, res = _timed(lambda: fit_ramps(cube, times, read_noise=rn, fitter=fitter,
+                                              threads=threads))
+    slope = np.asarray(res.slope, dtype=np.float64)
+    return dict(wall=wall, cpu=cpu, baseline=baseline,
+                baseline_kind="memory bandwidth: one np.sum over the cube",
+                detail=f"{size}x{size}x{ngroups}, 10 e-/s, 10 e- per read, {fitter}",
+                median_slope=float(np.nanmedian(slope)))
+
+
+def bench_options(option, threads):
+    """Exact Poisson vs ``gauss_above``: run time and the error of the increments."""
+    import noise
+    from .engine import EngineOptions
+    from .readout import Readout
+    det = noise.preset("H2RG", naxis1=512, naxis2=512)
+    ngroups = 10
+    ro = Readout.named("RAPID", ngroups)
+    rate = 10 ** np.random.default_rng(8).uniform(0, 5, det.shape)  # 1 .. 1e5 e-/s
+    res = {}
+
+    def keep(i, r, dn, charge, nz):
+        res[r] = charge
+
+    opts = EngineOptions(gauss_above=option, threads=threads)
+    (wall, cpu, _), eng = _run_engine(det, ro, rate, threads, None, options=opts,
+                                      on_resultant=keep)
+    ramp = np.stack([res[r] for r in range(ngroups)]).astype(np.float64)
+    inc = np.diff(ramp, axis=0, prepend=0.0)     # charge per read interval, e-
+    lam = eng.rate * det.frame_time              # rolling reset: every interval is t_frame
+    live = ~det.reference_mask()
+    inc, lam = inc[:, live], lam[live]
+    # aggregate per decade of lambda: (mean - lam) / sqrt(lam / N) and var/lam - 1
+    edges = 10.0 ** np.arange(np.floor(np.log10(lam.min())), np.log10(lam.max()) + 1)
+    bins = np.digitize(lam, edges)
+    mean_sig, var_rel = [], []
+    for b in np.unique(bins):
+        m = bins == b
+        d = inc[:, m] - lam[m]                   # (ngroups, npix) deviations
+        n = d.size
+        mean_sig.append(abs(d.sum()) / np.sqrt(lam[m].sum() * ngroups))
+        var_rel.append(float((d ** 2).sum() / (lam[m].sum() * ngroups) - 1.0))
+        # 1-sigma of var_rel for Poisson: sqrt(2/n) (Gaussian limit), for reference
+    return dict(wall=wall, cpu=cpu, n_normal=0,
+                n_poisson=int(live.sum()) * ngroups,
+                lam=float(np.median(lam)), max_mean_sigma=float(max(mean_sig)),
+                max_var_rel=float(max(abs(v) for v in var_rel)),
+                var_rel_noise=float(np.sqrt(2.0 / (inc.size / len(var_rel)))),
+                detail=f"512x512, rates 1-1e5 e-/s log-uniform, RAPID x {ngroups}, "
+                       f"no read noise, gauss_above={option}")
+
+
+#: Workload name -> (function, full cases, quick cases).
+WORKLOADS = {
+    "noise": (bench_noise, [10, 40, 88], [1, 5]),
+    "jwst": (bench_jwst, ["full"], ["quick"]),
+    "roman": (bench_roman, ["full"], ["quick"]),
+    "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls")],
+            [(512, f) for f in ("cds", "ols", "gls")]),
+    "timeseries": (bench_timeseries, [300], [30]),
+    "options": (bench_options, [None, 1000.0, 100.0], [None, 1000.0, 100.0]),
+}
+
+
+# ---------------------------------------------------------------------- running
+def run_case(name, case, threads):
+    """Run one case in this process; add peak and baseline RSS (MB) to its result."""
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / _MB
+    out = WORKLOADS[name][0](case, threads)
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / _MB
+    out["base_rss_mb"] = base
+    return out
+
+
+def _child(name, case, threads, queue):
+    import noise  # noqa: F401  (imports count in base_rss, not in the case's peak)
+    from . import engine, exposure, fit, readout  # noqa: F401
+    try:
+        queue.put(("ok", run_case(name, case, threads)))
+    except BaseException as exc:  # report any failure to the parent, then exit
+        queue.put(("error", f"{type(exc).__name__}: {exc}"))
+
+
+def _in_subprocess(name, case, threads):
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_child, args=(name, case, threads, q))
+    p.start()
+    status, value = q.get()
+    p.join()
+    if status != "ok":
+        raise RuntimeError(f"workload {name} {case!r} failed: {value}")
+    return value
+
+
+def _label(case):
+    if isinstance(case, tuple):
+        return f"{case[0]}x{case[0]} {case[1]}"
+    if case is None:
+        return "exact"
+    return f"{case:g}" if isinstance(case, float) else str(case)
+
+
+def _reference(name, case):
+    key = (name, case[1]) if name == "fit" and case[0] == 2048 else (name, case)
+    return REFERENCES.get(key)
+
+
+def _row(name, case, r, threads):
+    row = dict(workload=name, case=_label(case), threads=threads, **r)
+    if name == "fit":
+        row["ratio"] = r["wall"] / r["baseline"] if r["baseline"] > 0 else None
+        row["ratio_kind"] = "time / memory-bandwidth baseline"
+    else:
+        row["floor"] = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads)
+        row["ratio"] = r["wall"] / row["floor"] if row["floor"] > 0 else None
+        row["ratio_kind"] = "time / random-number floor"
+    ref = _reference(name, case)
+    if ref is not None:
+        prog, sec, mb = ref
+        row["reference"] = prog
+        row["speedup_vs_reference"] = sec / r["wall"]
+        row["reference_mb"] = mb
+    return row
+
+
+def _fmt(v, f):
+    return "-" if v is None else format(v, f)
+
+
+def _markdown(rows):
+    head = ("| workload | case | wall s | CPU s | peak RSS MB | floor s | ratio | "
+            "vs reference | notes |\n|---|---|---|---|---|---|---|---|---|\n")
+    lines = []
+    for r in rows:
+        base = r.get("floor", r.get("baseline"))
+        kind = "floor" if "floor" in r else "np.sum"
+        ref = "-"
+        if "reference" in r:
+            ref = f"{r['speedup_vs_reference']:.1f}x faster than {r['reference']}"
+            if r.get("reference_mb"):
+                ref += f" ({r['reference_mb']:.0f} MB)"
+        notes = r["detail"]
+        if "max_var_rel" in r:
+            notes += (f"; max |var/lam-1| {r['max_var_rel']:.2e} (1 sigma "
+                      f"{r['var_rel_noise']:.1e}), max |mean diff| "
+                      f"{r['max_mean_sigma']:.2f} sigma")
+        lines.append(f"| {r['workload']} | {r['case']} | {r['wall']:.2f} | "
+                     f"{r['cpu']:.2f} | {r['peak_rss_mb']:.0f} | {_fmt(base, '.2f')} "
+                     f"({kind}) | {_fmt(r['ratio'], '.1f')} | {ref} | {notes} |")
+    return head + "\n".join(lines) + "\n"
+
+
+def _plot(rows, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    opt = [r for r in rows if r["workload"] == "options"]
+    fig, ax = plt.subplots(figsize=(5, 4))
+    for r in opt:
+        err = max(r["max_var_rel"], 1e-6)
+        ax.scatter(r["wall"], err)
+        ax.annotate(f"gauss_above={r['case']}", (r["wall"], err), fontsize=8)
+    ax.set_xlabel("run time (s)")
+    ax.set_ylabel("max |var(increment)/lambda - 1| per decade")
+    ax.set_yscale("log")
+    ax.set_title("run time against error (options)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(workloads, *, quick=False, out_dir="bench_out", threads=None):
+    """Run the named workloads (all if empty), write ``bench.json``/``.md``/``.png``.
+
+    Parameters
+    ----------
+    workloads : sequence of str
+        Names from :data:`WORKLOADS`; empty: all.
+    quick : bool
+        Small sizes (seconds instead of minutes).
+    out_dir : str
+        Output directory (created).
+    threads : int or None
+        Threads for the workloads and the floor (default: all cores).
+
+    Returns
+    -------
+    int
+        Exit status (0).
+    """
+    names = list(workloads) or list(WORKLOADS)
+    bad = [n for n in names if n not in WORKLOADS]
+    if bad:
+        raise ParameterError(f"'workloads' must be among {list(WORKLOADS)}, got {bad}")
+    threads = int(threads) if threads is not None else (os.cpu_count() or 1)
+    if threads < 1:
+        raise ParameterError(f"'threads' must be >= 1, got {threads}")
+    os.makedirs(out_dir, exist_ok=True)
+    rows = []
+    for name in names:
+        fn, full, small = WORKLOADS[name]
+        for case in (small if quick else full):
+            print(f"[bench] {name} {_label(case)} ...", flush=True)
+            r = _in_subprocess(name, case, threads)
+            row = _row(name, case, r, threads)
+            rows.append(row)
+            extra = f" floor {row['floor']:.2f} s" if "floor" in row else \
+                f" np.sum {row['baseline']:.3f} s"
+            print(f"[bench] {name} {_label(case)}: wall {row['wall']:.2f} s, cpu "
+                  f"{row['cpu']:.2f} s, peak {row['peak_rss_mb']:.0f} MB,{extra}, "
+                  f"ratio {_fmt(row['ratio'], '.1f')}", flush=True)
+            _write(rows, out_dir, threads, quick)
+    return 0
+
+
+def _write(rows, out_dir, threads, quick):
+    meta = dict(threads=threads, quick=quick, nproc=os.cpu_count(),
+                load_average=os.getloadavg(),
+                python=sys.version.split()[0], numpy=np.__version__,
+                date=time.strftime("%Y-%m-%d %H:%M:%S"))
+    with open(os.path.join(out_dir, "bench.json"), "w") as f:
+        json.dump(dict(meta=meta, rows=rows), f, indent=1)
+    with open(os.path.join(out_dir, "bench.md"), "w") as f:
+        f.write(f"Benchmarks ({meta['date']}, {threads} threads, "
+                f"{'quick' if quick else 'full'})\n\n" + _markdown(rows))
+    if any(r["workload"] == "options" for r in rows):
+        _plot(rows, os.path.join(out_dir, "bench.png"))

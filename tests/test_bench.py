@@ -1,0 +1,47 @@
+"""Logic tests of the benchmark harness (no timing assertions: times drift here)."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import noise
+from noise.errors import ParameterError
+from scenesim import bench
+
+
+def test_quick_timeseries_writes_json_and_markdown(tmp_path):
+    out = tmp_path / "b"
+    assert bench.main(["timeseries"], quick=True, out_dir=str(out), threads=1) == 0
+    data = json.loads((out / "bench.json").read_text())
+    (row,) = data["rows"]
+    assert row["workload"] == "timeseries" and row["case"] == "30"
+    assert row["wall"] > 0 and row["floor"] > 0 and row["peak_rss_mb"] > 0
+    assert row["ratio"] == pytest.approx(row["wall"] / row["floor"])
+    md = (out / "bench.md").read_text()
+    assert "| timeseries | 30 |" in md
+
+
+def test_floor_counts_follow_design_section_7():
+    # Closed form from DESIGN.md §7 for the NG defaults (all components on, 4 outputs):
+    # per read nx*ny white + L (c_pink) + 4 L (u_pink) + 4 * 2 * (L/2) (ACN)
+    # + (ny + nfoh) (picture frame); kTC: nx*ny per integration; Poisson: pixels x reads.
+    det, p = noise.preset("H2RG", naxis1=256, naxis2=256), noise.NoiseParams()
+    L = (det.ny + det.nfoh) * (det.ncols_out + det.nroh)
+    per_read = det.ny * det.nx + L + 4 * L + 4 * L + det.ny + det.nfoh
+    ktc = det.ny * det.nx if p.ktc > 0 else 0
+    nn, npo = bench.floor_counts(det, p, n_reads=6, nints=2, charged=1000, n_intervals=6)
+    assert nn == 6 * per_read + 2 * ktc
+    assert npo == 6000
+    assert bench.floor_counts(det, None, 6) == (0, 0)
+
+
+def test_bad_arguments_raise_before_work(tmp_path):
+    with pytest.raises(ParameterError, match="workloads"):
+        bench.main(["nope"], quick=True, out_dir=str(tmp_path / "x"))
+    assert not os.path.exists(tmp_path / "x")
+    with pytest.raises(ParameterError, match="n_normal"):
+        bench.floor_seconds(-1, 0, 1.0, 1)
+    with pytest.raises(ParameterError, match="lam"):
+        bench.floor_seconds(10, 10, np.nan, 1)

@@ -1,0 +1,501 @@
+"""Tests of scenesim.fit against closed forms and seeded Monte Carlo ramps.
+
+The ramps are simulated here, independently of the simulator: Poisson increments of
+charge between consecutive reads at their exact times (from reset), Gaussian read
+noise per read, reads averaged into resultants.  The reference variances are built
+from a dense covariance of the resultants computed from the read times themselves
+(``Cov(Q(t), Q(t')) = f min(t, t')``), not from the module's formulas.
+"""
+
+import os
+from math import erf
+
+import numpy as np
+import pytest
+
+from noise.errors import FileFormatError, ParameterError
+from scenesim import fit
+from scenesim.fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
+                          FitResult, fit_ramps, ols_variance, optimal_variance,
+                          rauscher2007_variance, read_fit, write_fit)
+
+T_JWST = 10.737     # s, H2RG full-frame time
+T_ROMAN = 3.04      # s
+SIGMA = 10.0        # e- per read
+ROMAN_TABLE = ((0, 1), (1, 2), (3, 3), (6, 4), (10, 6), (16, 6), (22, 8), (30, 8),
+               (38, 6))
+
+
+def jwst_times(ngroups=20, nframes=1, groupgap=0, t_frame=T_JWST):
+    """Read times of a MULTIACCUM ramp, rolling reset: read k at (k + 1) t_frame."""
+    return [(np.arange(nframes) + g * (nframes + groupgap) + 1) * t_frame
+            for g in range(ngroups)]
+
+
+def roman_times(t_frame=T_ROMAN):
+    """Uneven 9-resultant / 44-read table."""
+    return [(np.arange(a, a + n) + 1) * t_frame for a, n in ROMAN_TABLE]
+
+
+READOUTS = {"jwst20": jwst_times, "roman9": roman_times}
+
+
+def simulate(rng, rate, times, sigma, shape, *, nints=None, hits=None):
+    """Resultants (e-) of constant-rate ramps.
+
+    ``rate`` scalar or array of ``shape``.  ``hits``: optional (time, amplitude) arrays
+    of ``shape``: a charge ``amplitude`` arrives at ``time`` (s from reset).
+    """
+    allt = np.concatenate(times)
+    nres = len(times)
+    lead = () if nints is None else (nints,)
+    out = np.empty(lead + (nres,) + shape, np.float64)
+    for k in range(1 if nints is None else nints):
+        q = np.zeros(shape)
+        prev = 0.0
+        acc = np.zeros((nres,) + shape)
+        r_of_read = np.repeat(np.arange(nres), [len(t) for t in times])
+        for t, r in zip(allt, r_of_read):
+            q = q + rng.poisson(rate * (t - prev), size=shape)
+            read = q + sigma * rng.standard_normal(shape)
+            if hits is not None:
+                read = read + np.where(hits[0] < t, hits[1], 0.0)
+            acc[r] += read
+            prev = t
+        acc /= np.array([len(t) for t in times], float)[(...,) + (None,) * len(shape)]
+        if nints is None:
+            out[:] = acc
+        else:
+            out[k] = acc
+    return out
+
+
+def dense_cov(times, sigma):
+    """Read-noise (per sigma^2 = 1 scaled by sigma^2) and Poisson (per unit rate)
+    covariance of the resultants, from the read times."""
+    n = np.array([len(t) for t in times], float)
+    m = np.array([[np.minimum.outer(a, b).mean() for b in times] for a in times])
+    return sigma ** 2 * np.diag(1 / n), m
+
+
+def dense_gls(rate, times, sigma):
+    """GLS with free intercept on the dense resultant covariance.
+
+    Returns (variance of the slope, read part, Poisson part per unit rate).
+    """
+    r, m = dense_cov(times, sigma)
+    cov = r + rate * m
+    tb = np.array([t.mean() for t in times])
+    x = np.stack([np.ones_like(tb), tb], axis=1)
+    ci = np.linalg.inv(cov)
+    par = np.linalg.inv(x.T @ ci @ x)
+    c = (par @ x.T @ ci)[1]
+    return par[1, 1], c @ r @ c, c @ m @ c
+
+
+def dense_ols(rate, times, sigma):
+    """Equal-weight least squares on resultants vs mean time: exact c^T Sigma c."""
+    r, m = dense_cov(times, sigma)
+    tb = np.array([t.mean() for t in times])
+    c = (tb - tb.mean()) / np.sum((tb - tb.mean()) ** 2)
+    return c @ (r + rate * m) @ c
+
+
+def expected_z2(rate, times, sigma):
+    """E[(f_hat - f)^2 / V_hat] for V_hat = V_read + q_p max(f_hat, 0).
+
+    The reported variance uses the fitted rate (clipped at 0), so it is correlated
+    with the error; for f_hat ~ N(f, V_opt) the expectation is a 1-D integral
+    (evaluated on a +-12 sigma grid).  It is 1 when q_p sqrt(V) << V, i.e. when one
+    sigma of the rate changes the Poisson variance negligibly.
+    """
+    v, vr, qp = dense_gls(rate, times, sigma)
+    s = np.sqrt(v)
+    x = rate + s * np.linspace(-12, 12, 48001)
+    w = np.exp(-0.5 * ((x - rate) / s) ** 2)
+    w /= w.sum()
+    return float(np.sum(w * (x - rate) ** 2 / (vr + qp * np.maximum(x, 0))))
+
+
+# ---------------------------------------------------------------- closed forms
+@pytest.mark.parametrize("name", list(READOUTS))
+@pytest.mark.parametrize("rate", [0.0, 0.01, 1.0, 100.0, 1e4])
+def test_optimal_variance_equals_dense_gls(name, rate):
+    times = READOUTS[name]()
+    # Same quantity by two exact routes (tridiagonal difference covariance vs dense
+    # resultant covariance with a free intercept): agreement to rounding.
+    assert optimal_variance(rate, times, SIGMA) == pytest.approx(
+        dense_gls(rate, times, SIGMA)[0], rel=1e-9)
+
+
+def test_optimal_variance_broadcasts():
+    times = jwst_times()
+    rates = np.array([[0.0, 1.0], [10.0, 100.0]])
+    rn = np.array([5.0, 10.0])
+    got = optimal_variance(rates, times, rn)
+    assert got.shape == (2, 2)
+    assert got[1, 1] == pytest.approx(optimal_variance(100.0, times, 10.0), rel=1e-12)
+
+
+@pytest.mark.parametrize("ngroups,nframes,groupgap", [(20, 1, 0), (10, 4, 1), (5, 8, 12),
+                                                      (2, 2, 3), (88, 1, 0)])
+@pytest.mark.parametrize("rate", [0.0, 1.0, 1e3])
+def test_rauscher2007_equals_matrix_ols(ngroups, nframes, groupgap, rate):
+    times = jwst_times(ngroups, nframes, groupgap)
+    ref = dense_ols(rate, times, SIGMA)
+    # Closed form vs the exact matrix computation: equal to rounding.
+    assert rauscher2007_variance(rate, ngroups, nframes, groupgap, T_JWST, SIGMA) == \
+        pytest.approx(ref, rel=1e-9)
+    assert ols_variance(rate, times, SIGMA) == pytest.approx(ref, rel=1e-9)
+
+
+def test_ols_is_up_to_seven_percent_worse_at_high_flux():
+    # DESIGN: equal weights lose up to ~7 % in sigma at high flux for 20 groups;
+    # the Poisson-limit ratio for equal spacing is sqrt(6 (n^2 + 1) / (5 n (n + 1))
+    # * n / (n - 1)) ... evaluated directly from the matrices here.
+    times = jwst_times()
+    ratio = np.sqrt(ols_variance(1e5, times, SIGMA) / optimal_variance(1e5, times, SIGMA))
+    assert 1.06 < ratio < 1.075
+    assert ols_variance(0.0, times, SIGMA) == pytest.approx(
+        optimal_variance(0.0, times, SIGMA), rel=1e-9)
+
+
+# ---------------------------------------------------------------- Monte Carlo
+# 160000 pixels per case: the ratio r = std(fit - truth)/sqrt(V_opt) has a standard
+# error of about 1/sqrt(2 n) = 0.0018, so 5 sigma = 0.0088 < 0.01 (the required
+# [0.99, 1.01] band is a >= 5 sigma test).
+NPIX_SIDE = 400
+
+
+@pytest.mark.parametrize("name", list(READOUTS))
+@pytest.mark.parametrize("rate", [0.01, 1.0, 100.0, 1e4])
+def test_fitters_against_theory(name, rate):
+    times = READOUTS[name]()
+    rng = np.random.default_rng([7, int(rate * 100), len(times)])
+    shape = (NPIX_SIDE, NPIX_SIDE)
+    n = shape[0] * shape[1]
+    res = simulate(rng, rate, times, SIGMA, shape)
+    v_opt = dense_gls(rate, times, SIGMA)[0]
+
+    g = fit_ramps(res, times, read_noise=SIGMA, fitter="gls")
+    e = g.slope.astype(float) - rate
+    assert g.dq.max() == 0 and np.all(g.dof == len(times) - 2)
+    # Efficiency: see the comment on NPIX_SIDE (5 sigma = 0.0088 inside +-0.01).
+    ratio = e.std() / np.sqrt(v_opt)
+    assert 0.99 <= ratio <= 1.01, ratio
+    # Bias below 0.05 sigma; the mean's own standard error is 1/sqrt(n) = 0.0025.
+    assert abs(e.mean()) / np.sqrt(v_opt) < 0.05
+    # chi2 per dof: its mean has standard error sqrt(2/dof/n) < 0.001; the band
+    # +-0.03 leaves room for the covariance being evaluated at the fitted rate.
+    assert abs(g.chi2.mean() - 1) < 0.03, g.chi2.mean()
+    # Reported variance: E[(f_hat - f)^2 / V_hat] is predicted by expected_z2 (it
+    # departs from 1 at low flux because V_hat uses the fitted rate).  z^2 has
+    # variance ~2, so the mean has standard error sqrt(2/n) = 0.0035: 5 sigma = 0.018.
+    z2 = np.mean(e ** 2 / g.var)
+    assert abs(z2 - expected_z2(rate, times, SIGMA)) < 5 * np.sqrt(2 / n), z2
+    # Read/Poisson split: the read part against the dense optimal weights' read
+    # variance (weights at the fitted rate differ slightly: 0.5 % allowance).
+    vr = dense_gls(rate, times, SIGMA)[1]
+    assert np.mean(g.var_read) == pytest.approx(vr, rel=0.005)
+
+    # OLS: measured variance vs the exact matrix variance; a variance ratio has
+    # standard error sqrt(2/n) = 0.0035, 5 sigma = 0.018.
+    o = fit_ramps(res, times, read_noise=SIGMA, fitter="ols")
+    eo = o.slope.astype(float) - rate
+    v_ols = dense_ols(rate, times, SIGMA)
+    assert eo.var() / v_ols == pytest.approx(1, abs=5 * np.sqrt(2 / n))
+    assert abs(eo.mean()) / np.sqrt(v_ols) < 5 / np.sqrt(n)
+    # Reported OLS variance: V_read + q_p max(f_hat, 0).  For f_hat ~ N(f, V) its
+    # mean is V_read + q_p (f Phi(f/s) + s phi(f/s)), s = sqrt(V) (above V at low
+    # flux).  Its relative sampling error is < q_p s / (V sqrt(n)) <= 4e-4 here
+    # (largest at 0.01 e-/s), so 5 sigma = 0.002; the band is 0.003.
+    r, m = dense_cov(times, SIGMA)
+    tb = np.array([t.mean() for t in times])
+    cw = (tb - tb.mean()) / np.sum((tb - tb.mean()) ** 2)
+    s = np.sqrt(v_ols)
+    emax = rate * 0.5 * (1 + erf(rate / s / np.sqrt(2))) + s * np.exp(
+        -0.5 * (rate / s) ** 2) / np.sqrt(2 * np.pi)
+    assert np.mean(o.var) == pytest.approx(cw @ r @ cw + (cw @ m @ cw) * emax, rel=0.003)
+
+    # CDS: exact variance of (R_last - R_first) / (tbar_last - tbar_first).
+    c = fit_ramps(res, times, read_noise=SIGMA, fitter="cds")
+    ec = c.slope.astype(float) - rate
+    r, m = dense_cov(times, SIGMA)
+    w = np.zeros(len(times))
+    w[0], w[-1] = -1, 1
+    w /= times[-1].mean() - times[0].mean()
+    v_cds = w @ (r + rate * m) @ w
+    assert ec.var() / v_cds == pytest.approx(1, abs=5 * np.sqrt(2 / n))
+    assert abs(ec.mean()) / np.sqrt(v_cds) < 5 / np.sqrt(n)
+
+
+def test_multiple_integrations_combined_inverse_variance():
+    times = jwst_times(10)
+    rate, nints = 50.0, 3
+    rng = np.random.default_rng(11)
+    shape = (200, 200)
+    n = shape[0] * shape[1]
+    res = simulate(rng, rate, times, SIGMA, shape, nints=nints)
+    v1 = dense_gls(rate, times, SIGMA)[0]
+    g = fit_ramps(res, times, read_noise=SIGMA)
+    assert g.slope_ints.shape == (nints,) + shape
+    # Independent integrations with equal weights: V = V_1 / nints.  Variance
+    # ratios have standard error sqrt(2/n) = 0.007 -> 5 sigma = 0.035.
+    e = g.slope - rate
+    assert e.var() / (v1 / nints) == pytest.approx(1, abs=5 * np.sqrt(2 / n))
+    for k in range(nints):
+        ek = g.slope_ints[k] - rate
+        assert ek.var() / v1 == pytest.approx(1, abs=5 * np.sqrt(2 / n))
+        assert np.mean(g.var_ints[k]) == pytest.approx(v1, rel=0.01)
+    assert np.allclose(g.slope, g.slope_ints.mean(axis=0), rtol=0, atol=1e-4 * rate)
+    assert np.mean(g.var) == pytest.approx(v1 / nints, rel=0.01)
+    assert np.all(g.dof == nints * 9 - 1)
+
+
+# ---------------------------------------------------------------- jumps
+def test_jump_detection_and_unbiased_split():
+    times = jwst_times(20)
+    rate = 10.0
+    rng = np.random.default_rng(12)
+    shape = (200, 200)
+    # sigma of one difference containing the hit: read noise of two reads plus the
+    # Poisson charge over one frame time.
+    sig_d = np.sqrt(2 * SIGMA ** 2 + rate * T_JWST)
+    hit = rng.random(shape) < 0.3
+    t_hit = rng.uniform(times[0][0], times[-1][0], shape)
+    amp = np.where(hit, rng.uniform(10, 40, shape) * sig_d, 0.0)
+    res = simulate(rng, rate, times, SIGMA, shape, hits=(t_hit, amp))
+    g = fit_ramps(res, times, read_noise=SIGMA, jump_threshold=5.0)
+    flagged = (g.dq & JUMP_DET) > 0
+    found = np.mean(flagged[hit])
+    false = np.mean(flagged[~hit])
+    assert found >= 0.99, found
+    # For clean pixels |z| > 5 occurs with probability ~1e-6 per difference:
+    # ~2e-5 per pixel, far below the 0.5 % allowed.
+    assert false < 0.005, false
+    assert np.all(g.n_jumps[hit & flagged] >= 1)
+    # Slopes of hit pixels after splitting: unbiased.  z = (f_hat - f)/sqrt(V) is
+    # ~N(0, 1), its mean has standard error 1/sqrt(n_hit) -> 5 sigma.
+    z = (g.slope[hit] - rate) / np.sqrt(g.var[hit])
+    assert abs(z.mean()) < 5 / np.sqrt(hit.sum()), z.mean()
+    assert np.mean(z ** 2) == pytest.approx(1, abs=5 * np.sqrt(2 / hit.sum()) + 0.02)
+    # Without detection the same pixels are biased by the hits (null check): a hit
+    # of ~25 sigma_d = 380 e- in a 204 s ramp adds ~2 e-/s, ~8 sigma of a slope.
+    g0 = fit_ramps(res, times, read_noise=SIGMA)
+    assert np.mean((g0.slope[hit] - rate) / np.sqrt(g.var[hit])) > 5
+    assert np.all((g0.dq & JUMP_DET) == 0)
+
+
+def test_jump_excludes_the_difference_with_the_hit():
+    times = jwst_times(8)
+    tb = np.array([t.mean() for t in times])
+    res = np.broadcast_to((3.0 * tb)[:, None, None], (8, 1, 2)).copy()
+    res[5:, 0, 0] += 1000.0                  # hit between resultants 4 and 5
+    g = fit_ramps(res, times, read_noise=1.0, jump_threshold=4.0)
+    assert g.n_jumps[0, 0] == 1 and g.n_jumps[0, 1] == 0
+    assert g.dq[0, 0] == JUMP_DET and g.dq[0, 1] == 0
+    # Noise-free ramp: the remaining segments give the rate exactly.
+    assert g.slope[0, 0] == pytest.approx(3.0, rel=1e-5)
+    assert g.dof[0, 0] == 5 and g.dof[0, 1] == 6
+
+
+# ---------------------------------------------------------------- saturation
+def test_saturation_midway_uses_unsaturated_resultants():
+    times = roman_times()
+    rng = np.random.default_rng(13)
+    shape = (200, 200)
+    rate = 300.0
+    res = simulate(rng, rate, times, SIGMA, shape)
+    tb = np.array([t.mean() for t in times])
+    # Each pixel saturates after a random number of usable resultants 2..9.
+    nuse = rng.integers(2, 10, shape)
+    sat = np.arange(len(times))[:, None, None] >= nuse[None]
+    res[sat] = 65535.0 * 1.5                 # garbage in saturated resultants
+    g = fit_ramps(res, times, read_noise=SIGMA, saturated=sat)
+    assert np.all(g.dq[nuse < 9] == SATURATED)
+    assert np.all(g.dq[nuse == 9] == 0)
+    assert np.all(g.dof == nuse - 2)
+    # Per-pixel optimal variance of the truncated ramp; z has unit variance.
+    vopt = np.array([dense_gls(rate, times[:k], SIGMA)[0] for k in range(2, 10)])
+    v = vopt[nuse - 2]
+    z = (g.slope - rate) / np.sqrt(v)
+    n = z.size
+    # Mean: standard error 1/sqrt(n) = 0.005 -> 5 sigma.  Variance: sqrt(2/n).
+    assert abs(z.mean()) < 5 / np.sqrt(n)
+    assert z.var() == pytest.approx(1, abs=5 * np.sqrt(2 / n) + 0.01)
+    assert np.all(np.isfinite(g.var)) and np.all(tb > 0)
+
+
+def test_fully_saturated_and_single_resultant():
+    times = jwst_times(6)
+    tb = np.array([t.mean() for t in times])
+    rng = np.random.default_rng(14)
+    shape = (100, 100)
+    rate, zp = 20.0, 1000.0
+    res = simulate(rng, rate, times, SIGMA, shape) + zp
+    sat = np.zeros(res.shape, bool)
+    sat[:, :, :50] = True                    # fully saturated
+    sat[1:, :, 50:] = True                   # one usable resultant
+    g = fit_ramps(res, times, read_noise=SIGMA, saturated=sat)
+    full, one = np.s_[:, :50], np.s_[:, 50:]
+    assert np.all(g.dq[full] == SATURATED | DO_NOT_USE)
+    assert np.all(g.dq[one] == SATURATED | DO_NOT_USE)
+    for arr in (g.slope, g.var_read, g.var_poisson, g.chi2):
+        assert np.all(np.isfinite(arr))
+    assert np.all(g.slope[full] == 0) and np.all(g.var_read[full] == BAD_VARIANCE)
+    # With the zero point known, one resultant gives (R_0 - zp) / tbar_0 with
+    # variance (sigma^2 / N_0 + f tau_0) / tbar_0^2 (N_0 = 1, tau_0 = tbar_0).
+    g1 = fit_ramps(res, times, read_noise=SIGMA, saturated=sat, zero_point=zp)
+    assert np.all(g1.dq[one] == SATURATED) and np.all(g1.dq[full] == SATURATED | DO_NOT_USE)
+    v1 = (SIGMA ** 2 + rate * tb[0]) / tb[0] ** 2
+    e = g1.slope[one] - rate
+    n = e.size
+    assert abs(e.mean()) < 5 * np.sqrt(v1 / n)
+    assert e.var() / v1 == pytest.approx(1, abs=5 * np.sqrt(2 / n))
+    assert np.mean(g1.var[one]) == pytest.approx(v1, rel=0.02)
+
+
+def test_two_resultant_ramps_are_cds():
+    times = [np.array([1.0, 2.0, 3.0]) * T_ROMAN, np.array([10.0, 11.0]) * T_ROMAN]
+    rng = np.random.default_rng(15)
+    shape = (200, 200)
+    rate = 40.0
+    res = simulate(rng, rate, times, SIGMA, shape)
+    r, m = dense_cov(times, SIGMA)
+    w = np.array([-1.0, 1.0]) / (times[1].mean() - times[0].mean())
+    v = w @ (r + rate * m) @ w
+    n = shape[0] * shape[1]
+    slopes = []
+    for fitter in fit.FITTERS:
+        g = fit_ramps(res, times, read_noise=SIGMA, fitter=fitter)
+        e = g.slope - rate
+        assert e.var() / v == pytest.approx(1, abs=5 * np.sqrt(2 / n))
+        assert np.all(g.dof == 0) and np.all(g.chi2 == 0) and np.all(g.dq == 0)
+        slopes.append(g.slope)
+    np.testing.assert_allclose(slopes[0], slopes[2], rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(slopes[1], slopes[2], rtol=1e-5, atol=1e-4)
+
+
+def test_one_resultant_input():
+    times = [np.array([1.0, 2.0]) * T_ROMAN]
+    res = np.full((1, 3, 4), 500.0)
+    g = fit_ramps(res, times, read_noise=SIGMA)
+    assert np.all(g.dq == DO_NOT_USE) and np.all(g.slope == 0)
+    assert np.all(np.isfinite(g.var))
+    g1 = fit_ramps(res, times, read_noise=SIGMA, zero_point=np.full((3, 4), 200.0))
+    assert np.all(g1.dq == 0)
+    np.testing.assert_allclose(g1.slope, 300.0 / (1.5 * T_ROMAN), rtol=1e-6)
+    # Read part: sigma^2 / N / tbar^2.
+    np.testing.assert_allclose(g1.var_read, SIGMA ** 2 / 2 / (1.5 * T_ROMAN) ** 2,
+                               rtol=1e-6)
+
+
+# ---------------------------------------------------------------- invariances
+def test_global_reset_shift_and_noise_map_and_chunking(monkeypatch):
+    times = jwst_times(6, t_frame=1.0)
+    rng = np.random.default_rng(16)
+    shape = (24, 16)
+    res = simulate(rng, 5.0, times, 3.0, shape).astype(np.float32)
+    base = fit_ramps(res, times, read_noise=3.0, jump_threshold=4.0)
+    # Global reset: each pixel's reads shifted by its clock offset.  The difference
+    # covariance only involves time differences, so the fit is unchanged.
+    shift = rng.uniform(0, 0.9, shape)
+    ptimes = [t[:, None, None] - 1.0 + shift[None] for t in times]
+    g = fit_ramps(res, ptimes, read_noise=np.full(shape, 3.0), jump_threshold=4.0)
+    np.testing.assert_allclose(g.slope, base.slope, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(g.var, base.var, rtol=1e-5)
+    # Chunk size and thread count do not change the result (bit for bit).
+    monkeypatch.setattr(fit, "_CHUNK_ELEMS", 6 * 16 * 2)
+    g2 = fit_ramps(res, times, read_noise=3.0, jump_threshold=4.0, threads=3)
+    for key in ("slope", "var_read", "var_poisson", "chi2", "dq", "n_jumps"):
+        np.testing.assert_array_equal(getattr(g2, key), getattr(base, key))
+
+
+def test_null_limits_and_refmask():
+    times = jwst_times(5, t_frame=2.0)
+    tb = np.array([t.mean() for t in times])
+    # No charge, no noise: zero rate, zero variance, no NaN.
+    res = np.zeros((5, 4, 4))
+    g = fit_ramps(res, times, read_noise=0.0)
+    assert np.all(g.slope == 0) and np.all(np.isfinite(g.var)) and np.all(g.dq == 0)
+    # Noise-free ramp with an offset: every fitter returns the exact rate.
+    res = np.broadcast_to((7.0 + 2.5 * tb)[:, None, None], (5, 4, 4))
+    mask = np.zeros((4, 4), bool)
+    mask[0] = True
+    for fitter in fit.FITTERS:
+        g = fit_ramps(res, times, read_noise=1.0, fitter=fitter, refmask=mask)
+        np.testing.assert_allclose(g.slope, 2.5, rtol=1e-5)
+        assert np.all(g.dq[0] == REFERENCE_PIXEL | DO_NOT_USE) and np.all(g.dq[1:] == 0)
+        assert np.all(g.chi2 < 1e-6)
+
+
+# ---------------------------------------------------------------- files
+def test_write_read_roundtrip(tmp_path):
+    from astropy.io import fits
+
+    times = jwst_times(4)
+    rng = np.random.default_rng(17)
+    res = simulate(rng, 3.0, times, SIGMA, (6, 5), nints=2)
+    g = fit_ramps(res, times, read_noise=SIGMA, gain=2.0)
+    path = tmp_path / "fit.fits"
+    write_fit(path, g, header_cards=[("DETECTOR", "H2RG", "detector")])
+    assert os.listdir(tmp_path) == ["fit.fits"]     # no temporary file left
+    back = read_fit(path)
+    assert isinstance(back, FitResult) and back.fitter == "gls" and back.gain == 2.0
+    for key in ("slope", "var_read", "var_poisson", "chi2", "dof", "dq", "slope_ints",
+                "var_ints", "n_jumps"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(g, key))
+    with fits.open(path) as hdul:
+        hdr = hdul[0].header
+        assert hdr["RNOISE"] == SIGMA and "NOT CDS" in hdr.comments["RNOISE"]
+        assert hdr["BUNIT"] == "e-/s" and hdr["DETECTOR"] == "H2RG"
+        np.testing.assert_allclose(hdul["SLOPE_DN"].data, g.slope / 2.0, rtol=1e-6)
+        assert hdul["SLOPEINT"].data.shape == (2, 6, 5)
+        assert hdul["DQ"].data.dtype == np.uint32
+    with pytest.raises(ParameterError, match="exists"):
+        write_fit(path, g, overwrite=False)
+    with pytest.raises(FileFormatError):
+        read_fit(tmp_path / "missing.fits")
+    fits.PrimaryHDU(np.zeros(3)).writeto(tmp_path / "other.fits")
+    with pytest.raises(FileFormatError, match="missing"):
+        read_fit(tmp_path / "other.fits")
+
+
+# ---------------------------------------------------------------- bad input
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(fitter="wls"), "fitter"),
+    (dict(read_noise=-1.0), "read_noise"),
+    (dict(read_noise=np.ones((2, 2))), "read_noise"),
+    (dict(gain=0.0), "gain"),
+    (dict(n_iter=0), "n_iter"),
+    (dict(jump_threshold=-3.0), "jump_threshold"),
+    (dict(saturated=np.zeros((3, 4, 4), bool)), "saturated"),
+    (dict(saturated=np.zeros((4, 4, 4), int)), "saturated"),
+    (dict(refmask=np.zeros((3, 3), bool)), "refmask"),
+    (dict(read_times=[[1.0], [2.0]]), "read_times"),
+    (dict(read_times=[[1.0], [3.0], [2.0], [4.0]]), "overlap"),
+    (dict(read_times=[[1.0], [2.0, 1.5], [3.0], [4.0]]), "increasing"),
+    (dict(resultants=np.zeros((4, 4))), "resultants"),
+    (dict(resultants=np.full((4, 4, 4), np.nan)), "finite"),
+    (dict(threads=0), "threads"),
+])
+def test_bad_input(kwargs, match):
+    args = dict(resultants=np.zeros((4, 4, 4)), read_times=[[1.0], [2.0], [3.0], [4.0]],
+                read_noise=1.0)
+    args.update(kwargs)
+    resultants, read_times = args.pop("resultants"), args.pop("read_times")
+    with pytest.raises(ParameterError, match=match):
+        fit_ramps(resultants, read_times, **args)
+
+
+def test_bad_input_theory_functions():
+    with pytest.raises(ParameterError, match="rate"):
+        optimal_variance(-1.0, jwst_times(3), 1.0)
+    with pytest.raises(ParameterError, match="read_noise"):
+        ols_variance(1.0, jwst_times(3), -1.0)
+    with pytest.raises(ParameterError, match="2 resultants"):
+        optimal_variance(1.0, jwst_times(1), 1.0)
+    with pytest.raises(ParameterError, match="ngroups"):
+        rauscher2007_variance(1.0, 1, 1, 0, T_JWST, 1.0)
+    with pytest.raises(ParameterError, match="t_frame"):
+        rauscher2007_variance(1.0, 5, 1, 0, 0.0, 1.0)

@@ -1,0 +1,173 @@
+"""Tests of noise.write_noise_fits: round trips with astropy, header records, atomicity.
+
+The expected data are the generator's own frames (same seed, fresh generator), and the
+DN conversion is rewritten here from its definition: rint(e / gain) clipped to
+[0, 65535].  A failing write must leave neither the destination nor a temporary file.
+"""
+
+import dataclasses
+import os
+from importlib import metadata
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+from noise import (NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseGenerator, NoiseParams, preset,
+                   write_noise_fits)
+from noise.errors import ParameterError
+
+DET = preset("H2RG", naxis1=64, naxis2=64, n_out=4)
+
+#: Header keyword of every NoiseParams field (typed in independently of params.py).
+KEYWORDS = {
+    "rd_noise": "RDNOISE", "ref_ratio": "REFRATIO", "c_pink": "C_PINK",
+    "u_pink": "U_PINK", "acn": "ACN", "pca0": "PCA0AMP", "pedestal": "PEDESTAL",
+    "ktc": "KTCNOISE", "bias_offset": "BIASOFF", "bias_amp": "BIASAMP",
+    "rtn_fraction": "RTNFRAC", "rtn_amp": "RTNAMP", "rtn_tau_low": "RTNTLOW",
+    "rtn_tau_high": "RTNTHIGH", "f_min": "FMIN", "pink_spectrum": "PINKSPEC",
+    "pca0_file": "PCA0FILE",
+}
+
+
+def _gen(params, rng=7):
+    return NoiseGenerator(DET, params, rng=rng, threads=1)
+
+
+def _files(directory):
+    return sorted(os.listdir(directory))
+
+
+def test_float32_electrons_round_trip(tmp_path):
+    path = tmp_path / "ramp.fits"
+    seen = []
+    out = write_noise_fits(str(path), _gen(NIRSPEC_DEFAULTS), 3, progress=seen.append)
+    assert out == str(path)
+    assert seen == [1, 2, 3]
+    with fits.open(path) as hdul:
+        data = hdul[0].data
+        assert data.dtype == np.dtype(">f4") and data.shape == (3, 64, 64)
+        np.testing.assert_array_equal(data, _gen(NIRSPEC_DEFAULTS).cube(3)[0])
+        assert hdul[0].header["BUNIT"] == "electron"
+    assert _files(tmp_path) == ["ramp.fits"]               # no temporary file left
+
+
+@pytest.mark.parametrize("offset", [0.0, 2 * 65535.0])
+def test_uint16_dn_round_trip_with_clipping(tmp_path, offset):
+    """Offsets at the ends of the range make about half the pixels clip."""
+    gain = 2.0
+    params = ZERO_NOISE.replace(rd_noise=20.0, bias_offset=offset)
+    path = tmp_path / "dn.fits"
+    write_noise_fits(path, _gen(params), 2, unit="DN", gain=gain)
+    electrons = _gen(params).cube(2)[0].astype(np.float64)
+    expected = np.clip(np.rint(electrons / gain), 0, 65535)
+    with fits.open(path) as hdul:
+        data = hdul[0].data
+        assert data.dtype == np.uint16 and data.shape == (2, 64, 64)
+        np.testing.assert_array_equal(data, expected)
+        assert hdul[0].header["BUNIT"] == "DN" and hdul[0].header["GAIN"] == gain
+    edge = 0 if offset == 0 else 65535
+    # about half the pixels clip: make sure the clipping branch was exercised
+    assert 0.3 < np.mean(data == edge) < 0.7
+
+
+def test_four_dimensional_for_several_integrations(tmp_path):
+    path = tmp_path / "ints.fits"
+    write_noise_fits(path, _gen(NIRSPEC_DEFAULTS), 3, nints=2)
+    with fits.open(path) as hdul:
+        data = hdul[0].data
+        assert data.shape == (2, 3, 64, 64)
+        np.testing.assert_array_equal(data, _gen(NIRSPEC_DEFAULTS).cube(3, nints=2))
+        assert hdul[0].header["NINTS"] == 2 and hdul[0].header["NFRAMES"] == 3
+
+
+def _parse(value):
+    """Header value back to the NoiseParams form: float, tuple, or tuple of pairs."""
+    if not isinstance(value, str):
+        return value
+    if ":" in value:
+        return tuple(tuple(float(v) for v in pair.split(":")) for pair in value.split(";"))
+    return tuple(float(v) for v in value.split(","))
+
+
+def test_header_records_every_parameter_seed_and_version(tmp_path):
+    params = NoiseParams(rd_noise=(5.0, 6.0, 7.0, 8.0), ref_ratio=0.7, c_pink=2.5,
+                         u_pink=(0.0, 1.0, 0.0, 2.0), acn=0.25, pca0=0.3, pedestal=3.5,
+                         ktc=25.0, bias_offset=4000.0, bias_amp=400.0,
+                         rtn_fraction=0.01, rtn_amp=15.0, rtn_tau_low=0.5,
+                         rtn_tau_high=0.25, f_min=2e-4,
+                         pink_spectrum=((1.0, 1.0), (100.0, 0.01), (1e5, 1e-5)))
+    assert set(KEYWORDS) == {f.name for f in dataclasses.fields(NoiseParams)}
+    path = tmp_path / "hdr.fits"
+    gen = NoiseGenerator(DET, params, rng=123456789, threads=1)
+    write_noise_fits(path, gen, 1)
+    hdr = fits.getheader(path)
+    for field, key in KEYWORDS.items():
+        value = getattr(params, field)
+        if field == "pca0_file":
+            assert hdr[key] == "synthetic"
+        else:
+            assert _parse(hdr[key]) == value, (field, hdr[key])
+    assert hdr["SEEDENT"] == "123456789"
+    assert hdr["SSIMVER"] == metadata.version("scenesim")
+    assert hdr["TFRAME"] == pytest.approx(DET.frame_time, rel=1e-12)
+    # the recorded seed reproduces the data
+    again = NoiseGenerator(DET, params, rng=int(hdr["SEEDENT"]), threads=1).cube(1)[0]
+    np.testing.assert_array_equal(fits.getdata(path), again)
+
+
+def test_default_spectrum_recorded_as_one_over_f(tmp_path):
+    path = tmp_path / "pink.fits"
+    write_noise_fits(path, _gen(ZERO_NOISE), 1)
+    assert fits.getheader(path)["PINKSPEC"] == "1/f"
+
+
+class _FailingGenerator(NoiseGenerator):
+    """Yields one frame, then fails as a crashed run would."""
+
+    def frames(self, nreads, reads=None, *, nints=1, integrations=None):
+        it = super().frames(nreads, reads, nints=nints, integrations=integrations)
+        yield next(it)
+        raise RuntimeError("simulated failure midway")
+
+
+def test_failing_write_leaves_nothing(tmp_path):
+    gen = _FailingGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    with pytest.raises(RuntimeError, match="midway"):
+        write_noise_fits(tmp_path / "broken.fits", gen, 4)
+    assert _files(tmp_path) == []
+
+
+def test_failing_write_keeps_existing_file(tmp_path):
+    path = tmp_path / "keep.fits"
+    path.write_bytes(b"previous result")
+    gen = _FailingGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    with pytest.raises(RuntimeError):
+        write_noise_fits(path, gen, 4)
+    assert path.read_bytes() == b"previous result"
+    assert _files(tmp_path) == ["keep.fits"]
+
+
+def test_missing_directory(tmp_path):
+    target = tmp_path / "no_such_dir" / "x.fits"
+    with pytest.raises(ParameterError, match=r"'path'.*does not exist"):
+        write_noise_fits(target, _gen(NIRSPEC_DEFAULTS), 2)
+    assert _files(tmp_path) == []
+
+
+def test_no_overwrite(tmp_path):
+    path = tmp_path / "x.fits"
+    path.write_bytes(b"keep")
+    with pytest.raises(ParameterError, match=r"'path'.*overwrite"):
+        write_noise_fits(path, _gen(NIRSPEC_DEFAULTS), 1, overwrite=False)
+    assert path.read_bytes() == b"keep" and _files(tmp_path) == ["x.fits"]
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    (dict(unit="ADU"), "unit"), (dict(gain=0.0), "gain"), (dict(gain=float("nan")), "gain"),
+    (dict(nints=0), "nints"),
+])
+def test_bad_arguments_write_nothing(tmp_path, kwargs, name):
+    with pytest.raises(ParameterError, match=f"'{name}'"):
+        write_noise_fits(tmp_path / "x.fits", _gen(NIRSPEC_DEFAULTS), 2, **kwargs)
+    assert _files(tmp_path) == []
