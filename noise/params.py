@@ -192,7 +192,8 @@ class NoiseParams:
             ("RTNTLOW", self.rtn_tau_low, "[s] RTN mean dwell, low state"),
             ("RTNTHIGH", self.rtn_tau_high, "[s] RTN mean dwell, high state"),
             ("FMIN", self.f_min, "[Hz] 1/f PSD flat below this"),
-            ("PINKSPEC", "user" if self.pink_spectrum else "1/f", "pink PSD shape"),
+            ("PINKSPEC", val(self.pink_spectrum) if self.pink_spectrum else "1/f",
+             "pink PSD shape: 1/f or f_Hz:psd pairs"),
             ("PCA0FILE", self.pca0_file or "synthetic", "picture-frame template"),
         ]
         return cards

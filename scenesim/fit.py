@@ -79,24 +79,23 @@ Saturation, jumps and short ramps
 ---------------------------------
 * Only resultants before the first saturated one are used.  DQ ``SATURATED`` is set
   when any resultant of the pixel is saturated (even if the slope is measured).
-* Jumps (``jump_threshold`` in sigma): per integration, each difference gets
-  ``z_i = |d_i - median(d)| / sqrt(V_i)``, with ``V_i`` the variance of
-  ``d_i - median`` at the rate ``max(median, 0)``: ``alpha_i`` plus the variance of
-  the median, ``(pi/2) n / S^2``, minus twice their covariance ``s_i / S``
-  (``s_i = sqrt(alpha_i)``, ``S = sum_j 1/s_j``; asymptotic formulas for a median of
-  independent normals of unequal variances); the largest ``z`` above
-  the threshold is flagged and removed, the median re-estimated and the test
-  repeated (vectorised over the pixels still flagging, at most ``n_diff - 2`` times).
-  Detection needs >= 3 usable differences.  The flagged difference is excluded, which
-  splits the ramp into independent segments.  A hit during a multi-read resultant
-  spreads over the two differences that use that resultant, so (i) each pair of
-  differences sharing a multi-read resultant is also tested, as the rate
-  ``(D_q + D_{q+1}) / (dt_q + dt_{q+1})`` with the variance of ``R_{q+2} - R_q``, and
-  the pair is flagged when it is the larger excess; (ii) the differences next to a
-  flagged span that share a multi-read resultant with it are excluded too,
-  unconditionally (choosing them by their values would bias the slope; excluding
-  them costs some precision in hit pixels only).  With single-read resultants
-  (JWST NFRAMES=1) neither applies.  ``n_jumps`` counts flagged differences.
+* Jumps (``jump_threshold`` in sigma), per integration: at the rate
+  ``max(median(d), 0)`` (robust to the jumps themselves) each usable difference gets
+  the GLS outlier statistic ``z_i = (C^-1 r)_i / sqrt((C^-1)_ii - (C^-1 1)_i^2 /
+  (1^T C^-1 1))`` (``r`` the GLS residuals): the standardised score test for a jump
+  in difference ``i``, exactly N(0, 1) without jumps for Gaussian noise whatever the
+  readout (so a threshold ``k`` gives ``2 Q(k)`` false alarms per test).  The largest
+  ``|z|`` above the threshold is flagged and excluded, and the test repeated on the
+  pixels that had a flag (at most ``n_diff - 2`` passes).  Detection needs >= 3
+  usable differences.  Excluding a difference splits the ramp into independent
+  segments.  A hit during a multi-read resultant spreads over the two differences
+  that use that resultant, so (i) each such pair is also tested, with the signature
+  of a hit halfway through the resultant, and flagged as a whole when it is the
+  larger excess; (ii) the differences next to a flagged span that share a
+  multi-read resultant with it are excluded too, unconditionally (choosing them by
+  their values would bias the slope; excluding them costs some precision in hit
+  pixels only).  With single-read resultants (JWST NFRAMES=1) neither applies.
+  ``n_jumps`` counts flagged differences.
 * Two usable resultants: one difference, the CDS slope (all fitters agree).
 * One usable resultant: the zero point (bias + reset level) is in the data and cannot
   be separated from the charge, so by default the pixel is ``DO_NOT_USE``.  If the
@@ -462,10 +461,6 @@ class _Readout:
         self.Ap = (tau[:-1] + tau[1:] - 2 * tb[:-1]) / dt ** 2
         self.Br = (-1 / n[1:-1]) / (dt[:-1] * dt[1:])
         self.Bp = (tb[1:-1] - tau[1:-1]) / (dt[:-1] * dt[1:])
-        # Rate of the pair D_q + D_{q+1} = R_{q+2} - R_q: read and Poisson variance.
-        span2 = (tb[2:] - tb[:-2]) ** 2
-        self.PR = (1 / n[2:] + 1 / n[:-2]) / span2
-        self.PP = (tau[2:] + tau[:-2] - 2 * tb[:-2]) / span2
 
     @property
     def nres(self):
@@ -927,29 +922,17 @@ def _quad(x, A, B):
 def _detect_jumps(d, valid, s2, ro, thr):
     """Flag jumps in one integration; ``valid`` (nd, P) is updated in place.
 
-    Each pass tests every usable difference, and every pair of usable differences
-    sharing a multi-read resultant (whose sum holds the whole of a hit during that
-    resultant), against the median rate; the largest excess over ``thr`` is flagged
-    with the neighbours that share a multi-read resultant with it.
+    Each pass computes, for the pixels still being tested, the GLS outlier
+    statistics of :func:`_jump_statistics` at the rate ``max(median(d), 0)``, flags
+    the largest one above ``thr`` (a single difference, or a pair sharing a
+    multi-read resultant) together with the neighbours that share a multi-read
+    resultant with the flagged span, and repeats on the pixels that had a flag.
 
     Returns the (nd, P) bool array of flagged differences.
     """
     nd, npix = d.shape
     jumps = np.zeros((nd, npix), bool)
-    ar = ro.Ar.astype(_F32)[:, None]
-    ap = ro.Ap.astype(_F32)[:, None]
     multi = ro.n > 1                                   # multi-read resultants
-    # Pairs q = (D_q, D_{q+1}) sharing R_{q+1}: tested when N_{q+1} > 1.
-    pair_ok = multi[1:-1] if nd >= 2 else np.zeros(0, bool)
-    use_pairs = bool(pair_ok.any())
-    if use_pairs:
-        dt = ro.dt.astype(_F32)
-        span = dt[:-1] + dt[1:]
-        w0 = (dt[:-1] / span)[:, None]
-        w1 = (dt[1:] / span)[:, None]
-        pr = ro.PR.astype(_F32)[:, None]
-        pp = ro.PP.astype(_F32)[:, None]
-        elig = pair_ok[:, None]
     idx = np.flatnonzero(valid.sum(axis=0) >= 3)
     for _ in range(nd - 2):
         if idx.size == 0:
@@ -962,29 +945,13 @@ def _detect_jumps(d, valid, s2, ro, thr):
         lo = np.take_along_axis(srt, ((n - 1) // 2)[:, None], axis=1)[:, 0]
         hi = np.take_along_axis(srt, (n // 2)[:, None], axis=1)[:, 0]
         med = _F32(0.5) * (lo + hi)
-        fc = np.maximum(med, _F32(0))
         s2i = s2 if np.isscalar(s2) else s2[idx]
-        var = np.maximum(s2i * ar + fc * ap, _F32(_TINY))
-        # Variance of d_i - median: the sample median of independent N(f, s_j^2)
-        # has variance (pi/2) n / S^2 and covariance s_i / S with d_i, where
-        # S = sum_j 1/s_j (asymptotic; the correlation of neighbours is ignored).
-        sd = np.sqrt(var)
-        inv_s = vv / sd
-        big_s = inv_s.sum(axis=0)
-        vmed = _F32(np.pi / 2) * n / (big_s * big_s)
-        cov = sd / big_s
-        vz = np.maximum(var + vmed - 2 * cov, _F32(0.25) * var)
-        z = np.abs(dd - med) * vv / np.sqrt(vz)
+        z, zp = _jump_statistics(dd, vv, med, s2i, np.maximum(med, _F32(0)), ro)
         cols = np.arange(idx.size)
         first = z.argmax(axis=0)
         zmax = z[first, cols]
         last = first.copy()
-        if use_pairs:
-            ps = w0 * dd[:-1] + w1 * dd[1:]
-            vp = np.maximum(s2i * pr + fc * pp, _F32(_TINY))
-            vpz = np.maximum(vp + vmed - 2 * (w0 * cov[:-1] + w1 * cov[1:]),
-                             _F32(0.25) * vp)
-            zp = np.abs(ps - med) * (vv[:-1] & vv[1:] & elig) / np.sqrt(vpz)
+        if zp is not None:
             q = zp.argmax(axis=0)
             zq = zp[q, cols]
             better = zq > zmax
@@ -998,13 +965,88 @@ def _detect_jumps(d, valid, s2, ro, thr):
         # (unconditionally: a data-dependent choice would bias the slope).
         left = (a >= 1) & multi[a]
         right = (b + 1 < nd) & multi[np.minimum(b + 1, nd - 1)]
-        for pos, sel in ((a, True), (b, True), (a - 1, left), (b + 1, right)):
-            sel = np.broadcast_to(sel, ih.shape)
-            p, i = pos[sel], ih[sel]
+        for pos, sel in ((a, None), (b, None), (a - 1, left), (b + 1, right)):
+            p, i = (pos, ih) if sel is None else (pos[sel], ih[sel])
             jumps[p, i] |= valid[p, i]
             valid[p, i] = False
         idx = ih[valid[:, ih].sum(axis=0) >= 3]
     return jumps
+
+
+def _jump_statistics(d, valid, fref, s2, f, ro):
+    """GLS outlier statistics for a jump in each difference and each shared pair.
+
+    For the model ``d = f 1 + J s + noise`` with covariance ``C`` (at rate ``f``),
+    the standardised score statistic for a jump of signature ``s`` is::
+
+        z = s^T C^-1 r / sqrt(s^T C^-1 s - (s^T C^-1 1)^2 / (1^T C^-1 1)),
+
+    ``r = d - f_hat 1`` the GLS residuals; under no jump it is N(0, 1) whatever the
+    readout, so the false-positive rate per test is ``2 Q(threshold)``.  Single
+    differences use ``s = e_i``; a hit halfway through a multi-read resultant
+    ``R_{i+1}`` adds half its charge to ``D_i`` and half to ``D_{i+1}``:
+    ``s = e_i / dt_i + e_{i+1} / dt_{i+1}``.  ``(C^-1)_ii = 1/(delta_i + eta_i - a_i)``
+    with forward and backward pivots ``delta``, ``eta``, and
+    ``(C^-1)_{i,i+1} = -b_i (C^-1)_{i+1,i+1} / delta_i``.
+
+    Returns |z| for singles (nd, n) and for pairs (nd - 1, n) or None (no pair
+    shares a multi-read resultant); 0 where a difference is not usable.
+    """
+    nd, npix = d.shape
+    mf = valid.astype(_F32)
+    a = np.empty((nd, npix), _F32)
+    for i in range(nd):
+        a[i] = np.where(valid[i], s2 * float(ro.Ar[i]) + f * float(ro.Ap[i]), _F32(1))
+    np.maximum(a, _F32(_TINY), out=a)
+    b = np.empty((max(nd - 1, 0), npix), _F32)
+    for i in range(nd - 1):
+        b[i] = (s2 * float(ro.Br[i]) + f * float(ro.Bp[i])) * mf[i] * mf[i + 1]
+    y = (d - fref) * mf
+    # forward pivots, L, and forward solves for 1 and y
+    delta = np.empty_like(a)
+    ell = np.zeros_like(a)
+    zu = np.empty_like(a)
+    zv = np.empty_like(a)
+    S11 = np.zeros(npix, _F32)
+    S1y = np.zeros(npix, _F32)
+    for i in range(nd):
+        if i == 0:
+            delta[0], u, v = a[0], mf[0], y[0]
+        else:
+            ell[i] = b[i - 1] / delta[i - 1]
+            delta[i] = a[i] - ell[i] * b[i - 1]
+            u = mf[i] - ell[i] * u
+            v = y[i] - ell[i] * v
+        zu[i] = u / delta[i]
+        zv[i] = v / delta[i]
+        S11 += u * zu[i]
+        S1y += v * zu[i]
+    for i in range(nd - 2, -1, -1):                    # back substitution
+        zu[i] -= ell[i + 1] * zu[i + 1]
+        zv[i] -= ell[i + 1] * zv[i + 1]
+    h = zu                                               # C^-1 1
+    shift = np.divide(S1y, S11, out=np.zeros(npix, _F32), where=S11 > 0)
+    g = zv - shift * h                                   # C^-1 r
+    eta = np.empty_like(a)
+    eta[nd - 1] = a[nd - 1]
+    for i in range(nd - 2, -1, -1):
+        eta[i] = a[i] - b[i] * b[i] / eta[i + 1]
+    xd = _F32(1) / (delta + eta - a)                     # diag of C^-1
+    inv11 = np.divide(1, S11, out=np.zeros(npix, _F32), where=S11 > 0)
+    den = np.maximum(xd - h * h * inv11, _F32(_TINY))
+    z = np.abs(g) * mf / np.sqrt(den)
+    pair_ok = ro.n[1:-1] > 1
+    if nd < 2 or not pair_ok.any():
+        return z, None
+    xo = -b * xd[1:] / delta[:-1]                        # (C^-1)_{i,i+1}
+    s0 = (1 / ro.dt[:-1]).astype(_F32)[:, None]
+    s1 = (1 / ro.dt[1:]).astype(_F32)[:, None]
+    num = s0 * g[:-1] + s1 * g[1:]
+    sh = s0 * h[:-1] + s1 * h[1:]
+    den_p = s0 * s0 * xd[:-1] + 2 * s0 * s1 * xo + s1 * s1 * xd[1:] - sh * sh * inv11
+    ok = mf[:-1] * mf[1:] * pair_ok[:, None]
+    zp = np.abs(num) * ok / np.sqrt(np.maximum(den_p, _F32(_TINY)))
+    return z, zp
 
 
 # ---------------------------------------------------------------------- theory

@@ -110,9 +110,11 @@ def _cosmic_rays(scene, seed, t_total):
     from .cosmic import CosmicRayModel, draw_cosmic_rays
 
     det = scene.detector
-    median, sigma = eff.cosmic_ray_charge
-    model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_median=median,
-                           charge_sigma=sigma)
+    median, sigma_ln = eff.cosmic_ray_charge
+    # scene: log-normal median (e-) and sigma of ln(charge); model: mean and std (e-)
+    mean = median * np.exp(sigma_ln ** 2 / 2)
+    model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_mean=mean,
+                           charge_sigma=mean * np.sqrt(np.expm1(sigma_ln ** 2)))
     table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
                              rng=_stream(seed, 3), refmask=det.reference_mask())
     index = np.asarray(table["Y"], dtype=np.int64) * det.nx + np.asarray(table["X"],

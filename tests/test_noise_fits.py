@@ -116,6 +116,19 @@ def test_header_records_every_parameter_seed_and_version(tmp_path):
     np.testing.assert_array_equal(fits.getdata(path), again)
 
 
+def test_spawned_seed_recorded_and_reproducible(tmp_path):
+    """A child SeedSequence is recorded as entropy plus spawn key (SEEDENT, SEEDKEY)."""
+    child = np.random.SeedSequence(2024).spawn(3)[2]
+    path = tmp_path / "child.fits"
+    write_noise_fits(path, NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=child, threads=1), 1)
+    hdr = fits.getheader(path)
+    assert (hdr["SEEDENT"], hdr["SEEDKEY"]) == ("2024", "2")
+    again = np.random.SeedSequence(int(hdr["SEEDENT"]),
+                                   spawn_key=tuple(int(k) for k in hdr["SEEDKEY"].split(",")))
+    data = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=again, threads=1).cube(1)[0]
+    np.testing.assert_array_equal(fits.getdata(path), data)
+
+
 def test_default_spectrum_recorded_as_one_over_f(tmp_path):
     path = tmp_path / "pink.fits"
     write_noise_fits(path, _gen(ZERO_NOISE), 1)
