@@ -163,6 +163,7 @@ _F32 = np.float32
 _CHUNK_ELEMS = 1 << 19
 _TINY = 1e-30
 _RATE_FLOOR = 1e-6
+_JUMP_BLOCK = 4096
 
 
 # ---------------------------------------------------------------------- result
@@ -537,7 +538,7 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         against mean read time, or last minus first usable resultant.
     saturated : ndarray of bool, same shape as ``resultants``, optional
         Saturated resultants; only resultants before the first saturated one of
-        each pixel and integration are used.
+        each pixel and integration are used (flagged values may be NaN).
     jump_threshold : float or None
         Jump detection threshold in sigma (> 0); ``None`` turns detection off.
     n_iter : int
@@ -616,10 +617,14 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
                              f"{threads!r}")
     for k in range(nints):
         for r in range(nres):
-            if not np.isfinite(res4[k, r]).all():
+            bad = ~np.isfinite(res4[k, r])
+            if sat4 is not None:
+                bad &= ~sat4[k, r]
+            if bad.any():
                 raise ParameterError(
-                    f"'resultants' must be finite; integration {k} resultant {r} "
-                    f"has NaN or inf values (flag them with 'saturated' instead)")
+                    f"'resultants' must be finite where not flagged in 'saturated'; "
+                    f"integration {k} resultant {r} has {int(bad.sum())} NaN or inf "
+                    f"values")
 
     # ---- work
     ro = _Readout(times)
@@ -689,14 +694,21 @@ def _fit_block(res, sat, s2, ro, fitter, thr, n_iter, zp, tshift):
     measured = np.zeros(npix, bool)
 
     if nd >= 1:
-        work = res if res.dtype in (np.float32, np.float64) else res.astype(np.float64)
+        rf = res if res.dtype in (np.float32, np.float64) else res.astype(np.float64)
+        if sat is not None:
+            rf = np.where(sat, rf.dtype.type(0), rf)   # saturated values may be NaN
         inv_dt = (1.0 / ro.dt)[None, :, None]
-        d = (np.diff(work, axis=1) * inv_dt).astype(_F32)          # (nints, nd, P)
+        d = (np.diff(rf, axis=1) * inv_dt).astype(_F32)            # (nints, nd, P)
         valid = np.arange(nd)[None, :, None] < (nuse[:, None, :] - 1)
         if thr is not None and nd >= 3:
+            # Sub-blocks of pixels keep the (nd, n) work arrays in cache.
             for k in range(nints):
-                njump += _detect_jumps(d[k], valid[k], s2, ro, thr).sum(axis=0,
-                                                                      dtype=np.int32)
+                for c0 in range(0, npix, _JUMP_BLOCK):
+                    c1 = min(c0 + _JUMP_BLOCK, npix)
+                    s2b = s2 if np.isscalar(s2) else s2[c0:c1]
+                    njump[c0:c1] += _detect_jumps(
+                        d[k, :, c0:c1], valid[k, :, c0:c1], s2b, ro, thr).sum(
+                        axis=0, dtype=np.int32)
         mf = valid.astype(_F32)
         mc = mf[:, :-1] * mf[:, 1:]
         nvalid = valid.sum(axis=1, dtype=np.int32)                  # (nints, P)
@@ -822,10 +834,10 @@ def _single_resultant(res, nuse, unmeasured, measured, s2, ro, zp, tshift, slope
     pick = n1 > 0
     if not pick.any():
         return
-    zpv = zp if np.isscalar(zp) else zp
     tb_safe = np.where(tb > 0, tb, 1.0)
-    sk = (res[:, 0, :].astype(np.float64) - zpv) / tb_safe          # (nints, P)
-    mean = np.where(use, sk, 0).sum(axis=0) / np.maximum(n1, 1)
+    r0 = np.where(use, res[:, 0, :].astype(np.float64), 0.0)         # (nints, P)
+    sk = np.where(use, (r0 - zp) / tb_safe, 0.0)
+    mean = sk.sum(axis=0) / np.maximum(n1, 1)
     s2v = s2 if np.isscalar(s2) else s2.astype(np.float64)
     fv = np.maximum(mean, 0)
     vr = s2v / ro.n[0] / tb_safe ** 2

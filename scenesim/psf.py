@@ -52,7 +52,8 @@ PSF models
     ``n**2`` profile evaluations of about 10 ns per stamp pixel.
 
     The Airy wings fall as ``r**-3``, so a stamp of radius ``R`` misses a fraction of
-    about ``2 a / (pi**2 R)`` of the flux (1.3 % for ``radius = 2``, ``R = 32``).  This
+    about ``1 - EE(R) ~ 2 a / (pi**2 R)`` of the flux (0.9 % for ``radius = 2``,
+    ``R = 32``).  This
     is reported per source as ``flux_lost_stamp``; raise ``max_stamp_radius`` (or set
     ``stamp_radius``) to render more of it.
 
@@ -70,14 +71,13 @@ PSF models
     the rendering conserves the flux *and* the first moments (centroid) exactly, at any
     sub-pixel position.  It is computed from the cumulative sums of the image,
     interpolated at the pixel edges (first along x, then along y), vectorised over
-    sources.  Where sub-pixel
-    edges line up with pixel edges (position a multiple of ``1/oversample`` from the
-    aligned one) the result is the exact pixel integral of the sampled PSF; elsewhere
-    the uniform-sub-pixel assumption errs by at most ``h**2 / 2 * max|grad psf|`` per
-    pixel, ``h = 1/oversample`` (derivation in ``tests/test_psf.py``).  With
-    ``oversample = 1`` the image is treated as a flux-per-pixel image and a half-pixel
-    shift smooths it by an extra pixel box, so supply oversampled PSFs (4 or more) for
-    sub-pixel work.
+    sources.  Where sub-pixel edges line up with pixel edges (position a multiple of
+    ``1/oversample`` from the aligned one) the result is the exact pixel integral of the
+    sampled PSF; elsewhere the uniform-sub-pixel assumption errs by at most
+    ``h**2 / 2 * max|grad psf|`` per pixel, ``h = 1/oversample`` (derivation in
+    ``tests/test_psf.py``).  With ``oversample = 1`` the image is treated as a
+    flux-per-pixel image and a half-pixel shift smooths it by an extra pixel box, so
+    supply oversampled PSFs (4 or more) for sub-pixel work.
 
 Stamps
 ------
@@ -94,8 +94,11 @@ Gaussian, 1e-13 of the flux; the image half-size for :class:`ImagePSF`).  Stamps
 clipped to the array and added with :func:`numpy.add.at`.  Sources whose stamp misses the
 array entirely are skipped (nothing rendered, ``rendered = False`` in the table).
 
-Measured cost (this machine, one core): 1000 Gaussian sources (``fwhm = 2``) on a
-2048 x 2048 array take about 0.05 s; see :func:`render_point_sources`.
+Measured cost (2-core shared machine, best of 3; 1000 sources spread over a 2048 x
+2048 array): Gaussian ``fwhm = 2`` (R = 8) 0.03 s; :class:`ImagePSF` of 64 x 64 pixels
+at ``oversample = 4`` with R = 32 stamps 0.5 s; Airy ``radius = 2`` (``n = 5``) 0.8 s
+with R = 16 and 1.1 to 3 s with R = 32 (the spread is the load of the machine): about
+10 ns per quadrature node, so pass ``min_rate`` to keep Airy stamps small.
 """
 
 import math
@@ -122,7 +125,7 @@ _FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 _AIRY_RZ = 1.2196698912665045
 #: Relative tolerance on the sum of a PSF image for ``normalize=True``.
 _SUM_RTOL = 1e-3
-#: Target relative accuracy of the Airy pixel quadrature.
+#: Bound on the Airy pixel-quadrature error, relative to the peak (module notes).
 _AIRY_QUAD_TOL = 1e-6
 #: Step in v = pi r / a of the tabulated Airy profile.
 _AIRY_TABLE_STEP = 5e-4
@@ -287,14 +290,12 @@ class AiryPSF:
                 buf = buffers[name] = np.empty(size, dtype=dtype)
             return buf[:size]
 
-        def stamps(dx0, dy0, radius):
-            size = 2 * radius + 1
-            offs = np.arange(-radius, radius + 1, dtype=float)
-            sub = (offs[:, None] + nodes[None, :]).ravel()          # (S*n,) node offsets
-            ux2 = np.square(dx0[:, None] + sub[None, :])              # (N, S*n)
-            uy2 = np.square(dy0[:, None] + sub[None, :])
-            shape = (dx0.size, sub.size, sub.size)
-            count = dx0.size * sub.size * sub.size
+        def block(dx0, dy0, sub_x, sub_y):
+            """Pixel integrals for stamp rows/columns given by node offsets."""
+            ux2 = np.square(dx0[:, None] + sub_x[None, :])            # (N, Sx*n)
+            uy2 = np.square(dy0[:, None] + sub_y[None, :])            # (N, Sy*n)
+            shape = (dx0.size, sub_y.size, sub_x.size)
+            count = shape[0] * shape[1] * shape[2]
             pos = buffer("pos", count, np.float64).reshape(shape)
             idx = buffer("idx", count, np.intp).reshape(shape)
             val = buffer("val", count, np.float64).reshape(shape)
@@ -308,8 +309,22 @@ class AiryPSF:
             val *= pos
             np.take(table, idx, out=tmp)
             val += tmp                                                # linear interpolation
-            val5 = val.reshape(dx0.size, size, n, size, n)
+            val5 = val.reshape(dx0.size, sub_y.size // n, n, sub_x.size // n, n)
             return np.einsum("asbtc,b,c->ast", val5, weights, weights, optimize=True)
+
+        def stamps(dx0, dy0, radius):
+            size = 2 * radius + 1
+            offs = np.arange(-radius, radius + 1, dtype=float)
+            sub = (offs[:, None] + nodes[None, :]).ravel()          # (S*n,) node offsets
+            # rows per block so that one block stays within the chunk budget
+            rows = max(1, _CHUNK_ELEMENTS // (dx0.size * size * n * n))
+            if rows >= size:
+                return block(dx0, dy0, sub, sub)
+            out = np.empty((dx0.size, size, size))
+            for r0 in range(0, size, rows):
+                r1 = min(size, r0 + rows)
+                out[:, r0:r1] = block(dx0, dy0, sub, sub[r0 * n:r1 * n])
+            return out
 
         stamps.cost_per_pixel = n * n
         return stamps
@@ -523,7 +538,7 @@ class ImagePSF:
         cx = np.abs((np.arange(nx) - (nx - 1) / 2.0) * h)
         cy = np.abs((np.arange(ny) - (ny - 1) / 2.0) * h)
         cheb = np.maximum(cy[:, None], cx[None, :]) + 0.5 * h   # outer Chebyshev distance
-        sb = self.data * self.oversample ** 2                     # e-/s per pixel^2 per flux
+        sb = self.data * self.oversample ** 2         # surface brightness per pixel^2
         r = np.arange(rmax + 1)
         order = np.argsort(cheb, axis=None)
         dist = cheb.ravel()[order]
@@ -554,16 +569,16 @@ class ImagePSF:
             fx = (dx0[:, None] + edges[None, :]) * os_ + nx / 2.0            # (N, S+1)
             fy = (dy0[:, None] + edges[None, :]) * os_ + ny / 2.0
             # only sub-pixel rows within R + 1 pixels of the source can reach the stamp
-            j0 = max(0, int(math.floor(ny / 2.0 - (radius + 1) * os_)))
-            j1 = min(ny, int(math.ceil(ny / 2.0 + (radius + 1) * os_)))
-            cols = cum_xt[:, j0:j1]
+            r_lo = max(0, int(math.floor(ny / 2.0 - (radius + 1) * os_)))
+            r_hi = min(ny, int(math.ceil(ny / 2.0 + (radius + 1) * os_)))
+            cols = cum_xt[:, r_lo:r_hi]
             k, t = interp(fx, nx)
             lo = cols[k]                                                     # (N, S+1, ny')
             at_edges = lo + t[:, :, None] * (cols[k + 1] - lo)
             band = np.diff(at_edges, axis=1)                                 # (N, Sx, ny')
-            cum_y = np.zeros(band.shape[:2] + (j1 - j0 + 1,))
+            cum_y = np.zeros(band.shape[:2] + (r_hi - r_lo + 1,))
             np.cumsum(band, axis=2, out=cum_y[:, :, 1:])
-            k, t = interp(fy - j0, j1 - j0)
+            k, t = interp(fy - r_lo, r_hi - r_lo)
             lo = np.take_along_axis(cum_y, k[:, None, :], axis=2)            # (N, Sx, Sy+1)
             hi = np.take_along_axis(cum_y, k[:, None, :] + 1, axis=2)
             at_edges = lo + t[:, None, :] * (hi - lo)

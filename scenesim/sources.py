@@ -108,7 +108,12 @@ def read_catalogue(path_or_table):
 
     def values(key, unit, what):
         col = table[lower[key]]
-        arr = np.ma.filled(np.ma.asarray(col, dtype=np.float64), np.nan)
+        try:
+            arr = np.ma.filled(np.ma.asarray(col, dtype=np.float64), np.nan)
+        except (TypeError, ValueError) as exc:
+            raise FileFormatError(
+                f"{where}: column {lower[key]!r} must hold numbers, got {col.dtype}"
+            ) from exc
         if getattr(col, "unit", None) is not None:
             try:
                 arr = (arr * col.unit).to_value(unit)

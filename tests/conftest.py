@@ -100,7 +100,8 @@ def _corr_sigma(x, y, maxlag=64):
     n = x.size
 
     def acf(z):
-        return np.array([np.dot(z[:-k], z[k:]) for k in range(1, maxlag + 1)]) / np.dot(z, z)
+        lags = range(1, maxlag + 1)
+        return np.array([np.dot(z[:-k], z[k:]) for k in lags]) / np.dot(z, z)
 
     return np.sqrt((1.0 + 2.0 * np.sum(acf(x) * acf(y))) / n)
 

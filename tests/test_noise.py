@@ -32,7 +32,7 @@ def _gen(params, det=DET, rng=1, threads=1):
 
 
 def _section(img, det, o):
-    """Image section of output ``o`` in that output's own time order (flipped if reversed)."""
+    """Section of output ``o`` in that output's own time order (flipped if reversed)."""
     n = det.ncols_out
     sec = img[..., o * n:(o + 1) * n]
     return sec[..., ::-1] if det.output_reversed(o) else sec

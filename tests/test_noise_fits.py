@@ -123,8 +123,8 @@ def test_spawned_seed_recorded_and_reproducible(tmp_path):
     write_noise_fits(path, NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=child, threads=1), 1)
     hdr = fits.getheader(path)
     assert (hdr["SEEDENT"], hdr["SEEDKEY"]) == ("2024", "2")
-    again = np.random.SeedSequence(int(hdr["SEEDENT"]),
-                                   spawn_key=tuple(int(k) for k in hdr["SEEDKEY"].split(",")))
+    key = tuple(int(k) for k in hdr["SEEDKEY"].split(","))
+    again = np.random.SeedSequence(int(hdr["SEEDENT"]), spawn_key=key)
     data = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=again, threads=1).cube(1)[0]
     np.testing.assert_array_equal(fits.getdata(path), data)
 

@@ -64,6 +64,8 @@ def test_read_catalogue_errors(tmp_path):
     with pytest.raises(ParameterError, match="unique"):
         read_catalogue(Table({"id": [1, 1], "x": [1.0, 2.0], "y": [1.0, 2.0],
                               "flux": [1.0, 1.0]}))
+    with pytest.raises(FileFormatError, match="numbers"):
+        read_catalogue(Table({"x": ["a"], "y": [1.0], "flux": [1.0]}))
     with pytest.raises(FileFormatError, match="clash"):
         read_catalogue(Table({"x": [1.0], "X": [1.0], "y": [1.0], "flux": [1.0]}))
 
