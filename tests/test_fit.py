@@ -461,8 +461,14 @@ def test_null_limits_and_refmask():
     tb = np.array([t.mean() for t in times])
     # No charge, no noise: zero rate, zero variance, no NaN.
     res = np.zeros((5, 4, 4))
-    g = fit_ramps(res, times, read_noise=0.0)
-    assert np.all(g.slope == 0) and np.all(np.isfinite(g.var)) and np.all(g.dq == 0)
+    for thr in (None, 5.0):
+        g = fit_ramps(res, times, read_noise=0.0, jump_threshold=thr)
+        assert np.all(g.slope == 0) and np.all(np.isfinite(g.var)) and np.all(g.dq == 0)
+    # No read noise, noise-free ramp: exact rate, no jump flagged.
+    g = fit_ramps(np.broadcast_to((4.0 * tb)[:, None, None], (5, 4, 4)), times,
+                  read_noise=0.0, jump_threshold=5.0)
+    np.testing.assert_allclose(g.slope, 4.0, rtol=1e-5)
+    assert np.all(g.dq == 0)
     # Noise-free ramp with an offset: every fitter returns the exact rate.
     res = np.broadcast_to((7.0 + 2.5 * tb)[:, None, None], (5, 4, 4))
     mask = np.zeros((4, 4), bool)
