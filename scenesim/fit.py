@@ -408,6 +408,12 @@ def _check_read_times(read_times, nres=None, image_shape=None):
         raise ParameterError(
             f"'read_times' has {len(read_times)} entries but 'resultants' has {nres} "
             f"resultants; one array of read times per resultant is required")
+    if image_shape is None:        # theory functions: accept per-pixel times too
+        for t in read_times:
+            shp = np.shape(t)
+            if len(shp) == 3:
+                image_shape = shp[1:]
+                break
     arrays = []
     for r, t in enumerate(read_times):
         try:
@@ -1106,7 +1112,9 @@ def optimal_variance(rate, read_times, read_noise):
     -------
     ndarray or float, (e-/s)^2, float64
         The theoretical minimum variance of an unbiased linear slope estimate for
-        that readout (Brandt 2024, eqs. 28-29).
+        that readout (Brandt 2024, eqs. 28-29); 0 where rate and read noise are 0.
+        Per-pixel read times (global reset) give the same result as the 1-D times:
+        the variance depends on time differences only.
     """
     times, _ = _check_read_times(read_times)
     if len(times) < 2:
@@ -1117,18 +1125,20 @@ def optimal_variance(rate, read_times, read_noise):
     s2 = rn ** 2
     S11 = np.zeros(rate.shape)
     u = Dprev = None
-    for i in range(ro.dt.size):
-        a = s2 * ro.Ar[i] + rate * ro.Ap[i]
-        if i == 0:
-            D, u = a, np.ones(rate.shape)
-        else:
-            b = s2 * ro.Br[i - 1] + rate * ro.Bp[i - 1]
-            ell = b / Dprev
-            D = a - ell * b
-            u = 1 - ell * u
-        S11 = S11 + u * u / D
-        Dprev = D
-    out = 1 / S11
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i in range(ro.dt.size):
+            a = s2 * ro.Ar[i] + rate * ro.Ap[i]
+            if i == 0:
+                D, u = a, np.ones(rate.shape)
+            else:
+                b = s2 * ro.Br[i - 1] + rate * ro.Bp[i - 1]
+                ell = b / Dprev
+                D = a - ell * b
+                u = 1 - ell * u
+            S11 = S11 + u * u / D
+            Dprev = D
+        out = 1 / S11
+    out = np.where((rate == 0) & (rn == 0), 0.0, out)     # no noise at all
     return float(out) if out.ndim == 0 else out
 
 

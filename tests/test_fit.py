@@ -135,6 +135,13 @@ def test_optimal_variance_broadcasts():
     got = optimal_variance(rates, times, rn)
     assert got.shape == (2, 2)
     assert got[1, 1] == pytest.approx(optimal_variance(100.0, times, 10.0), rel=1e-12)
+    assert optimal_variance(0.0, times, 0.0) == 0.0
+    # Global-reset times: each pixel's reads shifted by its clock offset.
+    shifted = [t[:, None, None] + np.array([[0.0, 0.3]])[None] for t in times]
+    assert optimal_variance(5.0, shifted, 10.0) == pytest.approx(
+        optimal_variance(5.0, times, 10.0), rel=1e-12)
+    assert ols_variance(5.0, shifted, 10.0) == pytest.approx(
+        ols_variance(5.0, times, 10.0), rel=1e-12)
 
 
 @pytest.mark.parametrize("ngroups,nframes,groupgap", [(20, 1, 0), (10, 4, 1), (5, 8, 12),
