@@ -4,7 +4,6 @@ import math
 import numbers
 import os
 
-import numpy as np
 
 from .errors import ParameterError
 
@@ -40,25 +39,6 @@ def check_float(name, value, *, minimum=None, maximum=None, strict_min=False):
     return value
 
 
-def check_amplitude(name, value, n_out):
-    """Validate a noise amplitude: a scalar >= 0 or one value >= 0 per output.
-
-    Returns a float or a tuple of ``n_out`` floats.
-    """
-    if isinstance(value, (list, tuple, np.ndarray)):
-        vals = tuple(np.asarray(value, dtype=float).ravel().tolist())
-        if len(vals) != n_out:
-            raise ParameterError(
-                f"{name!r} per-output amplitudes must have n_out={n_out} values, "
-                f"got {len(vals)}: {value!r}")
-        for v in vals:
-            if not math.isfinite(v) or v < 0:
-                raise ParameterError(
-                    f"{name!r} must be finite and >= 0 (e-), got {value!r}")
-        return vals
-    return check_float(name, value, minimum=0.0)
-
-
 def check_writable(name, path, *, overwrite=True):
     """Raise if ``path`` cannot be written (missing directory, no permission, exists)."""
     path = os.fspath(path)
@@ -73,3 +53,14 @@ def check_writable(name, path, *, overwrite=True):
     if os.path.exists(path) and not overwrite:
         raise ParameterError(f"{name!r}: {path!r} exists; pass overwrite=True to replace it")
     return path
+
+
+def check_shape(name, shape):
+    """Return ``(ny, nx)`` as ints >= 1, or raise naming ``name``."""
+    try:
+        ny, nx = (int(v) for v in shape)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name!r} must be (ny, nx), got {shape!r}") from exc
+    if ny < 1 or nx < 1:
+        raise ParameterError(f"{name!r} must be positive, got {shape!r}")
+    return ny, nx

@@ -9,6 +9,7 @@ interrupted or failed run never leaves a partial or corrupt file.
 
 import contextlib
 import os
+import shutil
 import tempfile
 from importlib import metadata
 
@@ -125,6 +126,18 @@ class StreamingFITS:
         self.f.write(raw.tobytes())
         self._remaining -= data.size
         self._written += raw.nbytes
+
+    def copy_raw(self, src, nbytes):
+        """Append ``nbytes`` of already big-endian data for the current image from the
+        binary file object ``src`` (e.g. a spooled temporary file)."""
+        if nbytes != self._remaining * self._dtype.itemsize:
+            raise ParameterError(
+                f"raw copy of {nbytes} bytes does not match the {self._remaining} "
+                f"values the image still needs")
+        self.f.flush()
+        shutil.copyfileobj(src, self.f, 16 << 20)
+        self._remaining = 0
+        self._written += nbytes
 
     def end_image(self):
         """Finish the current image (pads to 2880 bytes)."""

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import check_amplitude, check_float
+from ._validate import check_float
 from .errors import ParameterError
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE"]

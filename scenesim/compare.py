@@ -51,7 +51,6 @@ which leaves ``V_opt`` unchanged, so the rolling-reset times are used for both.
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +58,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 from noise.errors import FileFormatError, ParameterError
+from noise.fitsio import atomic_path
 
 from .fit import (DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, FitResult, ols_variance,
                   optimal_variance, read_fit)
@@ -411,16 +411,8 @@ def _photometry(slope, var, bad, sources, psf, radius, notes):
 
 
 def _savefig(fig, path):
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=directory)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
     return path
 
 

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
+from noise._validate import check_float, check_shape
 from noise.errors import ParameterError
 
 __all__ = ["CosmicRayModel", "draw_cosmic_rays"]
@@ -56,16 +57,6 @@ _DEFAULT_FOOTPRINT = ((0.01, 0.04, 0.01),
                       (0.01, 0.04, 0.01))
 
 
-def _real(name, value, *, minimum=None, strict=False):
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ParameterError(f"{name!r} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ParameterError(f"{name!r} must be finite, got {value!r}")
-    if minimum is not None and (value <= minimum if strict else value < minimum):
-        raise ParameterError(
-            f"{name!r} must be {'>' if strict else '>='} {minimum}, got {value!r}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -100,13 +91,13 @@ class CosmicRayModel:
     footprint: tuple = _DEFAULT_FOOTPRINT
 
     def __post_init__(self):
-        _real("rate", self.rate, minimum=0.0)
+        check_float("rate", self.rate, minimum=0.0)
         if self.charge_distribution not in ("lognormal", "table"):
             raise ParameterError(
                 f"'charge_distribution' must be 'lognormal' or 'table', got "
                 f"{self.charge_distribution!r}")
-        _real("charge_mean", self.charge_mean, minimum=0.0, strict=True)
-        _real("charge_sigma", self.charge_sigma, minimum=0.0)
+        check_float("charge_mean", self.charge_mean, minimum=0.0, strict_min=True)
+        check_float("charge_sigma", self.charge_sigma, minimum=0.0)
         if self.charge_distribution == "table":
             if self.charge_edges is None or self.charge_weights is None:
                 raise ParameterError(
@@ -212,15 +203,10 @@ def draw_cosmic_rays(model, shape, pixel_pitch_um, t_start, t_stop, *, rng,
     if not isinstance(model, CosmicRayModel):
         raise ParameterError(
             f"'model' must be a CosmicRayModel, got {type(model).__name__}")
-    try:
-        ny, nx = (int(s) for s in shape)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"'shape' must be (ny, nx), got {shape!r}") from exc
-    if ny < 1 or nx < 1:
-        raise ParameterError(f"'shape' must be positive, got {shape!r}")
-    pitch = _real("pixel_pitch_um", pixel_pitch_um, minimum=0.0, strict=True)
-    t_start = _real("t_start", t_start)
-    t_stop = _real("t_stop", t_stop)
+    ny, nx = check_shape("shape", shape)
+    pitch = check_float("pixel_pitch_um", pixel_pitch_um, minimum=0.0, strict_min=True)
+    t_start = check_float("t_start", t_start)
+    t_stop = check_float("t_stop", t_stop)
     if t_stop < t_start:
         raise ParameterError(
             f"'t_stop' ({t_stop!r} s) must be >= 't_start' ({t_start!r} s)")

@@ -23,7 +23,6 @@ Every file is written to a temporary file and renamed when complete.
 
 import contextlib
 import os
-import shutil
 import tempfile
 
 import numpy as np
@@ -56,10 +55,7 @@ class _RawCube:
         self.f.close()
         stream.begin_image(shape, np.float32, cards, name=name)
         with open(self.path, "rb") as f:
-            stream.f.flush()
-            shutil.copyfileobj(f, stream.f, 16 << 20)
-        stream._remaining = 0
-        stream._written = int(np.prod(shape)) * 4
+            stream.copy_raw(f, int(np.prod(shape)) * 4)
         stream.end_image()
 
     def discard(self):

@@ -133,13 +133,13 @@ a thread pool (numpy releases the GIL in its loops).
 import math
 import numbers
 import os
-import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from noise.errors import FileFormatError, ParameterError
+from noise.fitsio import atomic_path
 
 __all__ = [
     "DO_NOT_USE",
@@ -331,16 +331,8 @@ def write_fit(path, result, *, header_cards=(), overwrite=True):
         raise ParameterError(f"'result' must be a FitResult, got {type(result).__name__}")
     path = check_writable("path", path, overwrite=overwrite)
     hdul = result.to_hdul(header_cards)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(suffix=".fits.tmp", dir=directory)
-    os.close(fd)
-    try:
+    with atomic_path(path, overwrite=overwrite) as tmp:
         hdul.writeto(tmp, overwrite=True)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
     return path
 
 

@@ -39,27 +39,17 @@ bound is derived in the method's notes) and :meth:`LightCurve.from_file`.
 """
 
 import math
-import numbers
 import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from noise._validate import check_float
 from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["LightCurve"]
 
 
-def _finite(name, value, *, minimum=None, strict=False):
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ParameterError(f"{name!r} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ParameterError(f"{name!r} must be finite, got {value!r}")
-    if minimum is not None and (value <= minimum if strict else value < minimum):
-        op = ">" if strict else ">="
-        raise ParameterError(f"{name!r} must be {op} {minimum}, got {value!r}")
-    return value
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,9 +218,9 @@ class LightCurve:
         t_on : float, seconds
         before, after : float, relative flux (>= 0)
         """
-        t_on = _finite("t_on", t_on)
-        before = _finite("before", before, minimum=0.0)
-        after = _finite("after", after, minimum=0.0)
+        t_on = check_float("t_on", t_on)
+        before = check_float("before", before, minimum=0.0)
+        after = check_float("after", after, minimum=0.0)
         return cls([t_on, t_on], [before, after])
 
     @classmethod
@@ -253,12 +243,12 @@ class LightCurve:
         -----
         Area removed: ``depth * (duration - ingress)`` seconds.
         """
-        t0 = _finite("t0", t0)
-        duration = _finite("duration", duration, minimum=0.0, strict=True)
-        depth = _finite("depth", depth, minimum=0.0)
+        t0 = check_float("t0", t0)
+        duration = check_float("duration", duration, minimum=0.0, strict_min=True)
+        depth = check_float("depth", depth, minimum=0.0)
         if depth > 1:
             raise ParameterError(f"'depth' must be <= 1, got {depth!r}")
-        ingress = _finite("ingress", ingress, minimum=0.0)
+        ingress = check_float("ingress", ingress, minimum=0.0)
         if ingress > duration / 2:
             raise ParameterError(
                 f"'ingress' must be <= duration/2 = {duration / 2!r} s, got {ingress!r}")
@@ -303,11 +293,11 @@ class LightCurve:
         ``tol * A * u_end``) and differs by the truncated tail ``tol * A * decay`` at
         most: ``|error| <= tol * A * decay * (1 + ln(1/tol))``.
         """
-        t0 = _finite("t0", t0)
-        amplitude = _finite("amplitude", amplitude, minimum=0.0)
-        rise = _finite("rise", rise, minimum=0.0)
-        decay = _finite("decay", decay, minimum=0.0, strict=True)
-        tol = _finite("tol", tol, minimum=0.0, strict=True)
+        t0 = check_float("t0", t0)
+        amplitude = check_float("amplitude", amplitude, minimum=0.0)
+        rise = check_float("rise", rise, minimum=0.0)
+        decay = check_float("decay", decay, minimum=0.0, strict_min=True)
+        tol = check_float("tol", tol, minimum=0.0, strict_min=True)
         if tol > 0.01:
             raise ParameterError(f"'tol' must be <= 0.01, got {tol!r}")
         h = decay * math.sqrt(8.0 * tol)

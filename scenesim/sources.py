@@ -38,6 +38,7 @@ import os
 
 import numpy as np
 
+from noise._validate import check_shape
 from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["read_catalogue", "uniform_or_map", "draw_hot_pixels"]
@@ -213,12 +214,7 @@ def uniform_or_map(value_or_path, shape, name, *, detector=None):
     FileFormatError
         Missing or unreadable file, or no 2-D image in it.
     """
-    try:
-        ny, nx = (int(s) for s in shape)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"'shape' must be (ny, nx), got {shape!r}") from exc
-    if ny < 1 or nx < 1:
-        raise ParameterError(f"'shape' must be positive, got {shape!r}")
+    ny, nx = check_shape("shape", shape)
     if isinstance(value_or_path, numbers.Real) and not isinstance(value_or_path, bool):
         value = float(value_or_path)
         if not math.isfinite(value) or value < 0:
@@ -285,12 +281,7 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
     ParameterError
         Bad shape, fraction, rate or refmask (checked before drawing).
     """
-    try:
-        ny, nx = (int(s) for s in shape)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"'shape' must be (ny, nx), got {shape!r}") from exc
-    if ny < 1 or nx < 1:
-        raise ParameterError(f"'shape' must be positive, got {shape!r}")
+    ny, nx = check_shape("shape", shape)
     if isinstance(fraction, bool) or not isinstance(fraction, numbers.Real) \
             or not (0.0 <= float(fraction) <= 1.0):
         raise ParameterError(f"'fraction' must be a number in [0, 1], got {fraction!r}")
