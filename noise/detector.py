@@ -237,7 +237,9 @@ class Detector:
         local = col % ncol
         rev = (out % 2 == 1) != self.reverse_scan
         fast = np.where(rev, ncol - 1 - local, local)
-        idx = np.arange(self.ny)[:, None] * self.row_samples + fast[None, :]
+        # int32 (half the memory of int64 at 4096^2); samples per frame stay < 2**31
+        idx = (np.arange(self.ny, dtype=np.int32)[:, None] * np.int32(self.row_samples)
+               + fast[None, :].astype(np.int32))
         idx.setflags(write=False)
         return idx
 
@@ -246,7 +248,7 @@ class Detector:
 
         Returns
         -------
-        ndarray, shape (ny, nx), int64
+        ndarray, shape (ny, nx), int32 (read-only, cached)
             ``y * (ncols_out + nroh) + x_fast``.
         """
         return self._sample_index

@@ -214,7 +214,7 @@ def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
     eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
                        options=opts)
     if on_resultant is not None:
-        return _timed(lambda: eng.run(on_resultant=on_resultant, save_charge=True)), eng
+        return _timed(lambda: eng.run(on_resultant=on_resultant)), eng
     with tempfile.TemporaryDirectory() as tmp:
         return _timed(lambda: write_exposure(eng, os.path.join(tmp, "exp.fits"))), eng
 
@@ -323,46 +323,149 @@ def bench_fit(spec, threads):
                 median_slope=float(np.nanmedian(slope)))
 
 
-def bench_options(option, threads):
-    """Exact Poisson vs ``gauss_above``: run time and the error of the increments."""
-    import noise
+#: Approximation options measured by ``bench options`` (the exact path is the default).
+OPTION_CASES = ("exact", "gauss_above=1000", "gauss_above=100", "arrivals=2d")
+
+
+def _engine_options(case, threads):
     from .engine import EngineOptions
+    if case == "exact":
+        return EngineOptions(threads=threads)
+    key, value = case.split("=")
+    if key == "gauss_above":
+        return EngineOptions(gauss_above=float(value), threads=threads)
+    return EngineOptions(arrivals=value, threads=threads)
+
+
+def _options_scene(size):
+    """Detector, readout, rate map and white-noise params of the options workload."""
+    import noise
     from .readout import Readout
-    det = noise.preset("H2RG", naxis1=512, naxis2=512)
-    ngroups = 10
-    ro = Readout.named("RAPID", ngroups)
-    rate = 10 ** np.random.default_rng(8).uniform(0, 5, det.shape)  # 1 .. 1e5 e-/s
-    res = {}
+    det = noise.preset("H2RG", naxis1=size, naxis2=size)
+    ro = Readout.named("RAPID", 10)
+    rate = 10 ** np.random.default_rng(8).uniform(-1, 4, det.shape)  # 0.1 .. 1e4 e-/s
+    # a bias offset keeps the ADC from clipping negative read noise at low charge
+    params = noise.ZERO_NOISE.replace(rd_noise=noise.NoiseParams().rd_noise,
+                                      bias_offset=1000.0)
+    return det, ro, rate, params
+
+
+def bench_options(case, threads):
+    """One approximation against the exact path: run time and the slope errors.
+
+    Same scene and seed for every case: rates log-uniform 0.1-1e4 e-/s, RAPID x 10,
+    white read noise only (so the optimal variance is known exactly).  Each case
+    is fitted with the GLS fitter; the metrics are computed per decade of true rate:
+    slope bias and scatter in units of the optimal sigma, the mean reported chi2, and
+    the largest per-pixel slope difference from the exact path (same seed) in units
+    of the optimal sigma.
+    """
+    from .fit import fit_ramps, optimal_variance
+    size = 1024 if case[1] == "full" else 256
+    det, ro, rate, params = _options_scene(size)
+    out = {}
 
     def keep(i, r, dn, charge, nz):
-        res[r] = charge
+        out[r] = dn.astype(np.float32)
 
-    opts = EngineOptions(gauss_above=option, threads=threads)
-    (wall, cpu, _), eng = _run_engine(det, ro, rate, threads, None, options=opts,
-                                      on_resultant=keep)
-    ramp = np.stack([res[r] for r in range(ngroups)]).astype(np.float64)
-    inc = np.diff(ramp, axis=0, prepend=0.0)     # charge per read interval, e-
-    lam = eng.rate * det.frame_time              # rolling reset: every interval is t_frame
+    timing, eng = _run_engine(det, ro, rate, threads, params,
+                              options=_engine_options(case[0], threads), on_resultant=keep)
+    res = np.stack([out[r] for r in range(ro.ngroups)])
+    times = ro.read_times(det.frame_time)
     live = ~det.reference_mask()
-    inc, lam = inc[:, live], lam[live]
-    # aggregate per decade of lambda: (mean - lam) / sqrt(lam / N) and var/lam - 1
-    edges = 10.0 ** np.arange(np.floor(np.log10(lam.min())), np.log10(lam.max()) + 1)
-    bins = np.digitize(lam, edges)
-    mean_sig, var_rel = [], []
-    for b in np.unique(bins):
-        m = bins == b
-        d = inc[:, m] - lam[m]                   # (ngroups, npix) deviations
-        mean_sig.append(abs(d.sum()) / np.sqrt(lam[m].sum() * ngroups))
-        var_rel.append(float((d ** 2).sum() / (lam[m].sum() * ngroups) - 1.0))
-    # var_rel_noise: 1 sigma of var_rel in the Gaussian limit, sqrt(2 / n) for n
-    # increments per decade (larger at lambda < 1 where the Poisson kurtosis adds 1/lam)
-    return dict(wall=wall, cpu=cpu, n_normal=0,
-                n_poisson=int(live.sum()) * ngroups,
-                lam=float(np.median(lam)), max_mean_sigma=float(max(mean_sig)),
-                max_var_rel=float(max(abs(v) for v in var_rel)),
-                var_rel_noise=float(np.sqrt(2.0 / (inc.size / len(var_rel)))),
-                detail=f"512x512, rates 1-1e5 e-/s log-uniform, RAPID x {ngroups}, "
-                       f"no read noise, gauss_above={option}")
+    rn = params.rd_noise
+    fit = fit_ramps(res, times, read_noise=rn, fitter="gls", jump_threshold=None,
+                    threads=threads)
+    truth = eng.rate
+    sig = np.sqrt(optimal_variance(truth, times, rn))
+    z = ((np.asarray(fit.slope, float) - truth) / sig)[live]
+    chi = ((np.asarray(fit.slope, float) - truth) ** 2 / np.asarray(fit.var, float))[live]
+    t = truth[live]
+    decades = np.floor(np.log10(t)).astype(int)
+    per = {}
+    for d in np.unique(decades):
+        m = decades == d
+        per[int(d)] = dict(n=int(m.sum()), bias=float(z[m].mean()),
+                           scatter=float(z[m].std()), chi2=float(chi[m].mean()))
+    n_min = min(v["n"] for v in per.values())
+    r = _engine_result(det, ro, rate, params, timing,
+                       f"{size}x{size}, rates 0.1-1e4 e-/s log-uniform, RAPID x 10, "
+                       f"white read noise {rn} e-, {case[0]}")
+    r.update(per_decade=per, slope=np.asarray(fit.slope, np.float32)[live],
+             sigma_opt=sig[live].astype(np.float32),
+             max_abs_bias=max(abs(v["bias"]) for v in per.values()),
+             max_scatter_dev=max(abs(v["scatter"] - 1) for v in per.values()),
+             max_chi2_dev=max(abs(v["chi2"] - 1) for v in per.values()),
+             # 1 sigma of a per-decade bias (in sigma units) and of the scatter ratio
+             bias_noise=1 / np.sqrt(n_min), scatter_noise=1 / np.sqrt(2 * n_min))
+    return r
+
+
+def bench_pink(case, threads):
+    """Exact vs coarse 1/f synthesis: noise-only full H2RG, PSD deviation per decade."""
+    import noise
+    from noise import pink
+    mode, nframes = case
+    det = noise.preset("H2RG")
+    params = noise.NoiseParams().replace(pink_mode=mode)
+    gen = noise.NoiseGenerator(det, params, rng=1, threads=threads)
+
+    def run():
+        for _ in gen.frames(nframes):
+            pass
+
+    wall, cpu, _ = _timed(run)
+    err = pink.measure_psd_error(mode)
+    nn, npo = floor_counts(det, noise.NoiseParams(), nframes)
+    return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo, lam=0.0,
+                psd_error=err, max_psd_dev=float(err["max_abs_dev_dex"]),
+                detail=f"H2RG 2048x2048 noise only, {nframes} frames, pink_mode={mode}")
+
+
+def bench_skips(case, threads):
+    """What one skip saves: the same scene with the skip triggered and defeated.
+
+    ``zero_amplitude``: white noise only with the other components at amplitude 0
+    (skipped) vs at 1e-12 e- (computed, same output to 1e-11 e-).  ``no_charge``:
+    100 stars on an otherwise empty 2048^2 array (only stamp pixels draw Poisson) vs
+    1e-12 e-/s everywhere.  ``unused_frames``: DEEP8 (8 of 20 frames per group are
+    read) vs a pattern that materialises all 20.  ``no_ramp_file``: the charge
+    engine streaming to an exposure file vs keeping only the in-memory resultants.
+    """
+    import noise
+    from .readout import Readout
+    what, defeated = case
+    det = noise.preset("H2RG")
+    ro = Readout.named("RAPID", 5)
+    params = noise.ZERO_NOISE
+    rate = np.zeros(det.shape)
+    keep = None
+    if what == "zero_amplitude":
+        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        if defeated:
+            params = params.replace(c_pink=1e-12, u_pink=1e-12, acn=1e-12, pca0=1e-12,
+                                    pedestal=1e-12)
+    elif what == "no_charge":
+        rate = _star_rates(det.shape, 100, np.random.default_rng(5), (2, 4))
+        rate[rate < 1e-3] = 0.0
+        if defeated:
+            rate = rate + 1e-12
+    elif what == "unused_frames":
+        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        rate = np.full(det.shape, 1.0)
+        ro = Readout.named("DEEP8", 2)
+        if defeated:
+            ro = Readout.from_reads([list(range(g * 20, g * 20 + 20)) for g in range(2)])
+    elif what == "no_ramp_file":
+        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        rate = np.full(det.shape, 1.0)
+        if not defeated:
+            keep = lambda *a: None  # noqa: E731  (in-memory resultants, no file)
+    else:
+        raise ParameterError(f"unknown skip case {what!r}")
+    timing, _ = _run_engine(det, ro, rate, threads, params, on_resultant=keep)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"{what}: {'skip defeated' if defeated else 'skipped'}")
 
 
 #: Workload name -> (function, full cases, quick cases).
@@ -373,7 +476,12 @@ WORKLOADS = {
     "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls")],
             [(512, f) for f in ("cds", "ols", "gls")]),
     "timeseries": (bench_timeseries, [300], [30]),
-    "options": (bench_options, [None, 1000.0, 100.0], [None, 1000.0, 100.0]),
+    "options": (bench_options, [(c, "full") for c in OPTION_CASES],
+                [(c, "quick") for c in OPTION_CASES]),
+    "skips": (bench_skips, [(w, d) for w in ("zero_amplitude", "no_charge",
+                                              "unused_frames", "no_ramp_file")
+                            for d in (False, True)],
+              [("zero_amplitude", False), ("zero_amplitude", True)]),
 }
 
 
@@ -409,6 +517,10 @@ def _in_subprocess(name, case, threads):
 
 
 def _label(case):
+    if isinstance(case, tuple) and isinstance(case[1], bool):
+        return f"{case[0]} ({'defeated' if case[1] else 'skipped'})"
+    if isinstance(case, tuple) and isinstance(case[0], str):
+        return f"{case[0]} ({case[1]})"
     if isinstance(case, tuple):
         return f"{case[0]}x{case[0]} {case[1]}"
     if case is None:
@@ -456,10 +568,15 @@ def _markdown(rows):
             if r.get("reference_mb"):
                 ref += f" ({r['reference_mb']:.0f} MB)"
         notes = r["detail"]
-        if "max_var_rel" in r:
-            notes += (f"; max abs(var/lam-1) {r['max_var_rel']:.2e} (1 sigma "
-                      f"{r['var_rel_noise']:.1e}), max abs(mean diff) "
-                      f"{r['max_mean_sigma']:.2f} sigma")
+        if "max_abs_bias" in r:
+            notes += (f"; speed-up vs exact {_fmt(r.get('speedup_vs_exact'), '.2f')}; "
+                      f"per decade of rate: max abs(bias) {r['max_abs_bias']:.3f} sigma_opt"
+                      f" (1 sigma {r['bias_noise']:.3f}), max abs(scatter/sigma_opt - 1) "
+                      f"{r['max_scatter_dev']:.3f} (1 sigma {r['scatter_noise']:.3f}), "
+                      f"max abs(chi2 - 1) {r['max_chi2_dev']:.3f}; max per-pixel slope "
+                      f"difference from exact {_fmt(r.get('max_diff_sigma'), '.2f')} sigma_opt")
+        if "max_psd_dev" in r:
+            notes += f"; max PSD deviation per decade {r['max_psd_dev']:.3f} dex"
         lines.append(f"| {r['workload']} | {r['case']} | {r['wall']:.2f} | "
                      f"{r['cpu']:.2f} | {r['peak_rss_mb']:.0f} | {_fmt(base, '.2f')} "
                      f"({kind}) | {_fmt(r['ratio'], '.1f')} | {ref} | {notes} |")
@@ -467,19 +584,27 @@ def _markdown(rows):
 
 
 def _plot(rows, path):
+    """Run time against error: one point per approximation option."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    opt = [r for r in rows if r["workload"] == "options"]
-    fig, ax = plt.subplots(figsize=(5, 4))
-    for r in opt:
-        err = max(r["max_var_rel"], 1e-6)
-        ax.scatter(r["wall"], err)
-        ax.annotate(f"gauss_above={r['case']}", (r["wall"], err), fontsize=8)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for r in rows:
+        if r["workload"] == "options":
+            err = max(r["max_abs_bias"], r["max_scatter_dev"], r["max_chi2_dev"])
+            label = r["case"]
+        elif r["workload"] == "pink":
+            err = r["max_psd_dev"]
+            label = "1/f " + r["case"]
+        else:
+            continue
+        ax.scatter(r["wall"], max(err, 1e-4))
+        ax.annotate(label, (r["wall"], max(err, 1e-4)), fontsize=8)
     ax.set_xlabel("run time (s)")
-    ax.set_ylabel("max |var(increment)/lambda - 1| per decade")
+    ax.set_ylabel("error: max over decades of |bias|, |scatter-1|, |chi2-1|\n"
+                  "(1/f: max PSD deviation per decade, dex)")
     ax.set_yscale("log")
-    ax.set_title("run time against error (options)")
+    ax.set_title("run time against error (one point per option)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -513,12 +638,16 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None):
         raise ParameterError(f"'threads' must be >= 1, got {threads}")
     os.makedirs(out_dir, exist_ok=True)
     rows = []
+    exact = {}
     for name in names:
         fn, full, small = WORKLOADS[name]
         for case in (small if quick else full):
             print(f"[bench] {name} {_label(case)} ...", flush=True)
             r = _in_subprocess(name, case, threads)
+            arrays = {k: r.pop(k) for k in ("slope", "sigma_opt") if k in r}
             row = _row(name, case, r, threads)
+            if name == "options":
+                _versus_exact(row, arrays, exact)
             rows.append(row)
             extra = f" floor {row['floor']:.2f} s" if "floor" in row else \
                 f" np.sum {row['baseline']:.3f} s"
@@ -527,6 +656,20 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None):
                   f"ratio {_fmt(row['ratio'], '.1f')}", flush=True)
             _write(rows, out_dir, threads, quick)
     return 0
+
+
+def _versus_exact(row, arrays, exact):
+    """Options: the largest per-pixel slope difference from the exact case (same seed
+    and scene), in units of the optimal sigma; and the speed-up over the exact case."""
+    if row["case"].startswith("exact"):
+        exact.update(arrays, wall=row["wall"])
+        row["max_diff_sigma"] = 0.0
+        row["speedup_vs_exact"] = 1.0
+        return
+    if "slope" in exact and "slope" in arrays:
+        d = np.abs(arrays["slope"].astype(float) - exact["slope"]) / exact["sigma_opt"]
+        row["max_diff_sigma"] = float(d.max())
+        row["speedup_vs_exact"] = exact["wall"] / row["wall"]
 
 
 def _write(rows, out_dir, threads, quick):
@@ -539,5 +682,5 @@ def _write(rows, out_dir, threads, quick):
     with open(os.path.join(out_dir, "bench.md"), "w") as f:
         f.write(f"Benchmarks ({meta['date']}, {threads} threads, "
                 f"{'quick' if quick else 'full'})\n\n" + _markdown(rows))
-    if any(r["workload"] == "options" for r in rows):
+    if any(r["workload"] in ("options", "pink") for r in rows):
         _plot(rows, os.path.join(out_dir, "bench.png"))

@@ -66,7 +66,8 @@ def _run(args):
     from .scene import load_scene
 
     scene = load_scene(args.scene)
-    options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above)
+    options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
+                            arrivals=args.arrivals)
     res = run_scene(scene, output=args.output, seed=args.seed, options=options,
                     progress=not args.quiet, fit=args.fit, refpix=args.refpix,
                     compare=True if args.compare else None, plots=args.plots)
@@ -151,6 +152,9 @@ def _parser():
     r.add_argument("--plots", default=None, help="directory for comparison PNGs")
     r.add_argument("--gauss-above", type=float, default=None,
                    help="approximation: Gaussian instead of Poisson above this mean (e-)")
+    r.add_argument("--arrivals", choices=("time", "2d"), default="time",
+                   help="charge arrivals: 'time' (exact, Poisson per read) or '2d' (the "
+                        "paper's fast shortcut: one Poisson image spread over the reads)")
     r.add_argument("--threads", type=int, default=None)
     r.add_argument("-q", "--quiet", action="store_true")
     r.set_defaults(func=_run)

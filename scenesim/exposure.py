@@ -172,6 +172,8 @@ def _header_cards(engine, cards):
     out.append(("NONLIN", engine.nonlinearity is not None, "nonlinearity applied"))
     out.append(("GAUSSAB", engine.options.gauss_above or 0.0,
                 "[e-] Gaussian above this mean (0 = exact Poisson)"))
+    out.append(("ARRIVALS", engine.options.arrivals,
+                "charge arrivals: time (exact) or 2d (shortcut)"))
     for key, value, comment in cards:
         out = [c for c in out if c[0] != key]
         out.append((key, value, comment))

@@ -87,6 +87,52 @@ def test_gauss_above_matches_moments():
     assert abs(x.var(ddof=1) - lam) < 5 * np.sqrt((2 * lam ** 2 + lam) / n)
 
 
+def test_arrivals_2d_shortcut_moments_and_shape():
+    """'2d' shortcut: the last read is Poisson(lam_total) and every read is the same
+    draw scaled by its expected fraction, (k + 1) / n for rolling reset."""
+    det = _det()
+    nreads, lam = 5, 50.0                                   # lam per read interval
+    ro = Readout.from_reads([[k] for k in range(nreads)])
+    eng = ChargeEngine(det, ro, rate=lam / det.frame_time, rng=11,
+                       options=EngineOptions(arrivals="2d"))
+    charge, _ = _collect(eng)
+    reg = ~det.reference_mask()
+    last = charge[0, -1][reg]
+    n = last.size
+    lam_tot = nreads * lam
+    assert np.all(np.abs(last - np.rint(last)) < 1e-3)     # whole electrons (float32)
+    # 5 sigma of the sample mean / variance of Poisson(lam_tot), as in
+    # test_poisson_increments
+    assert abs(last.mean() - lam_tot) < 5 * np.sqrt(lam_tot / n)
+    assert abs(last.var(ddof=1) - lam_tot) < 5 * np.sqrt((2 * lam_tot ** 2 + lam_tot) / n)
+    for k in range(nreads):                                 # deterministic fractions
+        np.testing.assert_allclose(charge[0, k][reg], last * (k + 1) / nreads,
+                                   rtol=1e-6, atol=1e-3)
+    with pytest.raises(ParameterError, match="'arrivals'.*'time', '2d'.*'3d'"):
+        EngineOptions(arrivals="3d")
+    with pytest.raises(ParameterError, match="gauss_above"):
+        EngineOptions(gauss_above=-1.0)
+
+
+def test_no_charge_noise_only_ramp():
+    """Rate 0 everywhere: the engine adds the noise alone.  With white read noise
+    sigma and a large bias, a read's DN (gain 1) is bias + N(0, sigma^2) rounded."""
+    import noise
+    det = _det()
+    params = noise.ZERO_NOISE.replace(rd_noise=5.0, bias_offset=1000.0)
+    eng = ChargeEngine(det, Readout.from_reads([[0], [1]]), noise_params=params, rng=2)
+    dn = {}
+    eng.run(on_resultant=lambda i, r, d, c, z: dn.__setitem__(r, d.astype(float)))
+    x = dn[1][~det.reference_mask()] - dn[0][~det.reference_mask()]
+    n = x.size
+    # CDS of two reads: variance 2 sigma^2 + 2/12 (rounding); 5 sigma of the mean
+    # (sd sqrt(var / n)) and of the sample variance (sd var sqrt(2 / n))
+    var = 2 * 25.0 + 2 / 12
+    assert abs(x.mean()) < 5 * np.sqrt(var / n)
+    assert abs(x.var() - var) < 5 * var * np.sqrt(2 / n)
+    assert abs(dn[0].mean() - 1000) < 5 * np.sqrt(25.0 / dn[0].size) + 0.5
+
+
 def test_per_pixel_time_step_source():
     """A source switching on at T (mid read frame 2) shows in read 2 exactly in the
     pixels read after T, and in every regular pixel from read 3 on."""
