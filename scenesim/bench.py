@@ -683,4 +683,8 @@ def _write(rows, out_dir, threads, quick):
         f.write(f"Benchmarks ({meta['date']}, {threads} threads, "
                 f"{'quick' if quick else 'full'})\n\n" + _markdown(rows))
     if any(r["workload"] in ("options", "pink") for r in rows):
-        _plot(rows, os.path.join(out_dir, "bench.png"))
+        try:
+            _plot(rows, os.path.join(out_dir, "bench.png"))
+        except ImportError:
+            print("[bench] matplotlib is not installed (pip install 'scenesim[plot]'): "
+                  "no bench.png", flush=True)

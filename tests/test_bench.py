@@ -45,3 +45,17 @@ def test_bad_arguments_raise_before_work(tmp_path):
         bench.floor_seconds(-1, 0, 1.0, 1)
     with pytest.raises(ParameterError, match="lam"):
         bench.floor_seconds(10, 10, np.nan, 1)
+
+
+def test_quick_options_report_errors_against_exact(tmp_path):
+    """Each option row carries per-decade slope metrics, and the '2d' shortcut's slopes
+    differ from the exact path's by more than 1 sigma somewhere (different draws)."""
+    out = tmp_path / "o"
+    assert bench.main(["options"], quick=True, out_dir=str(out), threads=1) == 0
+    rows = {r["case"]: r for r in json.loads((out / "bench.json").read_text())["rows"]}
+    assert set(rows) == {f"{c} (quick)" for c in bench.OPTION_CASES}
+    for r in rows.values():
+        assert set(r["per_decade"]) == {"-1", "0", "1", "2", "3"}
+        assert r["max_diff_sigma"] >= 0
+    assert rows["arrivals=2d (quick)"]["max_diff_sigma"] > 1.0
+    assert "speed-up vs exact" in (out / "bench.md").read_text()
