@@ -193,16 +193,18 @@ def _typical_lambda(rate, dt):
 
 
 def bench_noise(frames, threads):
-    """NG-default 4-output H2RG, ``frames`` reads streamed to FITS."""
+    """NG-default 4-output H2RG, ``frames`` reads streamed to FITS as uint16 DN (gain 1),
+    the format the original program writes."""
     import noise
     det, params = noise.preset("H2RG"), noise.NoiseParams()
     gen = noise.NoiseGenerator(det, params, rng=1, threads=threads)
     with tempfile.TemporaryDirectory() as tmp:
         wall, cpu, _ = _timed(lambda: noise.write_noise_fits(
-            os.path.join(tmp, "noise.fits"), gen, frames))
+            os.path.join(tmp, "noise.fits"), gen, frames, unit="DN", gain=1.0))
     nn, npo = floor_counts(det, params, frames)
     return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo, lam=0.0,
-                detail=f"H2RG 2048x2048, 4 outputs, {frames} frames, NG defaults")
+                detail=f"H2RG 2048x2048, 4 outputs, {frames} frames, NG defaults, "
+                       f"uint16 DN to FITS")
 
 
 def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
