@@ -90,8 +90,13 @@ def _fit(args):
     from .fitting import fit_exposure_file
 
     out = args.output or _default_fit_path(args.exposure, args.fitter)
-    fit_exposure_file(args.exposure, out, fitter=args.fitter, refpix=args.refpix,
-                      jump_threshold=args.jump_threshold)
+    if args.fitter.lower().startswith("stcal-"):
+        from .stcal_adapter import fit_exposure_stcal
+        fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
+                           refpix=args.refpix)
+    else:
+        fit_exposure_file(args.exposure, out, fitter=args.fitter, refpix=args.refpix,
+                          jump_threshold=args.jump_threshold)
     print(f"wrote {out}")
     return 0
 
@@ -163,7 +168,9 @@ def _parser():
     f.add_argument("exposure")
     f.add_argument("-o", "--output", default=None)
     f.add_argument("--refpix", choices=("none", "median", "jwst"), default="jwst")
-    f.add_argument("--fitter", default="gls", help="cds, ols or gls")
+    f.add_argument("--fitter", default="gls",
+                   help="cds, ols or gls; or stcal-ols_c / stcal-likely to run the JWST "
+                        "calibration library's fitter (needs the [stcal] extra)")
     f.add_argument("--jump-threshold", type=float, default=5.0,
                    help="jump detection threshold in sigma (0 = off)")
     f.set_defaults(func=_fit)
