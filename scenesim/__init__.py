@@ -7,7 +7,9 @@ and events), :mod:`scenesim.engine` (charge read by read), :mod:`scenesim.effect
 (saturation, nonlinearity, IPC, flat, ADC), :mod:`scenesim.exposure` (uncal and truth
 files), :mod:`scenesim.refpix`, :mod:`scenesim.fit`, :mod:`scenesim.fitting`
 (reference correction and slopes), :mod:`scenesim.compare` (fit vs truth),
-:mod:`scenesim.run` (the orchestrator) and :mod:`scenesim.bench`.
+:mod:`scenesim.run` (the orchestrator) and :mod:`scenesim.bench`;
+:mod:`scenesim.stcal_adapter` runs the JWST library stcal's ramp fitting on our
+exposures (optional ``[stcal]`` extra, imported only when used).
 The noise model lives in the sibling package :mod:`noise`.
 """
 
@@ -20,7 +22,7 @@ from .fitting import fit_exposure_file
 from .lightcurve import LightCurve
 from .psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources
 from .readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
-from .refpix import correct_reference
+from .refpix import correct_reference, measure_reference_correction, white_noise_added
 from .run import build_engine, run_scene
 from .scene import Scene, load_scene, parse_scene
 
@@ -32,7 +34,8 @@ __all__ = [
     "ChargeEngine", "EngineOptions", "VariableSource", "CosmicRayHits",
     "Nonlinearity", "ipc_kernel", "apply_ipc",
     "write_exposure", "read_exposure", "read_truth",
-    "correct_reference", "fit_ramps", "FitResult", "read_fit", "write_fit",
+    "correct_reference", "measure_reference_correction", "white_noise_added",
+    "fit_ramps", "FitResult", "read_fit", "write_fit",
     "optimal_variance", "fit_exposure_file",
     "Report", "compare", "compare_files",
     "build_engine", "run_scene",
