@@ -35,7 +35,7 @@ def _header(rdnoise, **extra):
     return cards
 
 
-def _write_truth(path, rate, header, crs=None, sources=None):
+def _write_truth(path, rate, header, crs=None, sources=None, extra=()):
     prim = fits.PrimaryHDU()
     for k, v in header.items():
         prim.header[k] = v
@@ -47,8 +47,9 @@ def _write_truth(path, rate, header, crs=None, sources=None):
                          fits.ImageHDU(rate.astype(np.float32), name="RATE"),
                          fits.ImageHDU(rate.astype(np.float32), name="RATE_IPC"),
                          fits.BinTableHDU(crs, name="CRS"),
-                         fits.BinTableHDU(sources, name="SOURCES")])
-    hdul.writeto(path)
+                         fits.BinTableHDU(sources, name="SOURCES")] + list(extra))
+    # 'ignore': the detector cards NAXIS1D/NAXIS2D look like NAXISj to astropy
+    hdul.writeto(path, output_verify="ignore")
     return str(path)
 
 
@@ -168,6 +169,71 @@ def test_jump_completeness_and_false_positives(tmp_path):
     assert j["n_hit"] == 30 and j["completeness"] == pytest.approx(24 / 30)
     assert j["n_clean"] == dq.size - 60
     assert j["false_positive"] == pytest.approx(7 / (dq.size - 60))
+
+
+def test_jump_hits_are_deposits_inside_a_ramp(tmp_path):
+    """A deposit is a jump only between the first and the last usable read.
+
+    Conventions: read k of integration i is in frame slot i (1 + nreads) + 1 + k and a
+    pixel is read t_pix after the start of its frame, so with NGROUPS = 6 single
+    reads the usable ramp of integration i spans clock times
+    ((7 i + 1) t_f + t_pix, (7 i + 6) t_f + t_pix]; SATGROUP g ends it at the last
+    read of resultant g - 1.
+    """
+    from noise.detector import preset
+
+    det = preset("H2RG").window(100, 100, 16, 12, "W")
+    tf = det.frame_time
+    tpix = det.pixel_time()
+    hdr = _header(5.0, TFRAME=tf)
+    hdr.update({k: v for k, v, _ in det.to_header_cards()})
+    thr = 10 * math.sqrt(2) * 5.0
+    pix = [(1, 1), (3, 2), (5, 3), (7, 4), (9, 5), (11, 6), (13, 7)]
+
+    def t0(i, yx):
+        return (7 * i + 1) * tf + tpix[yx[1], yx[0]]
+
+    times = [t0(0, pix[0]) - 0.1 * tf,      # before the first read: an offset
+             t0(0, pix[1]) + 0.5 * tf,      # inside integration 0: hit
+             t0(0, pix[2]) + 5.5 * tf,      # after its last read (reset of int 1)
+             t0(1, pix[3]) + 2.5 * tf,      # inside integration 1: hit
+             t0(1, pix[4]) + 5.5 * tf,      # after the last read of the exposure
+             t0(0, pix[5]) + 3.5 * tf,      # after saturation (SATGROUP 3)
+             t0(0, pix[6]) + 3.5 * tf]      # before saturation (SATGROUP 5): hit
+    crs = Table({"TIME": times, "X": [p[0] for p in pix], "Y": [p[1] for p in pix],
+                 "CHARGE": np.full(7, 3 * thr), "SEEN": np.ones(7, bool)})
+    shape = det.shape
+    satg = np.full((NINTS,) + shape, -1, np.int16)
+    satg[0, pix[5][1], pix[5][0]] = 3
+    satg[0, pix[6][1], pix[6][0]] = 5
+    rate = np.full(shape, 10.0)
+    truth = _write_truth(tmp_path / "truth.fits", rate, hdr, crs=crs,
+                         extra=[fits.ImageHDU(satg, name="SATGROUP")])
+    dq = np.zeros(shape, np.uint32)
+    for p in (pix[0], pix[1], pix[3], pix[6]):      # the three hits and one offset
+        dq[p[1], p[0]] |= JUMP_DET
+    fit = _write_fit(tmp_path / "fit.fits", rate, np.ones(shape), dq=dq, rn=5.0)
+    rep = compare_files(fit, truth)
+    j = rep.jumps
+    assert j["n_hit"] == 3 and j["completeness"] == 1.0
+    # all 7 pixels have a deposit: neither hit nor clean unless inside the ramp
+    assert j["n_clean"] == shape[0] * shape[1] - 7 and j["false_positive"] == 0.0
+    assert not any("every seen deposit" in n for n in rep.notes)
+
+
+def test_ipc_neighbours_of_deposits_are_not_clean(tmp_path):
+    shape = (20, 20)
+    crs = Table({"TIME": [0.0], "X": [10], "Y": [10], "CHARGE": [1000.0],
+                 "SEEN": [True]})
+    dq = np.zeros(shape, np.uint32)
+    dq[10, 11] |= JUMP_DET              # the IPC share of the hit, in a neighbour
+    rate = np.full(shape, 1.0)
+    fit = _write_fit(tmp_path / "fit.fits", rate, np.ones(shape), dq=dq, rn=5.0)
+    for ipc, n_clean, fp in ((True, 400 - 9, 0.0), (False, 400 - 1, 1 / 399)):
+        truth = _write_truth(tmp_path / f"truth{ipc}.fits", rate,
+                             _header(5.0, IPC=ipc), crs=crs)
+        j = compare_files(fit, truth).jumps
+        assert j["n_clean"] == n_clean and j["false_positive"] == pytest.approx(fp)
 
 
 def _gauss_image(shape, xs, ys, fluxes, sigma):
