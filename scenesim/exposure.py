@@ -13,8 +13,10 @@ calibration library's ramp fitting without changing its layout:
 
 Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s per pixel before IPC and flat),
 ``RATE_IPC`` (after IPC and flat: what a linear ramp fit should recover), ``SATREAD``
-(first saturated read per pixel and integration, -1 if none), ``SATGROUP`` (first
-resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
+(first saturated read per pixel and integration, as a frame index counted from reset,
+-1 if none; only reads that some resultant uses are materialised, so a pixel that fills
+its well during skipped frames reports the next read that is actually taken),
+``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
 read saw it), ``SOURCES`` (the catalogue as rendered), and optionally ``CHARGE``
 (noise-free charge resultants, e-) and ``NOISE`` (noise-only resultants, e-).
 
