@@ -20,12 +20,22 @@ its well during skipped frames reports the next read that is actually taken),
 read saw it), ``SOURCES`` (the catalogue as rendered), and optionally ``CHARGE``
 (noise-free charge resultants, e-) and ``NOISE`` (noise-only resultants, e-).
 
+In memory: :class:`Exposure` holds what an exposure file holds (``SCI``, the primary
+header and the ``READS`` table, exactly as :func:`read_exposure` returns them from a
+file).  ``write_exposure(engine, None)`` returns one, so a run that wants slopes but
+no ramp file fits the resultants straight from memory
+(:func:`scenesim.fitting.prepare_exposure` takes a path or an :class:`Exposure`); its
+header and table go through the same FITS serialisation as the file's, so the fit
+sees the same values to the last bit.
+
 Every file is written to a temporary file and renamed when complete.
 """
 
 import contextlib
+import io
 import os
 import tempfile
+from dataclasses import dataclass
 
 import numpy as np
 from astropy.io import fits
@@ -34,7 +44,54 @@ from astropy.table import Table
 from noise._validate import check_writable
 from noise.fitsio import StreamingFITS, atomic_path
 
-__all__ = ["write_exposure", "truth_path_for", "read_exposure", "read_truth"]
+__all__ = ["Exposure", "write_exposure", "truth_path_for", "read_exposure",
+           "read_truth"]
+
+
+@dataclass(frozen=True, eq=False)
+class Exposure:
+    """An exposure in memory: the contents of an exposure file.
+
+    Parameters
+    ----------
+    sci : ndarray, shape (nints, ngroups, ny, nx), uint16, DN
+        Resultants (the ``SCI`` extension).
+    header : astropy.io.fits.Header
+        Primary header (``GAIN`` e-/DN, ``RDNOISE`` e- per read, ``TFRAME`` s, ...).
+    reads : astropy.table.Table
+        The ``READS`` table (one row per resultant, see
+        :meth:`scenesim.readout.Readout.read_table`).
+    name : str
+        Label recorded in the header of a fit of it (the file path, or
+        ``'(in memory)'``).
+    """
+
+    sci: np.ndarray
+    header: fits.Header
+    reads: Table
+    name: str = "(in memory)"
+
+    @classmethod
+    def read(cls, path):
+        """Load an exposure file (see :func:`read_exposure`) as an :class:`Exposure`.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+
+        Returns
+        -------
+        Exposure
+            ``name`` is ``os.fspath(path)``.
+
+        Raises
+        ------
+        noise.errors.FileFormatError
+            Missing file, or no ``SCI`` or ``READS`` extension.
+        """
+        path = os.fspath(path)
+        sci, header, reads = read_exposure(path)
+        return cls(sci, header, reads, path)
 
 
 def truth_path_for(path):
@@ -89,8 +146,11 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
 
     Returns
     -------
-    dict with ``sat_read`` and ``cr_seen`` (see ``ChargeEngine.run``) and, when ``path``
-    is None, ``sci`` (nints, ngroups, ny, nx) uint16 held in memory.
+    dict
+        ``sat_read`` and ``cr_seen`` (see ``ChargeEngine.run``) and, when ``path`` is
+        None, ``sci`` (nints, ngroups, ny, nx) uint16 DN held in memory and
+        ``exposure``, an :class:`Exposure` of it whose header and ``READS`` table are
+        those the file would have had, as :func:`read_exposure` would return them.
     """
     det, ro = engine.detector, engine.readout
     if path is not None:
@@ -146,7 +206,28 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
                 raw.discard()
     if sci_mem is not None:
         out["sci"] = sci_mem
+        out["exposure"] = Exposure(sci_mem, _read_back_header(header),
+                                   _read_back_table(ro.read_table(t_frame), "READS"))
     return out
+
+
+def _read_back_header(cards):
+    """The primary header built from ``cards`` as the file stores and reads it back."""
+    buf = io.BytesIO()
+    stream = StreamingFITS(buf)
+    stream.begin_image((), np.uint8, cards)
+    stream.end_image()
+    return fits.Header.fromstring(buf.getvalue().decode("ascii"))
+
+
+def _read_back_table(table, name):
+    """``table`` after a trip through a FITS binary table, as :func:`read_exposure`
+    reads it from a file (same column types, no ``meta``)."""
+    buf = io.BytesIO()
+    fits.HDUList([fits.PrimaryHDU(), fits.BinTableHDU(table, name=name)]).writeto(buf)
+    buf.seek(0)
+    with fits.open(buf) as hdul:
+        return Table(hdul[name].data)
 
 
 def _header_cards(engine, cards):

@@ -74,7 +74,8 @@ model variances evaluated at the joint rate (JWST style).
 chi-square: ``chi2 = (d - f_hat)^T C^-1 (d - f_hat) / dof`` with ``dof = n_diff - 1``
 (usable differences of all integrations minus one).  For GLS its expectation is 1;
 for OLS and CDS it is ``1 + (V/V_opt - 1)/dof`` (slightly above 1).  ``chi2 = 0`` where
-``dof <= 0``.
+``dof <= 0``.  :func:`model_chi2` evaluates the same quantity for a rate from
+elsewhere (e.g. another fitter's, as :mod:`scenesim.stcal_adapter` does).
 
 Saturation, jumps and short ramps
 ---------------------------------
@@ -225,6 +226,7 @@ __all__ = [
     "VARIANCE_RATES",
     "FitResult",
     "fit_ramps",
+    "model_chi2",
     "local_rate",
     "measure_read_noise",
     "common_mode",
@@ -815,6 +817,120 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     out["var_ints"] += rate_v[None] * aux["pcoef_ints"]
     rn = float(read_noise) if s2_map is None else float(np.median(read_noise))
     return FitResult(gain=gain, read_noise=rn, fitter=fitter, **out)
+
+
+def model_chi2(resultants, read_times, rate, read_noise, *, valid=None, ddof=1):
+    """Chi-square per degree of freedom of the resultants about a given rate.
+
+    The quantity ``CHI2`` of :func:`fit_ramps`, for any rate: with the rate
+    estimates ``d_i = (R_{i+1} - R_i) / dt_i`` of each integration and ``C(f)`` their
+    model covariance (Brandt 2024, eqs. 28-29; module notes), evaluated at
+    ``max(rate, 0)`` as the GLS fitter does::
+
+        chi2 = sum_k (d_k - rate)^T C^-1 (d_k - rate) / (n_usable - ddof)
+
+    summed over integrations ``k`` and over the usable differences only (removing a
+    difference splits the ramp into independent segments, as in the fit).  For ramps
+    whose true rate is ``rate`` (so that ``C`` is their covariance) its expectation
+    is 1 with ``ddof=0``; for the GLS rate of the same data it is 1 with ``ddof=1``,
+    and
+    ``1 + (V/V_opt - 1)/dof`` for another linear unbiased estimate of variance
+    ``V`` (e.g. stcal's).
+
+    Parameters
+    ----------
+    resultants : ndarray, shape (nres, ny, nx) or (nints, nres, ny, nx), e-
+        Resultants, in electrons.  Any real dtype (differences are taken in float64,
+        then float32).  Finite wherever a usable difference uses them; elsewhere
+        (e.g. saturated) they may be NaN.
+    read_times : sequence of nres arrays, seconds from reset
+        As in :func:`fit_ramps` (1-D, or per pixel differing by a common shift).
+    rate : float or ndarray (ny, nx), e-/s
+        Rate the rate estimates are compared with (finite; any sign).
+    read_noise : float or ndarray (ny, nx), e- per read
+        White read noise of **one read** (not CDS), >= 0.  Where it is 0 the
+        covariance uses a rate of at least 1e-6 e-/s, as :func:`fit_ramps` does.
+    valid : ndarray of bool, optional
+        Shape (nres - 1, ny, nx) or (nints, nres - 1, ny, nx), with the leading
+        axes of ``resultants``: usable differences (difference ``i`` uses
+        resultants ``i`` and ``i + 1``); default all.
+    ddof : int, keyword-only
+        Degrees of freedom taken by the rate (>= 0): 1 (default) when it was fitted
+        to these resultants, 0 for a rate known independently.
+
+    Returns
+    -------
+    ndarray, shape (ny, nx), float32
+        ``chi2`` per degree of freedom; 0 where ``n_usable - ddof <= 0``.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        On bad input, before any work.
+    """
+    res = np.asarray(resultants)
+    if res.dtype.kind not in "iuf" or res.ndim not in (3, 4) or min(res.shape) == 0:
+        raise ParameterError(
+            f"'resultants' must be a non-empty real array of shape (nres, ny, nx) or "
+            f"(nints, nres, ny, nx), e-, got {res.dtype} {res.shape}")
+    res4 = res if res.ndim == 4 else res[None]
+    nints, nres, ny, nx = res4.shape
+    if nres < 2:
+        raise ParameterError(
+            f"'resultants' must have >= 2 resultants for a rate estimate, got {nres}")
+    times, _ = _check_read_times(read_times, nres, (ny, nx))
+    rate = _check_map("rate", rate, (ny, nx), unit="e-/s")
+    read_noise = _check_map("read_noise", read_noise, (ny, nx), minimum=0.0,
+                            unit="e- per read")
+    dshape = res.shape[:-3] + (nres - 1, ny, nx)
+    if valid is None:
+        valid4 = np.ones((nints, nres - 1, ny, nx), bool)
+    else:
+        valid4 = np.asarray(valid)
+        if valid4.dtype != bool or valid4.shape != dshape:
+            raise ParameterError(
+                f"'valid' must be a bool array of shape {dshape} (one flag per "
+                f"difference), got {valid4.dtype} {valid4.shape}")
+        valid4 = valid4 if valid4.ndim == 4 else valid4[None]
+    if isinstance(ddof, bool) or not isinstance(ddof, numbers.Integral) or ddof < 0:
+        raise ParameterError(f"'ddof' must be an integer >= 0, got {ddof!r}")
+    if res.dtype.kind == "f":
+        need = np.zeros(res4.shape, bool)          # resultants of a usable difference
+        need[:, :-1] |= valid4
+        need[:, 1:] |= valid4
+        nbad = int((need & ~np.isfinite(res4)).sum())
+        if nbad:
+            raise ParameterError(
+                f"'resultants' must be finite where a usable difference ('valid') "
+                f"uses them; {nbad} NaN or inf values are")
+
+    ro = _Readout(times)
+    A = (ro.Ar.tolist(), ro.Ap.tolist())
+    B = (ro.Br.tolist(), ro.Bp.tolist())
+    inv_dt = (1.0 / ro.dt)[:, None]
+    rate_map = np.broadcast_to(np.asarray(rate, dtype=_F32), (ny, nx))
+    s2_map = np.broadcast_to(np.asarray(read_noise, dtype=float) ** 2, (ny, nx))
+    raw = np.zeros((ny, nx), _F32)
+    rows = max(1, _CHUNK_ELEMS // (nx * nints * nres))
+    for y0 in range(0, ny, rows):
+        y1 = min(y0 + rows, ny)
+        f = rate_map[y0:y1].reshape(-1)
+        s2 = s2_map[y0:y1].reshape(-1).astype(_F32)
+        fc = np.maximum(f, np.where(s2 == 0, _F32(_RATE_FLOOR), _F32(0)))
+        acc = np.zeros(f.size, _F32)
+        for k in range(nints):
+            blk = res4[k, :, y0:y1].reshape(nres, -1)
+            blk = blk if blk.dtype in (np.float32, np.float64) else blk.astype(float)
+            v = valid4[k, :, y0:y1].reshape(nres - 1, -1)
+            with np.errstate(invalid="ignore"):
+                d = np.where(v, np.diff(blk, axis=0) * inv_dt, 0).astype(_F32)
+            mf = v.astype(_F32)
+            mc = mf[:-1] * mf[1:]
+            acc += _ldl_pass(d, v, mf, mc, f, s2, fc, A, B, want_x=False)[2]
+        raw[y0:y1] = acc.reshape(y1 - y0, nx)
+    dof = valid4.sum(axis=(0, 1), dtype=np.int64) - int(ddof)
+    return np.divide(np.maximum(raw, 0), dof, out=np.zeros((ny, nx), _F32),
+                     where=dof > 0).astype(_F32)
 
 
 def _first_pass(resultants, read_times, read_noise, groups, saturated, refmask,

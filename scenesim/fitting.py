@@ -1,11 +1,16 @@
-"""Fit an exposure file: DN to electrons, reference correction, saturation, slopes.
+"""Fit an exposure: DN to electrons, reference correction, saturation, slopes.
 
-``fit_exposure_file`` reads a scenesim exposure (JWST uncal layout, see
-:mod:`scenesim.exposure`), converts DN to electrons with the header's ``GAIN``,
-flags saturated resultants, corrects the reference pixels (:mod:`scenesim.refpix`),
-removes the per-output common mode that the reference pixels missed, measures the
-effective read noise per column, fits slopes (:mod:`scenesim.fit`) and writes the
-slope file.
+:func:`prepare_exposure` is the one pre-processing of an exposure before any fitter:
+it takes an exposure file (JWST uncal layout, see :mod:`scenesim.exposure`) or the
+same contents in memory (:class:`scenesim.exposure.Exposure`, e.g. from a run that
+writes no ramp file), converts DN to electrons with the header's ``GAIN``, flags
+saturated resultants, corrects the reference pixels (:mod:`scenesim.refpix`),
+removes the per-output common mode that the reference pixels missed and measures
+the effective read noise per column, and returns the result as a
+:class:`PreparedExposure`.  :func:`fit_exposure_file` fits its slopes
+(:mod:`scenesim.fit`) and writes the slope file;
+:func:`scenesim.stcal_adapter.fit_exposure_stcal` hands the very same arrays to
+stcal, so that comparing the two isolates the fitter.
 
 Noise model from the data (see :mod:`scenesim.fit`, "Read noise from the data"): the
 header's ``RDNOISE`` is the white noise of one read, but after the reference
@@ -27,6 +32,22 @@ corrections ran (``RNSOURCE``, ``CMREMOVE``).  On the cosmic-ray scene (H2RG str
 stripe is fitted twice more, without jump detection, to measure the noise; a full
 2048-row frame uses 1/8 of its rows).
 
+Caveat (measured): the common mode is estimated from a finite number of pixels and
+its removal moves all slopes of an output together by the estimate's error.  On
+128 x 128 white-noise exposures at rate 0 (``refpix='none'``) the mean slope of an
+output moved by up to 0.07 sigma of one pixel's slope for RAPID x 10, and by up to
+0.5 sigma for the uneven 9-resultant Roman-like table: :func:`scenesim.fit.common_mode`
+keeps the *unweighted* mean of its per-difference offsets, whereas a fit is moved
+by their fit-weighted mean (for that table dominated by the short first
+differences).  Keeping the GLS-weighted mean instead (weights at rate 0) brought the
+shifts below 0.001 sigma in the same test.  Analyses that need independent pixels
+should pass ``remove_common_mode=False``.
+
+Order of the steps: saturation is judged on the raw ramps in e- (before the
+reference correction, as the JWST pipeline's saturation step precedes its
+reference-pixel step); the common mode is estimated on the corrected ramps, and the
+read noise on the ramps without it.
+
 Conventions: read noise is **per read** in e- (header ``RDNOISE``, the white
 component; not CDS).  Saturation is judged from the ramp alone, as a pipeline would
 without a reference file: a resultant is saturated when its last read is at the ADC
@@ -39,19 +60,87 @@ that saturate before their second resultant have an uncertain zero level; the AD
 ceiling still catches full saturation.
 """
 
-import numpy as np
+import math
+import numbers
+import os
+from dataclasses import dataclass
 
-from noise.detector import detector_from_header
+import numpy as np
+from astropy.io import fits
+
+from noise.detector import Detector, detector_from_header
 from noise.errors import FileFormatError, ParameterError
 
-from .exposure import read_exposure
+from .exposure import Exposure
 from .fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
 from .readout import Readout
 
-__all__ = ["fit_exposure_file", "exposure_read_noise", "saturation_flags",
+__all__ = ["PreparedExposure", "prepare_exposure", "load_exposure", "exposure_readout",
+           "fit_exposure_file", "exposure_read_noise", "saturation_flags",
            "REFPIX_SCHEMES"]
 
 REFPIX_SCHEMES = ("none", "median", "jwst")
+
+#: Exposure header keywords copied into the header of a fit.
+_COPIED_KEYS = ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
+                "SEED", "SCENE")
+_CARD = 80                       # characters in a FITS header card
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedExposure:
+    """An exposure made ready for a ramp fitter by :func:`prepare_exposure`.
+
+    Parameters
+    ----------
+    name : str
+        The exposure's path, or ``Exposure.name`` for one in memory.
+    header : astropy.io.fits.Header
+        The exposure's primary header.
+    detector : noise.detector.Detector
+        From the header.
+    readout : scenesim.readout.Readout
+        From the ``READS`` table and the header.
+    gain : float
+        e-/DN (header ``GAIN``).
+    t_frame : float
+        Frame time, s (header ``TFRAME``).
+    electrons : ndarray, shape (nints, ngroups, ny, nx), float32, e-
+        Resultants in electrons after the reference correction and the common-mode
+        removal (whichever were asked for).
+    saturated : ndarray of bool, shape of ``electrons``
+        Saturated resultants (:func:`saturation_flags`; sticky within an
+        integration).
+    read_times : list of ngroups ndarrays, s from each pixel's reset
+        Read times of every resultant: ``(N_i,)`` for a rolling reset, ``(N_i, ny,
+        nx)`` for a global reset (see :meth:`scenesim.readout.Readout.read_times`).
+    read_noise : float or ndarray (ny, nx) float64, e- per read
+        White read noise of one read (not CDS) the fitter should use: the measured
+        per-column map when ``measure_noise``, else ``read_noise_model``.
+    read_noise_model : float
+        Model white read noise, e- per read (header ``RDNOISE`` or the caller's).
+    refmask : ndarray of bool, shape (ny, nx)
+        Reference pixels.
+    cards : tuple of (str, value, str)
+        FITS cards recording the exposure and what was done to it (``EXPOSURE``,
+        ``REFPIX``, ``RNCONV``, ``RNMODEL``, ``RNSOURCE``, ``CMREMOVE``) and the
+        exposure keywords copied from its header (``DETECTOR``, ``READPATT``,
+        ``SEED``, ...); every card fits in 80 characters.
+    """
+
+    name: str
+    header: fits.Header
+    detector: Detector
+    readout: Readout
+    gain: float
+    t_frame: float
+    electrons: np.ndarray
+    saturated: np.ndarray
+    read_times: list
+    read_noise: object
+    read_noise_model: float
+    refmask: np.ndarray
+    cards: tuple
 
 
 def exposure_read_noise(header):
@@ -107,6 +196,230 @@ def saturation_flags(e, tbar, full_well, adc_ceiling_e, *, fraction=0.97, t_last
     return np.maximum.accumulate(sat, axis=1)
 
 
+def _printable(text):
+    """``text`` with every character outside printable ASCII replaced by ``?``."""
+    return "".join(c if " " <= c <= "~" else "?" for c in str(text))
+
+
+def _tail(text, width):
+    """The end of ``text``, prefixed by ``...``, in at most ``width`` card characters
+    (a quote counts twice in a FITS string)."""
+    if len(text) + text.count("'") <= width:
+        return text
+    out = []
+    used = 3
+    for c in reversed(text):
+        used += 2 if c == "'" else 1
+        if used > width:
+            break
+        out.append(c)
+    return "..." + "".join(reversed(out))
+
+
+def _card(key, value, comment):
+    """``(key, value, comment)`` that astropy writes as one card without a warning.
+
+    Strings are made printable ASCII; the comment is cut to the room the value
+    leaves (a string value longer than one card becomes CONTINUE cards, no comment).
+    """
+    if isinstance(value, str):
+        value = _printable(value)
+    image = fits.Card(key, value).image
+    if len(image) > _CARD:
+        return key, value, ""
+    room = _CARD - 10 - max(len(image[10:].rstrip()), 20) - 3
+    return key, value, _printable(comment)[:max(room, 0)]
+
+
+def _exposure_card(name):
+    """``EXPOSURE`` card: the end of the exposure's path, fitting one card."""
+    comment = "fitted exposure"
+    width = _CARD - 10 - 2 - 3 - len(comment)        # KEY=_ + quotes + _/_ + comment
+    return _card("EXPOSURE", _tail(_printable(name), width), comment)
+
+
+def load_exposure(exposure):
+    """An exposure as an :class:`scenesim.exposure.Exposure`.
+
+    Parameters
+    ----------
+    exposure : str, os.PathLike or scenesim.exposure.Exposure
+        Exposure file (read, ``SCI`` uint16 DN + ``READS`` table), or an exposure
+        already in memory (returned as it is).
+
+    Returns
+    -------
+    scenesim.exposure.Exposure
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        ``exposure`` is neither a path nor an ``Exposure``.
+    noise.errors.FileFormatError
+        Missing file, or no ``SCI`` or ``READS`` extension.
+    """
+    if isinstance(exposure, Exposure):
+        return exposure
+    if not isinstance(exposure, (str, os.PathLike)):
+        raise ParameterError(
+            f"'exposure' must be a path (str or os.PathLike) or a "
+            f"scenesim.exposure.Exposure, got {type(exposure).__name__}")
+    return Exposure.read(exposure)
+
+
+def exposure_readout(exposure):
+    """The readout of an exposure, checked against its header and ``SCI`` shape.
+
+    Parameters
+    ----------
+    exposure : scenesim.exposure.Exposure
+
+    Returns
+    -------
+    scenesim.readout.Readout
+        From the ``READS`` table, with ``NINTS``, ``RESETMD`` and ``READPATT`` from
+        the header.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        The header lacks ``GAIN``, ``TFRAME`` or ``NINTS``, or ``SCI`` does not have
+        the shape (NINTS, resultants, ny, nx) that the header and table describe.
+    """
+    hdr = exposure.header
+    missing = [k for k in ("GAIN", "TFRAME", "NINTS") if k not in hdr]
+    if missing:
+        raise FileFormatError(
+            f"exposure {exposure.name!r} lacks header keyword {missing[0]!r}")
+    det = detector_from_header(hdr)
+    nints = int(hdr["NINTS"])
+    ro = Readout.from_read_table(exposure.reads, nints=nints,
+                                 reset_mode=str(hdr.get("RESETMD", "rolling")),
+                                 name=str(hdr.get("READPATT", "CUSTOM")))
+    sci = exposure.sci
+    if (sci.ndim != 4 or sci.shape[:2] != (nints, ro.ngroups)
+            or sci.shape[2:] != det.shape):
+        raise FileFormatError(
+            f"exposure {exposure.name!r}: SCI shape {sci.shape} does not match "
+            f"NINTS={nints}, {ro.ngroups} resultants and the {det.shape} detector in "
+            f"its header")
+    return ro
+
+
+def _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, threads):
+    if refpix not in REFPIX_SCHEMES:
+        raise ParameterError(
+            f"'refpix' must be one of {list(REFPIX_SCHEMES)}, got {refpix!r}")
+    for name, flag in (("remove_common_mode", remove_common_mode),
+                       ("measure_noise", measure_noise)):
+        if not isinstance(flag, bool):
+            raise ParameterError(f"{name!r} must be True or False, got {flag!r}")
+    if read_noise is not None and (
+            isinstance(read_noise, bool) or not isinstance(read_noise, numbers.Real)
+            or not math.isfinite(read_noise) or read_noise < 0):
+        raise ParameterError(
+            f"'read_noise' must be None (header RDNOISE) or a finite number >= 0 "
+            f"(e- per read, not CDS), got {read_noise!r}")
+    if threads is not None and (isinstance(threads, bool)
+                                or not isinstance(threads, numbers.Integral)
+                                or threads < 1):
+        raise ParameterError(
+            f"'threads' must be an integer >= 1 or None, got {threads!r}")
+
+
+def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
+                     remove_common_mode=True, measure_noise=True, threads=None):
+    """Read an exposure and make its ramps ready for a fitter (see module notes).
+
+    Steps: DN to e- (``GAIN``); saturation flags (:func:`saturation_flags`, on the
+    estimated last read of each resultant); reference-pixel correction
+    (:func:`scenesim.refpix.correct_reference`); removal of the per-output common
+    mode (:func:`scenesim.fit.common_mode`); per-column read noise measured from the
+    ramps (:func:`scenesim.fit.measure_read_noise`).
+
+    Parameters
+    ----------
+    exposure : str, os.PathLike or scenesim.exposure.Exposure
+        Exposure file written by scenesim (``SCI`` uint16 DN (nints, ngroups, ny,
+        nx) + ``READS`` table), or the same contents in memory.
+    refpix : {'none', 'median', 'jwst'}, keyword-only
+        Reference-pixel correction.
+    read_noise : float or None, keyword-only
+        Model white read noise, e- per read (not CDS), >= 0; default the header's
+        ``RDNOISE``.
+    remove_common_mode : bool, keyword-only
+        Subtract, per output and read, the noise common to the output's pixels that
+        the reference correction left.
+    measure_noise : bool, keyword-only
+        Rescale the read noise per column to the scatter measured in the ramps;
+        False: ``read_noise`` (or ``RDNOISE``) as it is.
+    threads : int or None, keyword-only
+        Worker threads of the common-mode and read-noise fits (see
+        :func:`scenesim.fit.fit_ramps`).
+
+    Returns
+    -------
+    PreparedExposure
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Bad parameter (before the exposure is read).
+    noise.errors.FileFormatError
+        Missing or malformed exposure.
+    """
+    _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, threads)
+    exp = load_exposure(exposure)
+    ro = exposure_readout(exp)
+    hdr = exp.header
+    det = detector_from_header(hdr)
+    gain = float(hdr["GAIN"])
+    t_frame = float(hdr["TFRAME"])
+    rdn = exposure_read_noise(hdr) if read_noise is None else float(read_noise)
+
+    e = exp.sci.astype(np.float32) * np.float32(gain)
+    bits = int(hdr.get("ADCBITS", 16))
+    tbar = ro.mean_times(t_frame)
+    t_last = np.array([t[-1] for t in ro.read_times(t_frame)])
+    sat = saturation_flags(e, tbar, float(hdr.get("FULLWELL", 0.0)),
+                           (2 ** bits - 1) * gain, t_last=t_last)
+    refmask = det.reference_mask()
+    if refpix != "none" and refmask.any():
+        from .refpix import correct_reference
+        e = np.asarray(correct_reference(e, det, scheme=refpix), dtype=np.float32)
+    if ro.reset_mode == "global":
+        times = ro.read_times(t_frame, det.pixel_time())
+    else:
+        times = ro.read_times(t_frame)
+    output_of_column = np.asarray(det.output_of_column()).reshape(-1)
+    if remove_common_mode:
+        outputs = np.broadcast_to(output_of_column, det.shape).astype(np.intp)
+        offsets = common_mode(e, times, read_noise=rdn, groups=outputs, saturated=sat,
+                              refmask=refmask, threads=threads)
+        # (nints, nres, n_out) -> (nints, nres, 1, nx): each column its output's
+        e -= offsets[:, :, None, output_of_column].astype(np.float32)
+    rn_fit = rdn
+    if measure_noise:
+        columns = np.broadcast_to(np.arange(det.nx), det.shape)
+        rn_fit = measure_read_noise(e, times, read_noise=rdn, groups=columns,
+                                    saturated=sat, refmask=refmask, threads=threads)
+    cards = [_exposure_card(exp.name),
+             ("REFPIX", refpix, "reference-pixel correction"),
+             ("RNCONV", "per read", "read noise convention: per read, not CDS"),
+             ("RNMODEL", float(rdn), "[e-] model white read noise per read"),
+             ("RNSOURCE", "measured" if measure_noise else "model",
+              "RNOISE: per-column measured or model"),
+             ("CMREMOVE", bool(remove_common_mode), "per-output common mode removed")]
+    for key in _COPIED_KEYS:
+        if key in hdr:
+            cards.append(_card(key, hdr[key], hdr.comments[key]))
+    return PreparedExposure(
+        name=exp.name, header=hdr, detector=det, readout=ro, gain=gain,
+        t_frame=t_frame, electrons=e, saturated=sat, read_times=times,
+        read_noise=rn_fit, read_noise_model=float(rdn), refmask=refmask,
+        cards=tuple(cards))
+
+
 def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
                       jump_threshold=5.0, read_noise=None, threads=None,
                       overwrite=True, remove_common_mode=True, measure_noise=True):
@@ -114,9 +427,11 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
 
     Parameters
     ----------
-    exposure : str
-        Exposure written by scenesim (``SCI`` uint16 DN + ``READS`` table).
-    output : str
+    exposure : str, os.PathLike or scenesim.exposure.Exposure
+        Exposure file written by scenesim (``SCI`` uint16 DN + ``READS`` table), or
+        the same contents in memory (e.g. ``write_exposure(engine, None)
+        ["exposure"]``).
+    output : str or os.PathLike
         Slope file (see :func:`scenesim.fit.write_fit`).
     fitter : {'cds', 'ols', 'gls'}
     refpix : {'none', 'median', 'jwst'}
@@ -141,77 +456,35 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
     Returns
     -------
     scenesim.fit.FitResult
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Bad parameter or unwritable ``output``, before any work.
+    noise.errors.FileFormatError
+        Missing or malformed exposure.
     """
     if fitter not in FITTERS:
         raise ParameterError(f"'fitter' must be one of {list(FITTERS)}, got {fitter!r}")
-    for name, flag in (("remove_common_mode", remove_common_mode),
-                       ("measure_noise", measure_noise)):
-        if not isinstance(flag, bool):
-            raise ParameterError(f"{name!r} must be True or False, got {flag!r}")
-    if refpix not in REFPIX_SCHEMES:
+    if jump_threshold is not None and (
+            isinstance(jump_threshold, bool)
+            or not isinstance(jump_threshold, numbers.Real)
+            or not math.isfinite(jump_threshold) or jump_threshold < 0):
         raise ParameterError(
-            f"'refpix' must be one of {list(REFPIX_SCHEMES)}, got {refpix!r}")
+            f"'jump_threshold' must be None, 0 (off) or a finite number > 0 (sigma), "
+            f"got {jump_threshold!r}")
+    _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, threads)
     from noise._validate import check_writable
     check_writable("output", output, overwrite=overwrite)
-    sci, hdr, reads = read_exposure(exposure)
-    det = detector_from_header(hdr)
-    try:
-        gain = float(hdr["GAIN"])
-        t_frame = float(hdr["TFRAME"])
-        nints = int(hdr["NINTS"])
-    except KeyError as exc:
-        raise FileFormatError(
-            f"exposure {exposure!r} lacks header keyword {exc.args[0]!r}") from exc
-    ro = Readout.from_read_table(reads, nints=nints,
-                                 reset_mode=str(hdr.get("RESETMD", "rolling")),
-                                 name=str(hdr.get("READPATT", "CUSTOM")))
-    if sci.ndim != 4 or sci.shape[:2] != (nints, ro.ngroups) or sci.shape[2:] != det.shape:
-        raise FileFormatError(
-            f"exposure {exposure!r}: SCI shape {sci.shape} does not match NINTS={nints}, "
-            f"{ro.ngroups} resultants and the {det.shape} detector in its header")
-    rdn = exposure_read_noise(hdr) if read_noise is None else float(read_noise)
-    e = sci.astype(np.float32) * np.float32(gain)
-    bits = int(hdr.get("ADCBITS", 16))
-    tbar = ro.mean_times(t_frame)
-    t_last = np.array([t[-1] for t in ro.read_times(t_frame)])
-    sat = saturation_flags(e, tbar, float(hdr.get("FULLWELL", 0.0)),
-                           (2 ** bits - 1) * gain, t_last=t_last)
-    if refpix != "none":
-        from .refpix import correct_reference
-        if det.reference_mask().any():
-            e = correct_reference(e, det, scheme=refpix)
-    if ro.reset_mode == "global":
-        times = ro.read_times(t_frame, det.pixel_time())
-    else:
-        times = ro.read_times(t_frame)
-    refmask = det.reference_mask()
-    if remove_common_mode:
-        outputs = np.broadcast_to(det.output_of_column(), det.shape).astype(np.intp)
-        offsets = common_mode(e, times, read_noise=rdn, groups=outputs, saturated=sat,
-                              refmask=refmask, threads=threads)
-        e = np.asarray(e, dtype=np.float32)
-        for o in range(offsets.shape[-1]):
-            cols = det.output_of_column() == o
-            e[:, :, :, cols] -= offsets[:, :, o, None, None].astype(np.float32)
-    rn_fit = rdn
-    if measure_noise:
-        columns = np.broadcast_to(np.arange(det.nx), det.shape)
-        rn_fit = measure_read_noise(e, times, read_noise=rdn, groups=columns,
-                                    saturated=sat, refmask=refmask, threads=threads)
-    result = fit_ramps(e, times, read_noise=rn_fit, gain=gain, fitter=fitter,
-                       saturated=sat, jump_threshold=jump_threshold or None,
-                       refmask=refmask, threads=threads)
-    cards = [("EXPOSURE", str(exposure)[-68:], "fitted exposure"),
-             ("REFPIX", refpix, "reference-pixel correction"),
-             ("JUMPTHR", float(jump_threshold or 0.0), "[sigma] jump threshold, 0=off"),
-             ("RNCONV", "per read", "read noise convention: per read, not CDS"),
-             ("RNMODEL", float(rdn), "[e-] model white read noise per read"),
-             ("RNSOURCE", "measured" if measure_noise else "model",
-              "RNOISE: per-column measured or model"),
-             ("CMREMOVE", bool(remove_common_mode), "per-output common mode removed")]
-    for key in ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
-                "SEED", "SCENE"):
-        if key in hdr:
-            cards.append((key, hdr[key], hdr.comments[key][:40]))
+    prep = prepare_exposure(exposure, refpix=refpix, read_noise=read_noise,
+                            remove_common_mode=remove_common_mode,
+                            measure_noise=measure_noise, threads=threads)
+    result = fit_ramps(prep.electrons, prep.read_times, read_noise=prep.read_noise,
+                       gain=prep.gain, fitter=fitter, saturated=prep.saturated,
+                       jump_threshold=jump_threshold or None, refmask=prep.refmask,
+                       threads=threads)
+    cards = list(prep.cards)
+    cards.insert(2, ("JUMPTHR", float(jump_threshold or 0.0),
+                     "[sigma] jump threshold, 0=off"))
     write_fit(output, result, header_cards=cards, overwrite=overwrite)
     return result

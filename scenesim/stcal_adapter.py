@@ -1,14 +1,20 @@
 """Run the JWST calibration library's ramp fitting (stcal) on a scenesim exposure.
 
-:func:`fit_exposure_stcal` reads an exposure written by scenesim, applies *the same*
-pre-processing as :func:`scenesim.fitting.fit_exposure_file` (DN to e- with ``GAIN``,
-saturation flags from :func:`scenesim.fitting.saturation_flags`, reference
-correction with :func:`scenesim.refpix.correct_reference`), hands the ramps to
-``stcal.ramp_fitting.ramp_fit.ramp_fit_data`` and writes the rates in scenesim's own
-slope-file layout (:func:`scenesim.fit.write_fit`), so that ``scenesim compare``
-reports on stcal exactly as on scenesim's fitters and the comparison isolates the
-fitter.  stcal is an optional dependency (``pip install 'scenesim[stcal]'``),
-imported only inside :func:`fit_exposure_stcal`.  Written against stcal 1.20.0.
+:func:`fit_exposure_stcal` takes an exposure (a file written by scenesim, or the
+same contents in memory), runs *the same* pre-processing as
+:func:`scenesim.fitting.fit_exposure_file` -- literally the same function,
+:func:`scenesim.fitting.prepare_exposure`: DN to e- with ``GAIN``, saturation flags
+on the estimated last read of each resultant, reference correction, removal of the
+per-output common mode and the per-column read noise measured from the ramps --
+hands the resulting ramps (the e- cube divided by ``GAIN``, in DN) and that same
+read-noise map (converted with :func:`stcal_read_noise`) to
+``stcal.ramp_fitting.ramp_fit.ramp_fit_data``, and writes the rates in scenesim's
+own slope-file layout (:func:`scenesim.fit.write_fit`).  Both fitters therefore see
+identical data and noise model, so ``scenesim compare`` of the two slope files
+isolates the fitter.  ``remove_common_mode`` / ``measure_noise`` switch the two
+data-driven steps off for both alike.  stcal is an optional dependency
+(``pip install 'scenesim[stcal]'``), imported only inside :func:`fit_exposure_stcal`.
+Written against stcal 1.20.0.
 
 Conventions, scenesim -> stcal (stated explicitly)
 --------------------------------------------------
@@ -17,14 +23,15 @@ quantity      scenesim                              stcal 1.20 (``RampData``, ar
 ============  ====================================  ====================================
 ramps         ``SCI`` uint16 DN,                    ``data`` float32 DN, same axes
               (nints, ngroups, ny, nx)              (``RampModel.data`` layout): no
-                                                    transpose.  We pass
-                                                    ``(SCI * GAIN -> flags, reference
-                                                    correction in e-) / GAIN``.
+                                                    transpose.  We pass the prepared
+                                                    e- cube (``prepare_exposure``)
+                                                    divided by ``GAIN``.
 gain          ``GAIN`` e-/DN (scalar)               ``gain_2d`` float32 (ny, nx) e-/DN
-read noise    ``RDNOISE`` = sigma, white noise of   ``readnoise_2d`` float32 (ny, nx):
-              ONE read, e- (not CDS)                the CDS noise of two single frames,
-                                                    in DN: ``sqrt(2) * sigma / GAIN``
-                                                    (:func:`stcal_read_noise`)
+read noise    sigma, white noise of ONE read, e-    ``readnoise_2d`` float32 (ny, nx):
+              (not CDS): the per-column map         the CDS noise of two single frames,
+              measured by ``prepare_exposure``      in DN: ``sqrt(2) * sigma / GAIN``
+              (``RDNOISE`` if ``measure_noise``     (:func:`stcal_read_noise`), pixel
+              is False)                             by pixel
 read times    read k (0-based, from reset) at       ``frame_time`` = ``TFRAME``;
               ``(k + 1) t_frame``; ``READS`` table  ``nframes`` = reads in resultant 0;
               holds every resultant's reads         ``group_time`` = spacing of the mean
@@ -90,8 +97,11 @@ Algorithms
 Output
 ------
 The slope file has every extension of :meth:`scenesim.fit.FitResult.to_hdul`, with
-``FITTER = 'stcal-OLS_C'`` or ``'stcal-LIKELY'``, ``STCALVER`` (stcal version) and the
-conversion cards ``RNSTCAL`` (the ``readnoise_2d`` value, DN CDS) and ``RNCONV``.
+``FITTER = 'stcal-OLS_C'`` or ``'stcal-LIKELY'``, ``STCALVER`` (stcal version), the
+conversion cards ``RNSTCAL`` (the median ``readnoise_2d`` value, DN CDS) and
+``RNCONV``, and the pre-processing cards of :func:`scenesim.fitting.prepare_exposure`
+(``REFPIX``, ``RNMODEL``, ``RNSOURCE``, ``CMREMOVE``, ...); ``RNOISE`` is the
+median read noise handed to stcal, e- per read.
 ``SLOPE`` is stcal's combined rate times ``GAIN``; ``VAR_READ`` / ``VAR_POIS`` are
 stcal's ``var_rnoise`` / ``var_poisson`` times ``GAIN**2`` (so ``chi2_rep`` in the
 comparison tests stcal's own error estimate); ``SLOPEINT`` / ``VARINT`` come from its
@@ -99,11 +109,12 @@ per-integration products.
 
 ``CHI2`` is *not* an stcal output (``OLS_C`` computes none; ``LIKELY``'s is per
 integration around per-integration rates).  To give every fitter the same
-diagnostic, it is computed here exactly as :mod:`scenesim.fit` defines it: the
-chi-square of the rate estimates ``d_i = (R_{i+1} - R_i)/dt_i`` (in e-, after the
-same pre-processing) around stcal's combined rate ``f``, under the model covariance
-of Brandt (2024, eqs. 28-29) at ``max(f, 0)`` with the read noise ``sigma``, summed
-over integrations and divided by ``DOF`` = usable differences - 1.  Usable
+diagnostic, it is computed here exactly as :mod:`scenesim.fit` defines it, with
+:func:`scenesim.fit.model_chi2`: the chi-square of the rate estimates
+``d_i = (R_{i+1} - R_i)/dt_i`` (in e-, the prepared cube) around stcal's combined
+rate ``f``, under the model covariance of Brandt (2024, eqs. 28-29) at ``max(f, 0)``
+with the read noise ``sigma`` handed to stcal, summed over integrations and divided
+by ``DOF`` = usable differences - 1.  Usable
 differences: both resultants free of ``SATURATED``/``DO_NOT_USE`` in stcal's final
 group DQ and the later one not ``JUMP_DET``.  Its expectation is
 ``1 + (V/V_opt - 1)/DOF`` for a linear unbiased fitter of variance ``V`` (1 for the
@@ -140,27 +151,32 @@ that of the first-to-last difference, its read term that of equal weights, whate
 the weights used): ``chi2_rep`` 1.23 at 0.5 e-/s (errors ~10 % too small), 0.95 at
 0.05 e-/s.  LIKELY matches scenesim's GLS.
 
+(This table was measured before the pre-processing was shared, with the header's
+white read noise and no common-mode removal; ``refpix='none'`` and the white-noise
+data of the table make both data-driven steps near no-ops.)
+
 Measured cost (2-core machine, one process), 2048 x 2048 x 20 groups: ``OLS_C`` 9.3 s
 (5.5 s inside stcal; reading, reference correction and the chi-square the rest),
 ``LIKELY`` 56 s; peak memory 2.2-2.4 GB (the cube in e- and in DN, float32, plus
-masks).  scenesim's own GLS on the same file: 9.3 s with jump detection.
+masks).  scenesim's own GLS on the same file: 9.3 s with jump detection.  Measured
+before the common-mode and read-noise steps were added here.  With them, on the
+2048 x 2048 star field (MEDIUM8 x 10 groups): ``OLS_C`` 7.2 s in all, of which
+:func:`scenesim.fitting.prepare_exposure` 2.4 s (1.3 s without the two data-driven
+steps) and :func:`scenesim.fit.model_chi2` 0.4 s.
 """
 
 import inspect
 import math
-import os
 
 import numpy as np
 
 from noise._validate import check_writable
-from noise.detector import detector_from_header
-from noise.errors import FileFormatError, ParameterError
+from noise.errors import ParameterError
 
-from .exposure import read_exposure
 from .fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
-                  FitResult, write_fit)
-from .fitting import REFPIX_SCHEMES, exposure_read_noise, saturation_flags
-from .readout import Readout
+                  FitResult, model_chi2, write_fit)
+from .fitting import (REFPIX_SCHEMES, exposure_read_noise, exposure_readout,
+                      load_exposure, prepare_exposure)
 
 __all__ = ["STCAL_ALGORITHMS", "fit_exposure_stcal", "stcal_read_noise"]
 
@@ -182,7 +198,6 @@ _DQFLAGS = {
 _LIKELY_MIN_NGROUPS = 4           # stcal.ramp_fitting.likely_fit.LIKELY_MIN_NGROUPS
 _LIKELY_JUMP_SIGMA = math.sqrt(20.25)   # stcal's default one-omit threshold, sigma
 _F32 = np.float32
-_CHUNK_ELEMS = 1 << 21           # float32 values per (nints, nres, pixels) chi2 chunk
 _RAMP_FIT_ARGS = ("ramp_data", "save_opt", "readnoise_2d", "gain_2d", "algorithm",
                   "weighting", "max_cores")
 
@@ -234,7 +249,7 @@ def _import_stcal():
     return ramp_fit_data, RampData, version
 
 
-def _check_args(algorithm, refpix, read_noise):
+def _check_args(algorithm, refpix, read_noise, remove_common_mode, measure_noise):
     alg = algorithm.upper() if isinstance(algorithm, str) else None
     if alg not in STCAL_ALGORITHMS:
         hint = ""
@@ -255,30 +270,11 @@ def _check_args(algorithm, refpix, read_noise):
             raise ParameterError(
                 f"'read_noise' must be None (header RDNOISE) or a finite number > 0 "
                 f"(e- per read, not CDS), got {read_noise!r}")
+    for name, flag in (("remove_common_mode", remove_common_mode),
+                       ("measure_noise", measure_noise)):
+        if not isinstance(flag, bool):
+            raise ParameterError(f"{name!r} must be True or False, got {flag!r}")
     return alg
-
-
-def _load(exposure):
-    """Read the exposure and its readout; same checks as ``fit_exposure_file``."""
-    sci, hdr, reads = read_exposure(exposure)
-    det = detector_from_header(hdr)
-    try:
-        gain = float(hdr["GAIN"])
-        t_frame = float(hdr["TFRAME"])
-        nints = int(hdr["NINTS"])
-    except KeyError as exc:
-        raise FileFormatError(
-            f"exposure {exposure!r} lacks header keyword {exc.args[0]!r}") from exc
-    ro = Readout.from_read_table(reads, nints=nints,
-                                 reset_mode=str(hdr.get("RESETMD", "rolling")),
-                                 name=str(hdr.get("READPATT", "CUSTOM")))
-    if (sci.ndim != 4 or sci.shape[:2] != (nints, ro.ngroups)
-            or sci.shape[2:] != det.shape):
-        raise FileFormatError(
-            f"exposure {exposure!r}: SCI shape {sci.shape} does not match "
-            f"NINTS={nints}, {ro.ngroups} resultants and the {det.shape} detector in "
-            f"its header")
-    return sci, hdr, det, ro, gain, t_frame
 
 
 def _check_readout(alg, ro):
@@ -308,50 +304,16 @@ def _timing(ro, t_frame):
     return nframes, groupgap, float(ro.tgroup(t_frame)), first[0]
 
 
-def _model_chi2(e, valid, slope, s2, times):
-    """Chi-square of ``slope`` under scenesim's model covariance (see module notes).
-
-    e : (nints, nres, ny, nx) float32 e-; valid : (nints, nres - 1, ny, nx) bool;
-    slope : (ny, nx) e-/s; s2 : read variance per read (e-^2, > 0); times : list of
-    per-resultant read-time arrays (s).  Returns the raw sum (ny, nx) float32.
-    """
-    # private helpers of scenesim.fit: the public API has no "chi-square of a given
-    # rate" yet; this is the same evaluation fit_ramps makes for its 'ols' fitter
-    from .fit import _ldl_pass, _Readout
-
-    nints, nres, ny, nx = e.shape
-    ro = _Readout([np.asarray(t, dtype=float) for t in times])
-    A = (ro.Ar.tolist(), ro.Ap.tolist())
-    B = (ro.Br.tolist(), ro.Bp.tolist())
-    inv_dt = (1.0 / ro.dt).astype(_F32)[:, None]
-    out = np.zeros((ny, nx), _F32)
-    rows = max(1, _CHUNK_ELEMS // (nx * nints * nres))
-    s2 = _F32(s2)
-    for y0 in range(0, ny, rows):
-        y1 = min(y0 + rows, ny)
-        f = slope[y0:y1].reshape(-1).astype(_F32)
-        fc = np.maximum(f, _F32(0))
-        acc = np.zeros(f.size, _F32)
-        for k in range(nints):
-            blk = e[k, :, y0:y1].reshape(nres, -1)
-            d = np.diff(blk, axis=0) * inv_dt
-            v = valid[k, :, y0:y1].reshape(nres - 1, -1)
-            mf = v.astype(_F32)
-            mc = mf[:-1] * mf[1:]
-            acc += _ldl_pass(d, v, mf, mc, f, s2, fc, A, B, want_x=False)[2]
-        out[y0:y1] = acc.reshape(y1 - y0, nx)
-    return out
-
-
 def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
-                       read_noise=None, overwrite=True):
+                       read_noise=None, overwrite=True, remove_common_mode=True,
+                       measure_noise=True, threads=None):
     """Fit the ramps of a scenesim exposure with stcal and write a scenesim slope file.
 
     Parameters
     ----------
-    exposure : str or os.PathLike
+    exposure : str, os.PathLike or scenesim.exposure.Exposure
         Exposure written by scenesim (``SCI`` uint16 DN (nints, ngroups, ny, nx) and
-        ``READS`` table).
+        ``READS`` table), or the same contents in memory.
     output : str or os.PathLike
         Slope file to write (scenesim layout, :func:`scenesim.fit.write_fit`,
         written atomically).
@@ -362,18 +324,27 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
         Reference-pixel correction applied before stcal, as in
         :func:`scenesim.fitting.fit_exposure_file`.
     read_noise : float or None, keyword-only
-        White read noise of one read, e- (not CDS), > 0; default the header's
-        ``RDNOISE``.  Passed to stcal as ``sqrt(2) * read_noise / GAIN`` DN.  stcal
-        divides by it, so a noiseless exposure needs an explicit value here (any
-        value > 0 gives a linear unbiased fit).
+        Model white read noise of one read, e- (not CDS), > 0; default the header's
+        ``RDNOISE``.  With ``measure_noise`` it is rescaled per column from the
+        ramps (as for scenesim's fitters).  Passed to stcal as
+        ``sqrt(2) * read_noise / GAIN`` DN.  stcal divides by it, so a noiseless
+        exposure needs an explicit value here (any value > 0 gives a linear unbiased
+        fit).
     overwrite : bool, keyword-only
         Replace an existing ``output``.
+    remove_common_mode, measure_noise : bool, keyword-only
+        The data-driven pre-processing steps of
+        :func:`scenesim.fitting.prepare_exposure` (default on, as for
+        :func:`scenesim.fitting.fit_exposure_file`).
+    threads : int or None, keyword-only
+        Worker threads of those steps; stcal itself runs on one core.
 
     Returns
     -------
     scenesim.fit.FitResult
         ``fitter`` = ``'stcal-OLS_C'`` or ``'stcal-LIKELY'``; rates in e-/s,
-        variances in (e-/s)^2, ``read_noise`` in e- per read.
+        variances in (e-/s)^2, ``read_noise`` (median of the map handed to stcal)
+        in e- per read.
 
     Raises
     ------
@@ -386,29 +357,29 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
         stcal is not installed (``pip install 'scenesim[stcal]'``) or has an
         incompatible ``ramp_fit_data``.
     """
-    alg = _check_args(algorithm, refpix, read_noise)
+    alg = _check_args(algorithm, refpix, read_noise, remove_common_mode, measure_noise)
+    if threads is not None and (isinstance(threads, bool) or not isinstance(
+            threads, (int, np.integer)) or threads < 1):
+        raise ParameterError(
+            f"'threads' must be an integer >= 1 or None, got {threads!r}")
     ramp_fit_data, RampData, version = _import_stcal()
     check_writable("output", output, overwrite=overwrite)
-    exposure = os.fspath(exposure)
-    sci, hdr, det, ro, gain, t_frame = _load(exposure)
+    exp = load_exposure(exposure)
+    ro = exposure_readout(exp)
     _check_readout(alg, ro)
-    rdn = exposure_read_noise(hdr) if read_noise is None else float(read_noise)
+    rdn = exposure_read_noise(exp.header) if read_noise is None else float(read_noise)
     if not (math.isfinite(rdn) and rdn > 0):
         raise ParameterError(
-            f"stcal divides by the read noise: header RDNOISE of {exposure!r} is "
+            f"stcal divides by the read noise: header RDNOISE of {exp.name!r} is "
             f"{rdn!r}; pass read_noise > 0 (e- per read) for a noiseless exposure")
 
-    # ---- pre-processing: identical to scenesim.fitting.fit_exposure_file (in e-)
-    e = sci.astype(_F32) * _F32(gain)
-    del sci
-    bits = int(hdr.get("ADCBITS", 16))
-    sat = saturation_flags(e, ro.mean_times(t_frame), float(hdr.get("FULLWELL", 0.0)),
-                           (2 ** bits - 1) * gain)
-    refmask = det.reference_mask()
-    if refpix != "none" and refmask.any():
-        from .refpix import correct_reference
-        e = correct_reference(e, det, scheme=refpix)
-    e = np.asarray(e, dtype=_F32)
+    # ---- pre-processing: the one of scenesim.fitting.fit_exposure_file (in e-)
+    prep = prepare_exposure(exp, refpix=refpix, read_noise=rdn,
+                            remove_common_mode=remove_common_mode,
+                            measure_noise=measure_noise, threads=threads)
+    e, sat, gain, t_frame = prep.electrons, prep.saturated, prep.gain, prep.t_frame
+    refmask = prep.refmask
+    ro = prep.readout
 
     # ---- stcal inputs: DN float32 in the SCI layout, JWST DQ and metadata
     nints, ngroups, ny, nx = e.shape
@@ -419,7 +390,7 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
     times = ro.read_times(t_frame)          # rolling-reset times; see module notes
     rd = RampData()
     rd.set_arrays(data, gdq, np.zeros((ny, nx), np.uint32), np.zeros((ny, nx), _F32))
-    rd.set_meta(name=str(hdr.get("DETECTOR", "HxRG")), frame_time=t_frame,
+    rd.set_meta(name=str(prep.header.get("DETECTOR", "HxRG")), frame_time=t_frame,
                 group_time=group_time, groupgap=groupgap, nframes=nframes,
                 drop_frames1=drop1)
     rd.algorithm = alg
@@ -429,11 +400,14 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
     rd.suppress_one_group_ramps = True
     if alg == "LIKELY":
         rd.read_pattern = [np.asarray(t, dtype=float) for t in times]
-    rn_dn = stcal_read_noise(rdn, gain)
-    readnoise_2d = np.full((ny, nx), rn_dn, _F32)      # stcal scales it in place
+    rn_dn = stcal_read_noise(prep.read_noise, gain)
+    # a fresh array: stcal scales it in place
+    readnoise_2d = np.empty((ny, nx), _F32)
+    readnoise_2d[...] = rn_dn
     gain_2d = np.full((ny, nx), gain, _F32)
     image, integ, _ = ramp_fit_data(rd, False, readnoise_2d, gain_2d, alg, "optimal",
                                     "none")
+    del data
 
     # ---- back to scenesim conventions (e-, e-/s)
     g = _F32(gain)
@@ -467,29 +441,25 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
     dof = np.where(measured, np.maximum(nvalid.sum(axis=0) - 1, 0), 0).astype(np.int32)
     chi2 = np.zeros((ny, nx), _F32)
     if (dof > 0).any():
-        raw = _model_chi2(e, valid, slope, rdn * rdn, times)
-        chi2 = np.divide(np.maximum(raw, 0), dof, out=chi2, where=dof > 0).astype(_F32)
+        chi2 = model_chi2(e, times, slope, prep.read_noise, valid=valid)
+        chi2 = np.where(dof > 0, chi2, _F32(0)).astype(_F32)
     dq = np.where(sat.any(axis=(0, 1)), SATURATED, 0).astype(np.uint32)
     dq[n_jumps > 0] |= np.uint32(JUMP_DET)
     dq[~measured] |= np.uint32(DO_NOT_USE)
     dq[refmask] |= np.uint32(REFERENCE_PIXEL | DO_NOT_USE)
     result = FitResult(slope=slope, var_read=var_read, var_poisson=var_pois, chi2=chi2,
                        dof=dof, dq=dq, slope_ints=slope_ints, var_ints=var_ints,
-                       n_jumps=n_jumps, gain=gain, read_noise=rdn,
+                       n_jumps=n_jumps, gain=gain,
+                       read_noise=float(np.median(prep.read_noise)),
                        fitter=f"stcal-{alg}")
 
     cards = [("FITTER", f"stcal-{alg}", "stcal ramp_fit_data algorithm"),
              ("STCALVER", version, "stcal version"),
-             ("EXPOSURE", str(exposure)[-50:], "fitted exposure"),   # card <= 80
-             ("REFPIX", refpix, "reference-pixel correction"),
              ("JUMPTHR", _LIKELY_JUMP_SIGMA if alg == "LIKELY" else 0.0,
               "[sigma] jump threshold, 0=off"),
-             ("RNCONV", "per read", "read noise convention: per read, not CDS"),
-             ("RNSTCAL", float(rn_dn), "[DN] stcal readnoise_2d: sqrt2*RNOISE/GAIN"),
+             ("RNSTCAL", float(np.median(rn_dn)),
+              "[DN] stcal readnoise_2d, median: sqrt2*RN/GAIN"),
              ("CHI2DEF", "scenesim model", "CHI2: scenesim model chi2, not stcal's")]
-    for key in ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
-                "SEED", "SCENE"):
-        if key in hdr:
-            cards.append((key, hdr[key], hdr.comments[key][:40]))
+    cards += list(prep.cards)
     write_fit(output, result, header_cards=cards, overwrite=overwrite)
     return result

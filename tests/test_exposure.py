@@ -11,7 +11,8 @@ import noise
 from noise.detector import preset
 from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.exposure import read_exposure, read_truth, truth_path_for, write_exposure
+from scenesim.exposure import (Exposure, read_exposure, read_truth, truth_path_for,
+                               write_exposure)
 from scenesim.lightcurve import LightCurve
 from scenesim.readout import Readout
 
@@ -79,10 +80,27 @@ def test_in_memory_equals_file(tmp_path):
         return ChargeEngine(det, ro, rate=30.0, noise_params=noise.NoiseParams(),
                             rng=77, options=EngineOptions(threads=1))
 
-    mem = write_exposure(eng(), None)["sci"]
+    out = write_exposure(eng(), None, cards=[("SCENE", "mem", "scene name")])
+    mem = out["sci"]
     path = str(tmp_path / "e.fits")
-    write_exposure(eng(), path)
-    np.testing.assert_array_equal(read_exposure(path)[0], mem)
+    write_exposure(eng(), path, cards=[("SCENE", "mem", "scene name")])
+    sci, hdr, reads = read_exposure(path)
+    np.testing.assert_array_equal(sci, mem)
+    # the in-memory Exposure holds what read_exposure returns from the file: the
+    # same array, header cards (values and comments) and READS table
+    exp = out["exposure"]
+    assert isinstance(exp, Exposure) and exp.sci is mem
+    def cards(h):
+        return [(c.keyword, c.value, c.comment) for c in h.cards]
+
+    assert cards(exp.header) == cards(hdr)
+    assert exp.reads.colnames == reads.colnames
+    for name in reads.colnames:
+        assert exp.reads[name].dtype == reads[name].dtype, name
+        np.testing.assert_array_equal(exp.reads[name], reads[name], name)
+    back = Exposure.read(path)
+    assert back.name == path and cards(back.header) == cards(hdr)
+    assert [p.name for p in tmp_path.iterdir()] == ["e.fits"]
 
 
 def test_truth_file_contents(tmp_path):

@@ -10,6 +10,14 @@ time ``dt`` is stretched so that one frame lasts about 10 s (as on a full H2RG):
   :func:`scenesim.fit.optimal_variance`.  The reported variance depends only on the
   read noise, gain and timing handed to stcal, so it pins the unit conversion
   (per-read e- -> CDS DN): a factor sqrt(2), a gain or an NFRAMES mistake fails.
+
+These closed-form checks hand stcal the model read noise and skip the common-mode
+removal (``measure_noise=False, remove_common_mode=False``: on noiseless ramps the
+measured noise falls to its floor, 0.1 sigma; the scatter test needs independent
+pixels);
+:func:`test_stcal_sees_the_prepared_exposure` checks the default, in which stcal gets
+the arrays and the measured read-noise map of
+:func:`scenesim.fitting.prepare_exposure`, exactly as scenesim's own fitters do.
 """
 
 import os
@@ -30,7 +38,9 @@ from scenesim.compare import compare_files  # noqa: E402
 from scenesim.engine import ChargeEngine, EngineOptions  # noqa: E402
 from scenesim.exposure import write_exposure  # noqa: E402
 from scenesim.fit import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # noqa: E402
-                          SATURATED, ols_variance, optimal_variance, read_fit)
+                          SATURATED, model_chi2, ols_variance, optimal_variance,
+                          read_fit)
+from scenesim.fitting import fit_exposure_file, prepare_exposure  # noqa: E402
 from scenesim.readout import ROMAN_LIKE_TABLE, Readout  # noqa: E402
 from scenesim.stcal_adapter import (STCAL_ALGORITHMS, fit_exposure_stcal,  # noqa: E402
                                     stcal_read_noise)
@@ -126,7 +136,8 @@ def test_noiseless_rate_recovered_within_adc_rounding(tmp_path, algorithm):
     write_exposure(eng, exp)
     # stcal divides by the read noise, so the weights need a value > 0 even here
     res = fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                             read_noise=10.0)
+                             read_noise=10.0, remove_common_mode=False,
+                             measure_noise=False)
     tg = T_FRAME
     if algorithm == "OLS_C":
         bound = 0.5 * gain * 25.0 / (82.5 * tg)
@@ -187,7 +198,8 @@ def test_saturation_handled_as_scenesim_does(tmp_path, algorithm):
     exp = str(tmp_path / "sat.fits")
     write_exposure(eng, exp)
     res = fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                             read_noise=10.0)
+                             read_noise=10.0, remove_common_mode=False,
+                             measure_noise=False)
     reg = ~det.reference_mask()
     low, mid, high = (reg & (rate == r) for r in (5.0, 2000.0, 3050.0))
     bound = gain / T_FRAME
@@ -216,8 +228,13 @@ def test_white_noise_scatter_and_reported_variance(tmp_path, algorithm, ro, gain
     nints = ro.nints
     sigma = 10.0
     exp, _ = _white_exposure(tmp_path, det, ro, sigma=sigma, gain=gain)
+    # Model noise and no common-mode removal: the scatter test needs independent
+    # pixels, and the common mode estimated from a finite number of pixels moves all
+    # slopes of an output together (for the uneven table by up to ~0.5 sigma of one
+    # pixel's slope on this 128 x 128 array).
     res = fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                             refpix="none")
+                             refpix="none", remove_common_mode=False,
+                             measure_noise=False)
     times = ro.read_times(T_FRAME)
     reg = ~det.reference_mask()
     clean = reg & (res.n_jumps == 0)
@@ -299,6 +316,68 @@ def test_file_round_trip_and_compare(tmp_path):
     # 64 reference pixels per output and column parity); 5 sigma + that margin.
     e_chi2 = 1.0 + (row["std_opt"] ** 2 - 1.0) / 17.0
     assert abs(row["chi2_fit"] - e_chi2) < 5.0 * np.sqrt(2.0 / 17.0 / n) + 0.02
+
+
+def test_stcal_sees_the_prepared_exposure(tmp_path):
+    """By default stcal gets prepare_exposure's cube and measured read-noise map.
+
+    OLS_C's read-noise variance is the equal-weight one, ``ols_variance(0, t, 1)
+    sigma^2`` per pixel whatever its weights, so it shows the sigma each pixel was
+    handed: it must be the measured per-column map of ``prepare_exposure`` (not
+    ``RDNOISE``), through the per-read e- -> CDS DN conversion; float32 only
+    (1e-5).  scenesim's own fit of the same exposure reports the same median read
+    noise, and the in-memory exposure gives the same result as the file.
+    """
+    det = _det(64)
+    ro = Readout.multiaccum(1, 8, name="RAPID")
+    noise = ZERO_NOISE.replace(rd_noise=8.0, bias_offset=2000.0)
+
+    def engine():
+        return ChargeEngine(det, ro, rate=0.0, gain=2.0, noise_params=noise, rng=5,
+                            ipc_kernel=_IDENTITY_IPC)
+
+    exp = str(tmp_path / "e.fits")
+    write_exposure(engine(), exp)
+    prep = prepare_exposure(exp)
+    assert prep.read_noise.shape == det.shape
+    # the jwst correction adds noise, so the map is not the header's 8 e-
+    assert not np.allclose(prep.read_noise, 8.0, rtol=1e-3)
+    res = fit_exposure_stcal(exp, str(tmp_path / "s.fits"))
+    reg = ~det.reference_mask()
+    v1 = ols_variance(0.0, ro.read_times(T_FRAME), 1.0)
+    np.testing.assert_allclose(res.var_read[reg], v1 * prep.read_noise[reg] ** 2,
+                               rtol=1e-5)
+    own = fit_exposure_file(exp, str(tmp_path / "g.fits"), jump_threshold=None)
+    assert res.read_noise == own.read_noise == float(np.median(prep.read_noise))
+    # CHI2 is scenesim's model chi-square of the prepared cube at stcal's slope
+    ok = reg & (res.dof > 0)
+    np.testing.assert_allclose(
+        res.chi2[ok], model_chi2(prep.electrons, prep.read_times, res.slope,
+                                 prep.read_noise)[ok], rtol=1e-6)
+    with fits.open(tmp_path / "s.fits") as hs, fits.open(tmp_path / "g.fits") as hg:
+        for key in ("RNSOURCE", "CMREMOVE", "RNMODEL", "REFPIX", "RNOISE"):
+            assert hs[0].header[key] == hg[0].header[key], key
+        assert hs[0].header["RNSOURCE"] == "measured"
+    mem = write_exposure(engine(), None)["exposure"]
+    res_mem = fit_exposure_stcal(mem, str(tmp_path / "m.fits"))
+    for name in ("slope", "var_read", "var_poisson", "chi2", "dof", "dq"):
+        np.testing.assert_array_equal(getattr(res_mem, name), getattr(res, name), name)
+
+
+def test_exposure_card_fits_for_a_long_path(tmp_path):
+    deep = tmp_path / ("a_rather_long_directory_name_" * 3)
+    deep.mkdir()
+    det = _det(32)
+    exp, _ = _white_exposure(deep, det, Readout.multiaccum(1, 5), sigma=5.0, gain=1.0,
+                             name="exposure_" * 4)
+    assert len(exp) > 120
+    out = str(tmp_path / "fit.fits")
+    fit_exposure_stcal(exp, out, measure_noise=False, remove_common_mode=False)
+    with fits.open(out) as hdul:
+        hdr = hdul[0].header
+        assert len(hdr.cards["EXPOSURE"].image) == 80
+        assert hdr["EXPOSURE"].startswith("...")
+        assert hdr["EXPOSURE"].endswith(os.path.basename(exp))
 
 
 # --------------------------------------------------------------------- 4. bad input
