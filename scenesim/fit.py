@@ -1073,6 +1073,20 @@ def measure_read_noise(resultants, read_times, *, read_noise, groups, saturated=
     return rn
 
 
+def _rate0_weights(ro, good):
+    """GLS weights (summing to 1) of the rate estimates ``d_i`` of the differences
+    flagged ``good``, for read noise only: ``C^-1 1 / (1^T C^-1 1)`` with the
+    tridiagonal covariance ``alpha_i = Ar_i``, ``beta_i = Br_i`` (sigma^2 cancels)."""
+    n = ro.dt.size
+    cov = np.diag(ro.Ar) + np.diag(ro.Br, 1) + np.diag(ro.Br, -1)
+    idx = np.flatnonzero(good)
+    w = np.zeros(n)
+    if idx.size:
+        sub = np.linalg.solve(cov[np.ix_(idx, idx)], np.ones(idx.size))
+        w[idx] = sub / sub.sum()
+    return w
+
+
 def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
                 refmask=None, max_rows=64, threads=None):
     """Offsets shared by all pixels of a group, read by read, that a line cannot fit.
@@ -1082,7 +1096,8 @@ def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
     ``m_i`` to the rate estimates ``d_i`` of every pixel of the output.  From a
     first GLS fit (no jumps) of at most ``max_rows`` evenly spaced rows,
     ``c_i = median over the group's read-noise dominated pixels of (d_i - f_hat)``,
-    minus its mean over ``i``; the offsets are its running sum
+    minus its GLS-weighted mean over ``i`` (weights of a read-noise limited ramp, so
+    that the correction leaves those pixels' GLS slopes unchanged); the offsets are its running sum
     ``C_k = sum_{i<k} c_i dt_i`` (``C_0 = 0``).  Subtracting ``C_k`` from resultant
     ``k`` of the group's pixels removes the common series except its mean, which is
     a rate common to the group and cannot be told from a uniform background (module
@@ -1153,7 +1168,10 @@ def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
             else:
                 c = np.array([np.median(row[ok]) if gd else 0.0
                               for row, ok, gd in zip(d, fin, good)])
-            c = np.where(good, c - c[good].mean(), 0.0)
+            # keep the GLS-weighted mean (weights at rate 0), so that the correction
+            # changes no read-noise dominated slope: sum_i w_i (c_i - cbar) = 0
+            w = _rate0_weights(ro, good)
+            c = np.where(good, c - np.sum(w * np.where(good, c, 0.0)), 0.0)
             out[k, 1:, lb] = np.cumsum(c * ro.dt)
     return out
 

@@ -493,16 +493,22 @@ def test_common_mode_removes_shared_wander_and_false_jumps():
     # sees it), far above the 0.5 % allowed.
     fp0, _ = rates(fit_ramps(res, times, read_noise=sig_model, jump_threshold=5.0))
     assert fp0 > 0.01, fp0
-    # The offsets: the wander minus its mean rate, C_k = W_k - W_0 - <m> (tbar_k -
-    # tbar_0).  The running sum of per-difference medians over N pixels telescopes
+    # The offsets: the wander minus its GLS-weighted mean rate, C_k = W_k - W_0 -
+    # <m>_w (tbar_k - tbar_0), weights w = C^-1 1 for the covariance of white-noise
+    # rate differences (single reads: 2 s^2/dt^2 on the diagonal, -s^2/dt^2 beside).  The running sum of per-difference medians over N pixels telescopes
     # to ~ a median of R_k - R_0, standard error 1.2533 sqrt(2) sigma / sqrt(N)
     # (N = 64 rows x 64 columns x 0.97 unhit, the default 64-row subsample); 5 sigma.
     C = common_mode(res, times, read_noise=sig_model, groups=groups)
     assert C.shape == (1, ng, 2)
     tb = np.array([t.mean() for t in times])
     m = np.diff(wander, axis=0) / np.diff(tb)[:, None]
+    dtb = np.diff(tb)
+    cov = (np.diag(2 / dtb ** 2) - np.diag(1 / (dtb[:-1] * dtb[1:]), 1)
+           - np.diag(1 / (dtb[:-1] * dtb[1:]), -1))
+    w = np.linalg.solve(cov, np.ones(dtb.size))
+    w /= w.sum()
     expected = np.concatenate([np.zeros((1, 2)), np.cumsum(
-        (m - m.mean(axis=0)) * np.diff(tb)[:, None], axis=0)])
+        (m - w @ m) * dtb[:, None], axis=0)])
     se = 1.2533 * np.sqrt(2) * sig_true / np.sqrt(64 * 64 * 0.97)
     assert np.max(np.abs(C[0] - expected)) < 5 * se
     corrected = res - C[0][:, groups]
@@ -519,6 +525,29 @@ def test_common_mode_removes_shared_wander_and_false_jumps():
     with pytest.raises(ParameterError, match="saturated"):
         common_mode(res, times, read_noise=6.0, groups=groups,
                     saturated=np.zeros((3, 3), bool))
+
+
+@pytest.mark.parametrize("name", list(READOUTS))
+def test_common_mode_leaves_read_noise_limited_slopes_unbiased(name):
+    """White noise only, rate 0: there is no common mode, and removing the estimated
+    one must not move the slopes (its GLS-weighted mean rate is kept)."""
+    times = READOUTS[name]()
+    rng = np.random.default_rng(77)
+    shape = (128, 128)
+    res = simulate(rng, 0.0, times, SIGMA, shape)
+    groups = np.broadcast_to(np.arange(shape[1]) // 32, shape).astype(np.int64)
+    C = common_mode(res, times, read_noise=SIGMA, groups=groups)
+    before = fit_ramps(res, times, read_noise=SIGMA, variance_rate="fit")
+    after = fit_ramps(res - C[0][:, groups], times, read_noise=SIGMA,
+                      variance_rate="fit")
+    sig = np.sqrt(optimal_variance(0.0, times, SIGMA))
+    shift = (after.slope.astype(float) - before.slope) / sig
+    # The offsets' own GLS slope is 0 at the rate-0 weights; the fit's weights use
+    # each pixel's fitted rate (|f| ~ 1 sigma), which changes the weights by
+    # q_p sigma_f / V ~ a few %, so the per-group shift is < 0.05 x the offsets'
+    # largest rate (~ 1.25 sqrt(2) sigma_d / sqrt(4096 pixels) ~ 0.03 sigma): the
+    # bound 0.01 sigma is ~ 7x that.  The unweighted mean left 0.07-0.5 sigma.
+    assert np.max(np.abs([shift[groups == g].mean() for g in range(4)])) < 0.01
 
 
 def test_saturation_flags_use_the_last_read_of_a_resultant():
