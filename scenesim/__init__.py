@@ -17,8 +17,9 @@ from .compare import Report, compare, compare_files
 from .effects import Nonlinearity, apply_ipc, ipc_kernel
 from .engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
 from .exposure import read_exposure, read_truth, write_exposure
-from .fit import FitResult, fit_ramps, optimal_variance, read_fit, write_fit
-from .fitting import fit_exposure_file
+from .exposure import Exposure
+from .fit import FitResult, fit_ramps, model_chi2, optimal_variance, read_fit, write_fit
+from .fitting import PreparedExposure, fit_exposure_file, prepare_exposure
 from .lightcurve import LightCurve
 from .psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources
 from .readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
@@ -36,7 +37,8 @@ __all__ = [
     "write_exposure", "read_exposure", "read_truth",
     "correct_reference", "measure_reference_correction", "white_noise_added",
     "fit_ramps", "FitResult", "read_fit", "write_fit",
-    "optimal_variance", "fit_exposure_file",
+    "optimal_variance", "model_chi2", "fit_exposure_file", "prepare_exposure",
+    "PreparedExposure", "Exposure",
     "Report", "compare", "compare_files",
     "build_engine", "run_scene",
 ]
