@@ -227,8 +227,12 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
         with open(tmp, "wb") as f:
             out = StreamingFITS(f)
             out.begin_image(shape, dtype, cards)
-            for n, (_, _, frame) in enumerate(generator.frames(nframes, nints=nints)):
-                out.write(frame if unit == "e" else to_uint16_dn(frame, gain))
+            # DN frames are converted in the generator's worker threads (bit-identical
+            # to to_uint16_dn)
+            frames = generator.frames(nframes, nints=nints,
+                                      dn_gain=None if unit == "e" else gain)
+            for n, (_, _, frame) in enumerate(frames):
+                out.write(frame)
                 if progress is not None:
                     progress(n + 1)
             out.end_image()

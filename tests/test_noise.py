@@ -20,7 +20,8 @@ import pytest
 from scipy.special import polygamma
 
 from noise import (NIRSPEC_DEFAULTS, ZERO_NOISE, Detector, NoiseGenerator, NoiseParams,
-                   preset, synthetic_template, template_for)
+                   preset, synthetic_template, template_for, to_uint16_dn)
+from noise import generator as generator_module
 from noise.errors import ParameterError
 
 DET = preset("H2RG", naxis1=128, naxis2=128, n_out=4)     # 4 outputs of 32 columns
@@ -429,10 +430,24 @@ def test_zero_noise_is_exactly_zero():
 
 
 # ================================================================== reproducibility
-def test_threads_do_not_change_frames():
-    a = _gen(ALL_ON, rng=81, threads=1).cube(3, nints=2)
-    b = _gen(ALL_ON, rng=81, threads=2).cube(3, nints=2)
+@pytest.mark.parametrize("mode", ["exact", "fast"])
+def test_threads_do_not_change_frames(mode):
+    params = ALL_ON.replace(pink_mode=mode)
+    a = _gen(params, rng=81, threads=1).cube(3, nints=2)
+    b = _gen(params, rng=81, threads=2).cube(3, nints=2)
+    c = _gen(params, rng=81, threads=3).cube(3, nints=2)
     np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a, c)
+
+
+@pytest.mark.parametrize("band_rows", [64, 128])
+def test_band_and_chunk_layout_do_not_change_frames(monkeypatch, band_rows):
+    """The frame is made in bands of rows; the band size only reorders the work."""
+    det = preset("H2RG", naxis1=128, naxis2=256, n_out=4)
+    ref = _gen(ALL_ON, det=det, rng=85, threads=2).cube(3)
+    monkeypatch.setattr(generator_module, "_BAND_ROWS", band_rows)
+    np.testing.assert_array_equal(_gen(ALL_ON, det=det, rng=85, threads=2).cube(3), ref)
+    np.testing.assert_array_equal(_gen(ALL_ON, det=det, rng=85, threads=1).cube(3), ref)
 
 
 def test_reads_subset_equals_full_ramp():
@@ -521,3 +536,68 @@ def test_bad_generator_arguments():
         next(gen.frames(0))
     with pytest.raises(ParameterError, match="'reads'"):
         next(gen.frames(3, reads=[3]))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(nreads=3, nints=2, integrations=[2]), r"'integrations'.*\[0, 1\].*2"),
+    (dict(nreads=3, nints=2, integrations=[-1]), r"'integrations'.*-1"),
+    (dict(nreads=3, nints=2, integrations=[0.5]), r"'integrations'.*0\.5"),
+    (dict(nreads=3, nints=2, integrations=[True]), r"'integrations'"),
+    (dict(nreads=3, nints=2, integrations=5), r"'integrations'.*iterable"),
+    (dict(nreads=3, nints=2, integrations=[]), r"'integrations' is empty"),
+    (dict(nreads=3, reads=[]), r"'reads' is empty"),
+    (dict(nreads=3, reads=[1, -2]), r"'reads'.*-2"),
+    (dict(nreads=3, nints=0), r"'nints' must be >= 1"),
+    (dict(nreads=3, nints=1.5), r"'nints' must be an integer"),
+    (dict(nreads=0), r"'nreads' must be >= 1"),
+])
+def test_frames_arguments_checked_before_any_work(kwargs, match):
+    """Bad read / integration selections raise at the call, naming the parameter."""
+    gen = _gen(NIRSPEC_DEFAULTS, rng=1)
+    with pytest.raises(ParameterError, match=match):
+        gen.frames(**kwargs)                 # raised by the call itself, not by next()
+    assert gen._reset_int is None and gen._lines is None     # nothing was computed
+
+
+def test_frames_selected_integrations_in_order():
+    got = [(i, k) for i, k, _ in _gen(ZERO_NOISE, rng=1).frames(
+        2, reads=[1, 0, 1], nints=3, integrations=[2, 0])]
+    assert got == [(0, 0), (0, 1), (2, 0), (2, 1)]      # sorted, duplicates removed
+
+
+@pytest.mark.parametrize("gain, offset", [(1.0, 5000.0), (2.7, 5000.0), (1.0, 0.0),
+                                          (0.5, 32767.0)])
+def test_dn_frames_equal_converted_electron_frames(gain, offset):
+    """frames(dn_gain=g) is exactly to_uint16_dn(frame, g), clipping at 0 and 65535
+    included (offset 0 clips about half the pixels low, 32767 e- at 0.5 e-/DN high).
+
+    With g = 2.7 a float32 division would round ~1e-4 of the pixels differently from
+    to_uint16_dn's float64 one (e/g near a half-integer): the 256x256 frames make that
+    visible (~40 pixels), so the comparison checks the arithmetic, not just the layout.
+    """
+    params = ALL_ON.replace(bias_offset=offset)
+    det = preset("H2RG", naxis1=256, naxis2=256, n_out=4)
+    e = list(_gen(params, det=det, rng=86, threads=1).frames(3, nints=2))
+    dn = list(_gen(params, det=det, rng=86, threads=2).frames(3, nints=2, dn_gain=gain))
+    assert [(i, k) for i, k, _ in dn] == [(i, k) for i, k, _ in e]
+    for (_, _, fe), (_, _, fd) in zip(e, dn):
+        assert fd.dtype == np.uint16 and fd.shape == fe.shape
+        np.testing.assert_array_equal(fd, to_uint16_dn(fe, gain))
+    if offset == 0.0:
+        assert np.mean(dn[0][2] == 0) > 0.3
+    if offset == 32767.0:
+        assert np.mean(dn[0][2] == 65535) > 0.3
+
+
+@pytest.mark.parametrize("gain", [0.0, -1.0, float("nan"), "2"])
+def test_bad_dn_gain(gain):
+    with pytest.raises(ParameterError, match="'dn_gain'"):
+        _gen(ZERO_NOISE, rng=1).frames(2, dn_gain=gain)
+
+
+@pytest.mark.parametrize("nframes, nints, match", [
+    (0, 1, r"'nframes' must be >= 1, got 0"), (2, 0, r"'nints' must be >= 1, got 0"),
+    (-3, 1, r"'nframes'"), (2.0, 1, r"'nframes' must be an integer")])
+def test_cube_needs_at_least_one_frame(nframes, nints, match):
+    with pytest.raises(ParameterError, match=match):
+        _gen(ZERO_NOISE, rng=1).cube(nframes, nints=nints)

@@ -26,7 +26,7 @@ KEYWORDS = {
     "ktc": "KTCNOISE", "bias_offset": "BIASOFF", "bias_amp": "BIASAMP",
     "rtn_fraction": "RTNFRAC", "rtn_amp": "RTNAMP", "rtn_tau_low": "RTNTLOW",
     "rtn_tau_high": "RTNTHIGH", "f_min": "FMIN", "pink_spectrum": "PINKSPEC",
-    "pca0_file": "PCA0FILE",
+    "pca0_file": "PCA0FILE", "pink_mode": "PINKMODE",
 }
 
 
@@ -106,6 +106,8 @@ def test_header_records_every_parameter_seed_and_version(tmp_path):
         value = getattr(params, field)
         if field == "pca0_file":
             assert hdr[key] == "synthetic"
+        elif field == "pink_mode":
+            assert hdr[key] == value
         else:
             assert _parse(hdr[key]) == value, (field, hdr[key])
     assert hdr["SEEDENT"] == "123456789"
@@ -138,8 +140,9 @@ def test_default_spectrum_recorded_as_one_over_f(tmp_path):
 class _FailingGenerator(NoiseGenerator):
     """Yields one frame, then fails as a crashed run would."""
 
-    def frames(self, nreads, reads=None, *, nints=1, integrations=None):
-        it = super().frames(nreads, reads, nints=nints, integrations=integrations)
+    def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None):
+        it = super().frames(nreads, reads, nints=nints, integrations=integrations,
+                            dn_gain=dn_gain)
         yield next(it)
         raise RuntimeError("simulated failure midway")
 
