@@ -27,6 +27,10 @@ Reads are digitised one by one and averaged into resultants (rounded), like on-b
 frame averaging.  Only a few frames are held in memory; finished resultants are
 written straight to the output file.
 
+Poisson draws use :func:`scenesim.poisson.poisson` (exact inversion for means up to
+10 e-, numpy's sampler above; 1.4-3x faster than numpy's at the small means of
+dark current and background).
+
 Randomness: one root ``SeedSequence``; the noise generator uses spawn key ``(1,)``,
 Poisson draws ``(2, integration, read, row-chunk)``, so results do not depend on
 threads or chunking.
@@ -43,6 +47,7 @@ from noise.errors import ParameterError
 from noise.generator import NoiseGenerator, root_seed
 
 from . import effects as fx
+from .poisson import poisson
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
            "ARRIVALS"]
@@ -320,7 +325,7 @@ class ChargeEngine:
             tot = sum(self._lam(chunk, integration, p, k, e) for p, k, e in extras)
             g = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
                 self.entropy, spawn_key=self.key + (5, integration, c0 // _ROWS))))
-            n = g.poisson(tot)
+            n = poisson(g, tot)
             s = np.divide(n, tot, out=np.zeros_like(tot), where=tot > 0)
             tgt = scale[c0 * nx:c1 * nx]
             if idx is None:
@@ -348,7 +353,7 @@ class ChargeEngine:
             else:
                 g = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
                     self.entropy, spawn_key=self.key + (2, integration, read, c0 // _ROWS))))
-                draw = g.poisson(vals) if gauss is None else _poisson_or_gauss(g, vals, gauss)
+                draw = poisson(g, vals) if gauss is None else _poisson_or_gauss(g, vals, gauss)
             tgt = acc[c0:c1].reshape(-1)
             if idx is None:
                 tgt += draw.astype(acc.dtype, copy=False)
@@ -580,7 +585,7 @@ def _poisson_or_gauss(g, lam, threshold):
     """Poisson below ``threshold``, rounded Gaussian N(lam, lam) above (approximation)."""
     out = np.empty(lam.shape, dtype=np.int64)
     big = lam > threshold
-    out[~big] = g.poisson(lam[~big])
+    out[~big] = poisson(g, lam[~big])
     if big.any():
         z = g.standard_normal(int(big.sum()), dtype=np.float32)
         out[big] = np.maximum(np.rint(lam[big] + np.sqrt(lam[big]) * z), 0)

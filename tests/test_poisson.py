@@ -1,0 +1,113 @@
+"""Tests of scenesim.poisson against the Poisson law (moments, pmf, tail guard)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from noise.errors import ParameterError
+from scenesim.poisson import _k_max, poisson
+
+N = 200_000
+
+
+@pytest.mark.parametrize("lam", [1e-3, 0.1, 1.0, 3.0, 9.9, 10.1, 100.0, 1e4])
+def test_mean_and_variance(lam):
+    g = np.random.default_rng(20240611)
+    x = poisson(g, np.full(N, lam))
+    assert x.dtype == np.int64 and x.shape == (N,)
+    # Sample mean: sd sqrt(lam / N); 5 sigma.
+    assert abs(x.mean() - lam) < 5 * math.sqrt(lam / N)
+    # Sample variance of a Poisson sample: Var(s^2) ~ (mu4 - sigma^4) / N
+    # = (lam + 3 lam^2 - lam^2) / N = (lam + 2 lam^2) / N; 5 sigma.
+    assert abs(x.var(ddof=1) - lam) < 5 * math.sqrt((lam + 2 * lam ** 2) / N)
+
+
+@pytest.mark.parametrize("lam", [3.0, 0.5])
+def test_pmf_chi_square(lam):
+    # Fixed seed: the test fails for this seed only if the draws are off; a correct
+    # sampler would fail a fresh seed with probability 1e-4.
+    g = np.random.default_rng(777)
+    x = poisson(g, np.full(N, lam))
+    pmf = stats.poisson(lam)
+    # Bins k = 0..kmax with expected count >= 20 each, the rest pooled into one tail bin.
+    kmax = int(np.max(np.flatnonzero(N * pmf.pmf(np.arange(60)) >= 20)))
+    obs = np.bincount(np.minimum(x, kmax + 1), minlength=kmax + 2)
+    exp = N * np.append(pmf.pmf(np.arange(kmax + 1)), pmf.sf(kmax))
+    assert obs.sum() == N and kmax >= 4
+    assert stats.chisquare(obs, exp).pvalue > 1e-4
+
+
+def test_guard_tail_below_1e15():
+    # The inversion stops after k_max passes; what is left must have mass < 1e-15.
+    for lam in (1e-3, 0.1, 1.0, 3.0, 9.9, 10.0, 50.0):
+        k = _k_max(lam)
+        assert stats.poisson(lam).sf(k) < 1e-15
+        # and the bound is not wasteful: two passes fewer would leave more than 1e-15.
+        assert k < 2 or stats.poisson(lam).sf(k - 2) > 1e-15
+
+
+def test_mixed_array_keeps_order_and_shape():
+    g = np.random.default_rng(5)
+    lam = np.zeros((60, 100))
+    lam[:, 1::2] = 1e4                     # interleaved zeros and large means
+    lam[::3, ::4] = 0.5                    # some small means among the zeros
+    x = poisson(g, lam)
+    assert x.shape == lam.shape and x.dtype == np.int64
+    assert np.all(x[lam == 0] == 0)
+    # Poisson(1e4) has sd 100; 3000 draws: all within 7 sd (P(any beyond) ~ 8e-9).
+    assert np.all(np.abs(x[lam == 1e4] - 1e4) < 700)
+    # Poisson(0.5) draws exceed 12 with probability ~1e-13.
+    small = x[lam == 0.5]
+    assert small.size == 500 and small.max() <= 12
+    # Mean of 500 Poisson(0.5): sd sqrt(0.5 / 500) = 0.032; 5 sigma.
+    assert abs(small.mean() - 0.5) < 5 * math.sqrt(0.5 / 500)
+
+
+def test_zero_means_give_zero():
+    x = poisson(np.random.default_rng(1), np.zeros(1000))
+    assert np.array_equal(x, np.zeros(1000, np.int64))
+
+
+def test_small_zero_is_numpy_stream():
+    # With small=0 every positive mean goes to g.poisson: same stream as numpy.
+    lam = np.linspace(0.01, 30.0, 5000)
+    a = poisson(np.random.default_rng(9), lam, small=0.0)
+    b = np.random.default_rng(9).poisson(lam)
+    assert np.array_equal(a, b)
+
+
+def test_deterministic():
+    lam = np.random.default_rng(3).uniform(0.0, 20.0, (50, 80))
+    lam[0] = 0.0
+    a = poisson(np.random.default_rng(42), lam)
+    b = poisson(np.random.default_rng(42), lam)
+    assert np.array_equal(a, b)
+    c = poisson(np.random.default_rng(43), lam)
+    assert not np.array_equal(a, c)
+
+
+def test_empty_and_scalar():
+    g = np.random.default_rng(0)
+    assert poisson(g, np.zeros((0, 3))).shape == (0, 3)
+    assert poisson(g, 0.0).shape == () and poisson(g, 0.0) == 0
+
+
+@pytest.mark.parametrize("bad", [-1.0, np.nan, np.inf, 1e20])
+def test_bad_lam(bad):
+    lam = np.full(10, 2.0)
+    lam[4] = bad
+    with pytest.raises(ParameterError, match="'lam'"):
+        poisson(np.random.default_rng(0), lam)
+
+
+@pytest.mark.parametrize("small", [-1.0, 101.0, float("nan"), True, "3"])
+def test_bad_small(small):
+    with pytest.raises(ParameterError, match="'small'"):
+        poisson(np.random.default_rng(0), np.ones(3), small=small)
+
+
+def test_bad_generator():
+    with pytest.raises(ParameterError, match="'g'"):
+        poisson(np.random.RandomState(0), np.ones(3))
