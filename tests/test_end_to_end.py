@@ -1,0 +1,45 @@
+"""End to end: simulate a star field with the full noise model, fit it, compare.
+
+This closes the loop the product exists for (scene -> ramps -> reference correction
+-> GLS slopes -> photometry against the injected catalogue), with nothing mocked.
+"""
+
+import numpy as np
+import pytest
+
+from scenesim.run import run_scene
+from scenesim.scene import parse_scene
+
+
+def test_star_field_photometry_recovers_injected_fluxes(tmp_path):
+    pytest.importorskip("photutils")
+    rng = np.random.default_rng(2026)
+    # 36 stars on a jittered 6 x 6 grid, 36 px apart, away from the 4-px border
+    g = np.arange(28, 228, 36.0)
+    xs, ys = np.meshgrid(g, g)
+    xs = xs.ravel() + rng.uniform(-0.5, 0.5, xs.size)
+    ys = ys.ravel() + rng.uniform(-0.5, 0.5, ys.size)
+    flux = 10 ** rng.uniform(3, 4, xs.size)                  # 1e3 .. 1e4 e-/s
+    scene = parse_scene({
+        "seed": 99,
+        "detector": {"preset": "H2RG", "naxis1": 256, "naxis2": 256},
+        "noise": {"preset": "nirspec"},
+        "readout": {"pattern": "RAPID", "ngroups": 10},
+        "sources": {"dark_current": 0.01, "background": 0.5,
+                    "psf": {"kind": "gaussian", "fwhm": 2.0},
+                    "stars": [{"x": float(x), "y": float(y), "flux": float(f)}
+                              for x, y, f in zip(xs, ys, flux)]},
+        "output": {"path": str(tmp_path / "field.fits"), "truth": True, "fit": "gls",
+                   "refpix": "jwst", "compare": True},
+    })
+    res = run_scene(scene, progress=False)
+    p = res.report.photometry
+    assert p["n"] == xs.size
+    # Acceptance: median measured/injected = 1 within its error.  The reported error
+    # is the standard error of the median (1.2533 s / sqrt(n)); 5 of them bound a
+    # chance deviation.  Measured per-star scatter is ~2 % (median error ~0.4 % over
+    # 36 stars: shot noise of 1e4-1e5 e-, background, residual 1/f and read noise in
+    # the aperture), so a bias of ~2 % anywhere in the chain (PSF rendering, fit,
+    # aperture correction) would fail.
+    assert abs(p["median_ratio"] - 1) < 5 * p["median_ratio_err"], p
+    assert p["median_ratio_err"] < 0.01
