@@ -59,7 +59,7 @@ REFERENCES = {
 
 
 # ------------------------------------------------------------------------- floor
-def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3):
+def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3, sampler="numpy"):
     """Random-number floor: seconds to draw the unavoidable variates in bulk.
 
     Parameters
@@ -75,6 +75,10 @@ def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3):
     repeats : int, keyword-only
         Measure this many times and keep the fastest (the machine is shared; the
         minimum is the least disturbed estimate, which makes ratios conservative).
+    sampler : {'numpy', 'scenesim'}, keyword-only
+        Poisson sampler: numpy's ``Generator.poisson`` (DESIGN.md section 7, the
+        reported floor) or :func:`scenesim.poisson.poisson`, the faster exact sampler
+        the engine uses (a floor that credits the engine with nothing it does not do).
 
     Returns
     -------
@@ -89,6 +93,9 @@ def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3):
         raise ParameterError(f"'lam' must be finite and >= 0, got {lam!r}")
     if threads < 1:
         raise ParameterError(f"'threads' must be >= 1, got {threads!r}")
+    if sampler not in ("numpy", "scenesim"):
+        raise ParameterError(f"'sampler' must be 'numpy' or 'scenesim', got {sampler!r}")
+    from .poisson import poisson
     gens = [np.random.Generator(np.random.PCG64(s))
             for s in np.random.SeedSequence(12345).spawn(threads)]
     slab = min(_SLAB, max(n_normal, n_poisson, 1))
@@ -105,7 +112,8 @@ def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3):
         buf, la = bufs[t], lam_arr[t]
         for a in range(0, n, la.size):
             b = min(n, a + la.size)
-            buf[a:b] = gens[t].poisson(la[:b - a])
+            buf[a:b] = (gens[t].poisson(la[:b - a]) if sampler == "numpy"
+                        else poisson(gens[t], la[:b - a]))
 
     def run(fn, total, pool):
         done = 0
@@ -558,6 +566,11 @@ def _row(name, case, r, threads):
     else:
         row["floor"] = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads)
         row["ratio"] = r["wall"] / row["floor"] if row["floor"] > 0 else None
+        if r["n_poisson"]:
+            f2 = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads,
+                               sampler="scenesim")
+            row["floor_scenesim"] = f2
+            row["ratio_scenesim"] = r["wall"] / f2 if f2 > 0 else None
         row["ratio_kind"] = "time / random-number floor"
     ref = _reference(name, case)
     if ref is not None:
@@ -585,6 +598,9 @@ def _markdown(rows):
             if r.get("reference_mb"):
                 ref += f" ({r['reference_mb']:.0f} MB)"
         notes = r["detail"]
+        if r.get("ratio_scenesim"):
+            notes += (f"; ratio {r['ratio_scenesim']:.1f} against a floor drawn with "
+                      f"scenesim.poisson ({r['floor_scenesim']:.2f} s)")
         if r.get("pixel_reads") and r.get("floor"):
             notes += (f"; {r['pixel_reads'] / r['wall'] / 1e6:.0f} Mpixel-reads/s "
                       f"(floor {r['pixel_reads'] / r['floor'] / 1e6:.0f})")
