@@ -71,6 +71,9 @@ from .template import template_for
 
 __all__ = ["NoiseGenerator", "COMPONENTS", "root_seed"]
 
+#: Frames with fewer pixels than this are generated without the thread pool.
+_POOL_MIN_PIXELS = 1 << 16
+
 #: Component names and their stream identifiers.
 COMPONENTS = {"white": 1, "c_pink": 2, "u_pink": 3, "acn": 4, "pca0": 5, "pedestal": 6,
               "ktc": 7, "rtn": 8}
@@ -542,7 +545,10 @@ class NoiseGenerator:
     def _frames(self, nreads, reads, ints, dn_gain):
         self._rtn_state = self._rtn_slot = None
         self._reset_int = None
-        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        # small frames (windows) run inline: dispatching their tiny tasks to threads
+        # costs more than it saves (results do not depend on it)
+        big = self.detector.ny * self.detector.nx >= _POOL_MIN_PIXELS
+        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 and big else None
         try:
             for i in ints:
                 for k in reads:

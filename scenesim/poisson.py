@@ -71,6 +71,7 @@ every mean where numpy itself switches to it.  Numbers vary by +-30 % with machi
 and with the allocator (first-touch page faults dominate some rows).
 """
 
+import functools
 import math
 import numbers
 import time
@@ -94,6 +95,18 @@ _COMPRESS = 0.5
 
 
 def _k_max(lam_max):
+    """A cap ``k`` with ``P(X > k) < 1e-15`` for ``X ~ Poisson(lam_max)``.
+
+    Evaluated (and cached) at ``lam_max`` rounded up to a multiple of 1/64: the tail
+    grows with the mean, so the cap of the rounded mean is valid for ``lam_max``.
+    """
+    if lam_max <= 0.0:
+        return 0
+    return _k_max_exact(math.ceil(lam_max * 64.0) / 64.0)
+
+
+@functools.lru_cache(maxsize=4096)
+def _k_max_exact(lam_max):
     """Smallest ``k`` with ``P(X > k) < 1e-15`` for ``X ~ Poisson(lam_max)``.
 
     Uses ``P(X > k) <= p_{k+1} / (1 - lam / (k + 2))`` for ``k + 2 > lam`` (the

@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from noise.errors import ParameterError
-from scenesim.poisson import _k_max, poisson
+from scenesim.poisson import _k_max, _k_max_exact, poisson
 
 N = 200_000
 
@@ -44,8 +44,11 @@ def test_guard_tail_below_1e15():
     for lam in (1e-3, 0.1, 1.0, 3.0, 9.9, 10.0, 50.0):
         k = _k_max(lam)
         assert stats.poisson(lam).sf(k) < 1e-15
-        # and the bound is not wasteful: two passes fewer would leave more than 1e-15.
-        assert k < 2 or stats.poisson(lam).sf(k - 2) > 1e-15
+        # the exact bound is not wasteful: two passes fewer would leave more than
+        # 1e-15; the cached cap (mean rounded up to 1/64) is never below it
+        k0 = _k_max_exact(lam)
+        assert k0 < 2 or stats.poisson(lam).sf(k0 - 2) > 1e-15
+        assert k >= k0 and stats.poisson(np.ceil(lam * 64) / 64).sf(k) < 1e-15
 
 
 def test_mixed_array_keeps_order_and_shape():
