@@ -69,11 +69,15 @@ def test_prepare_without_data_driven_steps_is_dn_times_gain(tmp_path):
     assert p.gain == gain and p.t_frame == float(hdr["TFRAME"])
     assert p.name == path
     # bright columns (4e4 e-/s, 728 e- per 0.0182 s frame) reach the 2000 e- full
-    # well at the third read: flagged (but for the odd pixel whose zero level,
-    # extrapolated from two noisy resultants, is off by more than the 3 % margin of
-    # the test), and sticky; the 200 e-/s columns never reach it (22 e- in all)
+    # well at the third read: flagged, and sticky; the 200 e-/s columns never reach
+    # it (22 e- in all).  A clipped last resultant is flagged when it is >= 97 % of
+    # the full well above the zero level extrapolated from resultants 0 and 1,
+    # z = 2 R0 - R1: its error 2 P0 - P1 (independent Poisson 728 e- each, sd 27 e-,
+    # so sd ~38 e- with the read noise) must stay below the 60 e- margin, which
+    # misses P(N(0,1) > 60/38) ~ 6 % of the pixels.  Over 2 x 56 x 4 = 448 pixels
+    # the flagged fraction is 0.94 +- 0.011; 5 sigma below is 0.88.
     bright = p.saturated[..., 4:60, 56:60]                 # regular pixels only
-    assert bright[:, -1].mean() > 0.95 and not p.saturated[..., 8:50].any()
+    assert bright[:, -1].mean() > 0.88 and not p.saturated[..., 8:50].any()
     assert np.all(np.diff(p.saturated.astype(np.int8), axis=1) >= 0)
     cards = dict((k, v) for k, v, _ in p.cards)
     assert cards["RNSOURCE"] == "model" and cards["CMREMOVE"] is False
