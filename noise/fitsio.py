@@ -11,6 +11,7 @@ import contextlib
 import os
 import shutil
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
 
 import numpy as np
@@ -233,9 +234,20 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
             # to to_uint16_dn)
             frames = generator.frames(nframes, nints=nints,
                                       dn_gain=None if unit == "e" else gain)
-            for n, (_, _, frame) in enumerate(frames):
-                out.write(frame)
-                if progress is not None:
-                    progress(n + 1)
+            # frame k is written by a writer thread while frame k + 1 is generated
+            # (each frame is a new array; writes stay in order, one pending at most)
+            with ThreadPoolExecutor(1) as writer:
+                pending = None
+                try:
+                    for n, (_, _, frame) in enumerate(frames):
+                        if pending is not None:
+                            pending.result()
+                        pending = writer.submit(out.write, frame)
+                        if progress is not None:
+                            progress(n + 1)
+                    if pending is not None:
+                        pending.result()
+                finally:
+                    frames.close()
             out.end_image()
     return path
