@@ -253,6 +253,9 @@ def _header_cards(engine, cards):
                 else 0.0, "[e-] full well (max over pixels; 0 = none)"))
     out.append(("IPC", engine.ipc_kernel is not None, "IPC applied"))
     out.append(("NONLIN", engine.nonlinearity is not None, "nonlinearity applied"))
+    if engine.nonlinearity is not None:
+        out.append(("NLCOEFF", ",".join(f"{c:.10g}" for c in engine.nonlinearity.coeffs),
+                    "c2,c3,...: m = q + c2 q^2 + c3 q^3 (e-)"))
     out.append(("GAUSSAB", engine.options.gauss_above or 0.0,
                 "[e-] Gaussian above this mean (0 = exact Poisson)"))
     out.append(("ARRIVALS", engine.options.arrivals,

@@ -327,13 +327,74 @@ def _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, t
             f"'threads' must be an integer >= 1 or None, got {threads!r}")
 
 
+def header_nonlinearity(header):
+    """The :class:`~scenesim.effects.Nonlinearity` recorded in an exposure header
+    (``NONLIN`` and ``NLCOEFF``), or ``None``."""
+    if not header.get("NONLIN", False) or not str(header.get("NLCOEFF", "")).strip():
+        return None
+    from .effects import Nonlinearity
+    coeffs = [float(c) for c in str(header["NLCOEFF"]).split(",") if c.strip()]
+    nl = Nonlinearity(tuple(coeffs))
+    return None if nl.is_linear else nl
+
+
+def linearize_resultants(e, nl, tbar):
+    """Invert the classical nonlinearity of resultants, like a pipeline's linearity step.
+
+    The engine applies ``m = p(q)`` to the charge ``q`` accumulated since reset, before
+    the bias, kTC and read noise are added.  The zero level of each pixel and
+    integration is estimated as the first resultant extrapolated back to the reset on
+    the linearised scale, ``z = L_0 - tbar_0 (L_1 - L_0) / (tbar_1 - tbar_0)`` with
+    ``L = z + p^-1(R - z)`` iterated (``R_0`` for one-resultant ramps), and every
+    resultant becomes ``z + p^-1(R - z)`` (values outside the
+    invertible range are clipped to it; those are saturated anyway).  Two
+    approximations, both far below the noise for H2RG-like coefficients: a resultant
+    that averages several reads is treated as one read at its mean charge (error
+    ``~ c2 var(q within the group)``), and IPC, which the engine applies after the
+    nonlinearity, is not undone first (error ``~ c2 q^2`` times the IPC coupling).
+
+    Parameters
+    ----------
+    e : ndarray, shape (nints, nres, ny, nx), float32, e-
+    nl : scenesim.effects.Nonlinearity
+    tbar : ndarray, shape (nres,), s
+
+    Returns
+    -------
+    ndarray, same shape, float32, e-
+    """
+    e = np.asarray(e, dtype=np.float32)
+    lo, hi = nl.measured_range
+    lo, hi = np.nextafter(lo, np.inf), np.nextafter(hi, -np.inf)   # strictly inside
+    r0 = e[:, 0].astype(np.float64)
+    zero = r0
+    if e.shape[1] >= 2:
+        # extrapolate on the linearised scale: the raw ramp is curved, so a straight
+        # line through R_0, R_1 misplaces z by ~ -2 c2 q_0^2; each pass shrinks the
+        # error by a factor ~ c2 q (three passes: < 1e-6 e- for H2RG-like c2)
+        r1 = e[:, 1].astype(np.float64)
+        w = tbar[0] / (tbar[1] - tbar[0])
+        for _ in range(4):
+            l0 = nl.invert(np.clip(r0 - zero, lo, hi))
+            l1 = nl.invert(np.clip(r1 - zero, lo, hi))
+            zero = zero + l0 - np.maximum(l1 - l0, 0.0) * w
+    out = np.empty_like(e)
+    for r in range(e.shape[1]):
+        m = np.clip(e[:, r] - zero, lo, hi)
+        out[:, r] = nl.invert(m) + zero
+    return out
+
+
 def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
-                     remove_common_mode=True, measure_noise=True, threads=None):
+                     remove_common_mode=True, measure_noise=True, threads=None,
+                     linearize=True):
     """Read an exposure and make its ramps ready for a fitter (see module notes).
 
     Steps: DN to e- (``GAIN``); saturation flags (:func:`saturation_flags`, on the
     estimated last read of each resultant); reference-pixel correction
-    (:func:`scenesim.refpix.correct_reference`); removal of the per-output common
+    (:func:`scenesim.refpix.correct_reference`); inversion of the classical
+    nonlinearity recorded in the header (``NLCOEFF``, :func:`linearize_resultants`);
+    removal of the per-output common
     mode (:func:`scenesim.fit.common_mode`); per-column read noise measured from the
     ramps (:func:`scenesim.fit.measure_read_noise`).
 
@@ -356,6 +417,8 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
     threads : int or None, keyword-only
         Worker threads of the common-mode and read-noise fits (see
         :func:`scenesim.fit.fit_ramps`).
+    linearize : bool, keyword-only
+        Invert the nonlinearity recorded in the header (no-op when there is none).
 
     Returns
     -------
@@ -387,6 +450,9 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
     if refpix != "none" and refmask.any():
         from .refpix import correct_reference
         e = np.asarray(correct_reference(e, det, scheme=refpix), dtype=np.float32)
+    nl = header_nonlinearity(hdr) if linearize else None
+    if nl is not None:
+        e = linearize_resultants(e, nl, tbar)
     if ro.reset_mode == "global":
         times = ro.read_times(t_frame, det.pixel_time())
     else:
@@ -409,7 +475,8 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
              ("RNMODEL", float(rdn), "[e-] model white read noise per read"),
              ("RNSOURCE", "measured" if measure_noise else "model",
               "RNOISE: per-column measured or model"),
-             ("CMREMOVE", bool(remove_common_mode), "per-output common mode removed")]
+             ("CMREMOVE", bool(remove_common_mode), "per-output common mode removed"),
+             ("LINCORR", nl is not None, "classical nonlinearity inverted (NLCOEFF)")]
     for key in _COPIED_KEYS:
         if key in hdr:
             cards.append(_card(key, hdr[key], hdr.comments[key]))
@@ -422,7 +489,8 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
 
 def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
                       jump_threshold=5.0, read_noise=None, threads=None,
-                      overwrite=True, remove_common_mode=True, measure_noise=True):
+                      overwrite=True, remove_common_mode=True, measure_noise=True,
+                      linearize=True):
     """Fit the slopes of ``exposure`` and write them to ``output``.
 
     Parameters
@@ -452,6 +520,8 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
         Rescale the read noise per column to the scatter measured in the ramps
         (:func:`scenesim.fit.measure_read_noise`; see the module notes).  False:
         use ``read_noise`` as it is.
+    linearize : bool
+        Invert the classical nonlinearity recorded in the header (``NLCOEFF``).
 
     Returns
     -------
@@ -478,7 +548,8 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
     check_writable("output", output, overwrite=overwrite)
     prep = prepare_exposure(exposure, refpix=refpix, read_noise=read_noise,
                             remove_common_mode=remove_common_mode,
-                            measure_noise=measure_noise, threads=threads)
+                            measure_noise=measure_noise, threads=threads,
+                            linearize=bool(linearize))
     result = fit_ramps(prep.electrons, prep.read_times, read_noise=prep.read_noise,
                        gain=prep.gain, fitter=fitter, saturated=prep.saturated,
                        jump_threshold=jump_threshold or None, refmask=prep.refmask,

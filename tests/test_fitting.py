@@ -209,3 +209,24 @@ def test_prepare_bad_exposure(tmp_path):
     with pytest.raises(ParameterError, match="'jump_threshold'"):
         fit_exposure_file(mem, str(tmp_path / "f.fits"), jump_threshold=-1.0)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_linearize_resultants_inverts_the_recorded_nonlinearity():
+    """Closed form: single-read resultants m_k = z + p(f t_k) with p(q) = q + c2 q^2
+    + c3 q^3 and a zero level z; linearising gives z + f t_k back (to float32
+    round-off of values ~5e4 e-, i.e. < 0.01 e-), and the header round-trips."""
+    from astropy.io import fits
+
+    from scenesim.effects import Nonlinearity
+    from scenesim.fitting import header_nonlinearity, linearize_resultants
+    nl = Nonlinearity((-8e-7, -2e-12))
+    t = (np.arange(6) + 1) * 10.0                       # s
+    f = np.array([[10.0, 300.0], [1000.0, 800.0]])      # e-/s, up to 6e4 e-
+    z = np.array([[5000.0, 4000.0], [6000.0, 5500.0]])  # zero level, e-
+    q = f[None] * t[:, None, None]
+    m = (z[None] + nl.apply(q))[None].astype(np.float32)     # (1, 6, 2, 2)
+    out = linearize_resultants(m, nl, t)
+    np.testing.assert_allclose(out[0], z[None] + q, atol=0.02)
+    hdr = fits.Header([("NONLIN", True), ("NLCOEFF", "-8e-07,-2e-12")])
+    assert header_nonlinearity(hdr) == nl
+    assert header_nonlinearity(fits.Header([("NONLIN", False)])) is None
