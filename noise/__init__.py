@@ -17,8 +17,8 @@ from .errors import FileFormatError, ParameterError, ScenesimError
 from .fitsio import atomic_path, package_version, to_uint16_dn, write_noise_fits
 from .generator import COMPONENTS, NoiseGenerator, root_seed
 from .params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
-from .pink import (PINK_MODES, PinkSeries, excess_kurtosis, measure_psd_error, pink_psd_shape,
-                   realised_psd, unit_frame_variance)
+from .pink import (PinkSeries, measure_psd_error, pink_psd_shape, realised_psd,
+                   unit_frame_variance)
 from .template import synthetic_template, template_for
 
 __all__ = [
@@ -27,7 +27,7 @@ __all__ = [
     "NoiseGenerator", "COMPONENTS", "root_seed",
     "write_noise_fits", "atomic_path", "package_version", "to_uint16_dn",
     "PinkSeries", "pink_psd_shape", "realised_psd", "unit_frame_variance",
-    "PINK_MODES", "measure_psd_error", "excess_kurtosis",
+    "measure_psd_error",
     "synthetic_template", "template_for",
     "ScenesimError", "ParameterError", "FileFormatError",
 ]

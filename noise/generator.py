@@ -67,6 +67,7 @@ from .detector import Detector
 from .errors import ParameterError
 from .params import NoiseParams
 from .pink import PinkSeries
+from .normal import standard_normal
 from .template import template_for
 
 __all__ = ["NoiseGenerator", "COMPONENTS", "root_seed"]
@@ -188,8 +189,7 @@ class NoiseGenerator:
         det, p = self.detector, self.params
         nout = det.n_out_active
         L = det.frame_samples
-        kw = dict(f_min=p.f_min, spectrum=p.pink_spectrum, entropy=self.entropy,
-                  mode=p.pink_mode)
+        kw = dict(f_min=p.f_min, spectrum=p.pink_spectrum, entropy=self.entropy)
         self._L = L
         # one series object per output (and one for the correlated series), each with
         # its own stream keys; their work is split into tasks by PinkSeries.plan
@@ -297,8 +297,8 @@ class NoiseGenerator:
         p = self.params
         blk = lvl[c0:c1]
         if p.ktc > 0:
-            self._stream(COMPONENTS["ktc"], integration, c0 // _WHITE_ROWS).standard_normal(
-                out=blk, dtype=np.float32)
+            standard_normal(self._stream(COMPONENTS["ktc"], integration, c0 // _WHITE_ROWS),
+                            blk)
             blk *= np.float32(p.ktc)
         else:
             blk.fill(0.0)
@@ -401,7 +401,7 @@ class NoiseGenerator:
             b = min(a + _SUB_ROWS, c1)
             blk = out[a:b] if dn_gain is None else scratch[:b - a]
             if rng is not None:
-                rng.standard_normal(out=blk, dtype=np.float32)
+                standard_normal(rng, blk)
                 for r0, r1, vec in self._sig_runs:
                     lo, hi = max(r0, a), min(r1, b)
                     if lo < hi:

@@ -30,11 +30,7 @@ between two levels ``rtn_amp`` apart, with mean dwell times ``rtn_tau_low`` and
 ``rtn_tau_high`` in seconds), a user PSD shape for the pink components
 (``pink_spectrum``: pairs of frequency in Hz and relative PSD, interpolated in log-log;
 the amplitude definition above still sets the level), per-output amplitudes for
-``rd_noise``, ``u_pink`` and ``acn`` (a sequence of ``n_out`` values), and
-``pink_mode``: ``'exact'`` (default) or ``'fast'``, a cheaper synthesis of the 1/f
-series whose error is measured by :func:`noise.pink.measure_psd_error` (same PSD; the
-white input of the 1/f filters comes from a vectorised Box-Muller on 24-bit uniforms,
-cut at 5.77 sigma, instead of numpy's normals).
+``rd_noise``, ``u_pink`` and ``acn`` (a sequence of ``n_out`` values).
 """
 
 import dataclasses
@@ -50,7 +46,6 @@ __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE"]
 
 _PER_OUTPUT = ("rd_noise", "u_pink", "acn")
 _SCALAR_AMPS = ("c_pink", "pca0", "pedestal", "ktc", "bias_amp", "rtn_amp")
-_PINK_MODES = ("exact", "fast")        # noise.pink.PINK_MODES
 
 
 def _freeze(value):
@@ -98,10 +93,6 @@ class NoiseParams:
     pca0_file : str or None
         FITS file with the picture-frame / bias template (full array, or the read-out
         size); ``None`` uses the synthetic template shipped with the package.
-    pink_mode : {'exact', 'fast'}
-        1/f synthesis: ``'exact'`` (default: numpy's normals as filter input) or
-        ``'fast'`` (Box-Muller input on 24-bit uniforms: about 3x cheaper draws, same
-        PSD, input tails cut at 5.77 sigma; see :mod:`noise.pink`).
     """
 
     rd_noise: float | tuple = 5.2
@@ -121,7 +112,6 @@ class NoiseParams:
     f_min: float = 1e-4
     pink_spectrum: tuple | None = None
     pca0_file: str | None = None
-    pink_mode: str = "exact"
 
     def __post_init__(self):
         for name in _PER_OUTPUT:
@@ -143,9 +133,6 @@ class NoiseParams:
         check_float("rtn_tau_low", self.rtn_tau_low, minimum=0.0, strict_min=True)
         check_float("rtn_tau_high", self.rtn_tau_high, minimum=0.0, strict_min=True)
         check_float("f_min", self.f_min, minimum=0.0, strict_min=True)
-        if self.pink_mode not in _PINK_MODES:
-            raise ParameterError(
-                f"'pink_mode' must be one of {_PINK_MODES}, got {self.pink_mode!r}")
         if self.pink_spectrum is not None:
             spec = np.asarray(self.pink_spectrum, dtype=float)
             if spec.ndim != 2 or spec.shape[1] != 2 or spec.shape[0] < 2:
@@ -208,7 +195,6 @@ class NoiseParams:
             ("PINKSPEC", val(self.pink_spectrum) if self.pink_spectrum else "1/f",
              "pink PSD shape: 1/f or f_Hz:psd pairs"),
             ("PCA0FILE", self.pca0_file or "synthetic", "picture-frame template"),
-            ("PINKMODE", self.pink_mode, "1/f synthesis: exact or fast"),
         ]
         return cards
 

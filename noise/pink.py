@@ -54,29 +54,14 @@ Properties:
   on its index, never on how samples are requested, on the thread that computed it, or
   on the other series of the batch.  Blocks nobody asks for (skipped frames) are never
   computed; only the coarse levels, which cost 1/D of the finest, run through them.
-* **Cost** (one core, measured): one float32 normal per output sample (8.6 ns with
-  numpy's ziggurat) plus ~5 ns of FFT work and ~1 ns of copies;
-  :meth:`PinkSeries.plan` hands a range of samples to a thread pool as one independent
-  task per series.  Requests are served by whole groups, so up to one group (115k
-  samples) per series is drawn ahead of the request and used by the next one.
-
-Modes
------
-``mode='exact'`` (default): the white input is numpy's float32 normals (ziggurat; the
-random-number floor of ``scenesim.bench`` is defined with the same generator).
-
-``mode='fast'``: the white input of every level comes from a vectorised Box-Muller
-transform of float32 uniforms (:func:`_box_muller`, ~3.0 ns per normal instead of
-8.6 ns).  The filters and the normalisation are unchanged, so the PSD is the exact
-mode's (the Box-Muller variance ``1 - 5.5e-7`` is divided out); what differs is the
-input distribution: its radius comes from a 24-bit uniform, so each input normal is cut
-at ``|z| <= 5.77`` (probability 8e-9) and has excess kurtosis ``kappa_in = -1.2e-5``.
-The output is a linear filter of i.i.d. inputs, so its excess kurtosis (per sample, of
-differences, of any linear statistic) lies between ``kappa_in`` and 0: the fast mode is
-Gaussian to 1e-5 in kurtosis and exact in its second-order statistics.  On a full-frame
-H2RG with every component on it makes a frame about 1.35x faster with one thread
-(1.2x with two).  :func:`measure_psd_error` measures both modes against 1/f theory
-(PSD per decade, kurtosis, time per sample).
+* **Cost** (one core, measured): one float32 normal per output sample (3-6 ns with the
+  Box-Muller sampler of :mod:`noise.normal`, exact to float32 in the body and to 53-bit
+  resolution in the tails; numpy's ziggurat costs 9-11 ns) plus ~5 ns of FFT work and
+  ~1 ns of copies; :meth:`PinkSeries.plan` hands a range of samples to a thread pool as
+  one independent task per series.  Requests are served by whole groups, so up to one
+  group (115k samples) per series is drawn ahead of the request and used by the next one.
+  (An earlier ``mode='fast'`` drew 24-bit-truncated Box-Muller inputs; once the exact
+  input used the same transform with exact tails it saved nothing, so it was removed.)
 
 Normalisation (see :mod:`noise.params`): the level is set from the *realised* PSD of the
 designed filters so that the expected variance over one frame of ``n`` samples, with
@@ -92,13 +77,10 @@ import numpy as np
 import scipy.fft as sfft
 
 from .errors import ParameterError
+from .normal import standard_normal
 
-__all__ = ["PinkSeries", "PINK_MODES", "pink_psd_shape", "realised_psd",
-           "unit_frame_variance", "set_fft_workers", "measure_psd_error",
-           "excess_kurtosis"]
-
-#: Accepted values of the ``mode`` of :class:`PinkSeries` (``NoiseParams.pink_mode``).
-PINK_MODES = ("exact", "fast")
+__all__ = ["PinkSeries", "pink_psd_shape", "realised_psd",
+           "unit_frame_variance", "set_fft_workers", "measure_psd_error"]
 
 _D = 32          # decimation between bands
 _K = 8           # band top at r_j / (2 K)
@@ -232,8 +214,6 @@ def _fejer(f, n, rate):
 def realised_psd(f, rate, f_min, spectrum=None):
     """One-sided PSD (per Hz) at ``f`` of a unit-scale series as actually synthesised.
 
-    The same for both modes (they share the filters; the coarse mode's input has unit
-    variance too).
     """
     f = np.asarray(f, dtype=float)
     s = np.zeros(f.shape)
@@ -283,45 +263,6 @@ def _runs(blocks, group, quad):
     return [list(range(r[0] * quad, (r[-1] + 1) * quad)) for r in runs]
 
 
-def _box_muller(gen, out):
-    """Fill ``out`` (1-D float32, even length) with Box-Muller normals from ``gen``.
-
-    ``z = sqrt(-2 ln(1 - u1)) * (cos, sin)(2 pi u2)`` with float32 uniforms ``u1, u2``
-    (24-bit grids), vectorised in float32: about 3 ns per normal against 8.6 ns for
-    numpy's float32 ziggurat.  The 24-bit radius grid truncates the tails at
-    ``|z| <= sqrt(48 ln 2) = 5.77`` (a normal exceeds that with probability 8e-9) and
-    leaves a variance of ``1 - 5.5e-7`` and an excess kurtosis of ``-1.2e-5``
-    (:func:`_box_muller_moments`).
-    """
-    h = out.size // 2
-    a, b = out[:h], out[h:2 * h]
-    gen.random(out=a, dtype=np.float32)
-    gen.random(out=b, dtype=np.float32)
-    np.subtract(np.float32(1.0), a, out=a)          # (0, 1]
-    np.log(a, out=a)
-    a *= np.float32(-2.0)
-    np.sqrt(a, out=a)                               # radius
-    b *= np.float32(2.0 * np.pi)                    # angle
-    cos = np.cos(b)
-    np.sin(b, out=b)
-    b *= a
-    np.multiply(a, cos, out=a)
-
-
-@functools.lru_cache(maxsize=1)
-def _box_muller_moments():
-    """Exact variance and excess kurtosis of :func:`_box_muller`'s normals.
-
-    With ``v = 1 - u1`` uniform on ``{k 2^-24, k = 1 .. 2^24}`` and the angle uniform
-    on a 2^24-point grid (so ``E cos^2 = 1/2``, ``E cos^4 = 3/8`` exactly):
-    ``E z^2 = E r^2 / 2``, ``E z^4 = 3 E r^4 / 8`` with ``r^2 = -2 ln v``.
-    """
-    v = np.arange(1, 2 ** 24 + 1, dtype=np.float64) / 2.0 ** 24
-    lv = np.log(v)
-    er2, er4 = -2.0 * lv.mean(), 4.0 * np.mean(lv ** 2)
-    return er2 / 2.0, 1.5 * er4 / er2 ** 2 - 3.0
-
-
 class _Level:
     """One level of the multirate cascade: white noise -> FIR, plus the coarser level.
 
@@ -335,7 +276,7 @@ class _Level:
     samples keyed ``0``).  The FFT then reads the rows in place.
     """
 
-    def __init__(self, H, keys, entropy, group, quad, child, white, nfft):
+    def __init__(self, H, keys, entropy, group, quad, child, nfft):
         self.H = H                      # (nfft // 2 + 1,) complex64, unit scale
         self.keys = [tuple(k) for k in keys]
         self.nseries = len(self.keys)
@@ -343,7 +284,6 @@ class _Level:
         self.group = group              # blocks per white-noise stream
         self.quad = quad                # blocks per FFT unit (divides group)
         self.child = child              # coarser _Level or None
-        self.white = white              # 'normal' (numpy's ziggurat) or 'box_muller'
         self.nfft = nfft
         self.B = nfft - _OV
         self.nc = nfft // _D            # coarse samples per window
@@ -379,11 +319,9 @@ class _Level:
                     (self.nseries, self.group, self.nfft), dtype=np.float32)
         return new
 
-    def _draw(self, bitgen, out):
-        if self.white == "normal":
-            np.random.Generator(bitgen).standard_normal(out=out, dtype=np.float32)
-        else:
-            _box_muller(np.random.Generator(bitgen), out)
+    @staticmethod
+    def _draw(bitgen, out):
+        standard_normal(np.random.Generator(bitgen), out)
 
     def _fill(self, g):
         """Draw white-noise group ``g`` of every series (releases the GIL)."""
@@ -484,20 +422,13 @@ class PinkSeries:
         Spawn-key prefix of each series; level ``j``, white-noise group ``g`` of series
         ``s`` draws from ``spawn_key = seed_keys[s] + (j, g + 1)``, so a series' values
         do not depend on which other series share the batch.
-    mode : {'exact', 'fast'}
-        ``'fast'`` draws the white input with a vectorised Box-Muller on 24-bit uniforms
-        instead of numpy's normals (3x cheaper; same PSD; inputs cut at 5.77 sigma; see
-        the module notes and :func:`measure_psd_error`).
     """
 
     def __init__(self, rate, frame_samples, amplitudes, *, f_min, spectrum=None,
-                 entropy, seed_keys, mode="exact"):
-        if mode not in PINK_MODES:
-            raise ParameterError(f"'pink_mode' must be one of {PINK_MODES}, got {mode!r}")
+                 entropy, seed_keys):
         self.rate = float(rate)
         self.f_min = float(f_min)
         self.spectrum = spectrum
-        self.mode = mode
         self.amplitudes = np.asarray(amplitudes, dtype=float).ravel()
         self.nseries = self.amplitudes.size
         if len(seed_keys) != self.nseries:
@@ -507,12 +438,10 @@ class PinkSeries:
         design = _design(self.rate, self.f_min, spectrum)
         level = None
         for j in reversed(range(len(design))):
-            white = "box_muller" if mode == "fast" else "normal"
-            var_in = _box_muller_moments()[0] if mode == "fast" else 1.0
-            H = design[j][1] / np.sqrt(var_in)
+            H = design[j][1]
             group, quad = (_GROUP, _QUAD) if j <= 1 else (1, 1)
             level = _Level(H.astype(np.complex64), [tuple(k) + (j,) for k in seed_keys],
-                           entropy, group, quad, level, white, _nfft(j))
+                           entropy, group, quad, level, _nfft(j))
         self._top = level
         self.unit_sigma = np.sqrt(unit_frame_variance(self.rate, int(frame_samples),
                                                       self.f_min, spectrum))
@@ -602,29 +531,10 @@ class PinkSeries:
 
 
 # ---------------------------------------------------------------- error measurement
-def excess_kurtosis(mode):
-    """Excess kurtosis of the white input of a synthesis mode (theory).
-
-    The output of each series is a sum of filtered i.i.d. inputs, so its fourth
-    cumulant is ``kappa_in * sum(h**4)`` over all taps while its variance is
-    ``sum(h**2)``; since ``sum(h**4) <= (sum(h**2))**2``, the output's excess kurtosis
-    (per sample, of differences, or of any linear statistic) lies between
-    ``kappa_in`` and 0.  ``'exact'``: numpy's normals, 0.  ``'fast'``: Box-Muller on
-    24-bit uniforms, ``-1.2e-5`` (tails cut at 5.77 sigma).
-
-    Returns
-    -------
-    float
-    """
-    if mode not in PINK_MODES:
-        raise ParameterError(f"'mode' must be one of {PINK_MODES}, got {mode!r}")
-    return 0.0 if mode == "exact" else float(_box_muller_moments()[1])
-
-
-def measure_psd_error(mode="exact", *, rate=1e5, frame_samples=1073676, f_min=1e-4,
+def measure_psd_error(*, rate=1e5, frame_samples=1073676, f_min=1e-4,
                       decades=((30.0, 300.0), (300.0, 3e3), (3e3, 3e4)), nperseg=2 ** 17,
                       nseg=64, rng=None):
-    """Error of a synthesis mode against exact 1/f theory, per decade, and its cost.
+    """Error of the 1/f synthesis against exact 1/f theory, per decade, and its cost.
 
     Theory: ``S(f) = c / f`` with ``c`` fixed by the amplitude definition
     (:mod:`noise.params`) for the ideal 1/f spectrum, integrated here independently of
@@ -632,7 +542,6 @@ def measure_psd_error(mode="exact", *, rate=1e5, frame_samples=1073676, f_min=1e
 
     Parameters
     ----------
-    mode : {'exact', 'fast'}
     rate : float
         Sample rate, Hz (default: the 10 us pixel clock).
     frame_samples : int
@@ -650,21 +559,18 @@ def measure_psd_error(mode="exact", *, rate=1e5, frame_samples=1073676, f_min=1e
     -------
     dict
         ``design``: per decade, max ``|log10(P_realised / P_theory)|`` of the PSD the
-        filters realise (no sampling noise; the same for every mode);
+        filters realise (no sampling noise);
         ``measured``: per decade, max over ten log-spaced sub-bands of
         ``|log10(mean P_hat / P_theory)|`` of a simulated unit-amplitude series;
         ``measured_sigma``: per decade, the largest standard error (dex) of those
         sub-band means, ``log10(e) sqrt(k / (nseg * nbins))`` with ``k = 1.94`` for the
         correlation of neighbouring Hann-window bins;
-        ``kurtosis``: the bound of :func:`excess_kurtosis`;
         ``measured_kurtosis`` and ``kurtosis_sigma``: sample excess kurtosis of the
         series' first differences (where the finest band dominates) and its standard
         error ``sqrt(24 / n)``;
         ``seconds_per_msample``: synthesis time per million samples (one thread).
         Decades are keyed ``'30-300 Hz'`` etc.
     """
-    if mode not in PINK_MODES:
-        raise ParameterError(f"'mode' must be one of {PINK_MODES}, got {mode!r}")
     rate, f_min = float(rate), float(f_min)
     fi = np.geomspace(f_min * 1e-5, rate / 2, 400001)
     c_theory = 1.0 / np.trapezoid((1.0 - _fejer(fi, frame_samples, rate))
@@ -676,7 +582,7 @@ def measure_psd_error(mode="exact", *, rate=1e5, frame_samples=1073676, f_min=1e
     else:
         ss = np.random.SeedSequence(rng)
     series = PinkSeries(rate, frame_samples, [1.0], f_min=f_min, entropy=ss.entropy,
-                        seed_keys=[tuple(ss.spawn_key) + (0,)], mode=mode)
+                        seed_keys=[tuple(ss.spawn_key) + (0,)])
     t0 = time.perf_counter()
     y = series.get(0, nseg * nperseg)[0]
     seconds = time.perf_counter() - t0
@@ -709,7 +615,6 @@ def measure_psd_error(mode="exact", *, rate=1e5, frame_samples=1073676, f_min=1e
     d = np.diff(y.astype(np.float64))
     d -= d.mean()
     kurt = float(np.mean(d ** 4) / np.mean(d ** 2) ** 2 - 3.0)
-    return {"mode": mode, "design": design, "measured": measured,
-            "measured_sigma": sigma, "kurtosis": excess_kurtosis(mode),
+    return {"design": design, "measured": measured, "measured_sigma": sigma,
             "measured_kurtosis": kurt, "kurtosis_sigma": float(np.sqrt(24.0 / d.size)),
             "seconds_per_msample": seconds / (y.size / 1e6)}

@@ -289,8 +289,11 @@ def test_ktc_and_bias_per_integration():
     cube = _gen(params, rng=42).cube(4, nints=3).astype(np.float64)
     # identical in every frame of an integration: CDS is exactly zero
     assert not np.diff(cube, axis=1).any()
-    # different between integrations
-    assert not np.any(cube[0, 0] == cube[1, 0])
+    # different between integrations: two independent kTC draws round to the same
+    # float32 (ulp 4.9e-4 e- near 5000 e-) with probability ~ ulp * pdf_diff(0) =
+    # 4.9e-4 / (sqrt(2 pi) * sqrt(2) * 29) = 4.8e-6 per pixel, i.e. 0.08 of the 16384
+    # pixels expected; 4 or more coincidences have Poisson probability 1.6e-6.
+    assert np.count_nonzero(cube[0, 0] == cube[1, 0]) <= 3
     template = template_for(DET).astype(np.float64)
     n = DET.nx * DET.ny
     for i in range(3):
@@ -346,6 +349,23 @@ def test_picture_frame_amplitude():
     se = vals.std(ddof=1) / np.sqrt(vals.size)
     assert abs(vals.mean() - pca0 ** 2) < 5 * se, (vals.mean(), se)
     assert 5 * se < 0.3 * pca0 ** 2
+
+
+@pytest.mark.parametrize("shape", [(256, 256), (255, 129), (64, 300), (2, 2), (1, 7)])
+def test_synthetic_template_matches_its_definition(shape):
+    # The documented definition, built directly: exp(-d/w) + 0.1 y/(ny-1), then zero
+    # median and unit robust sigma (std when the MAD is 0).  The fast path (separable
+    # form, statistics by counting) must agree to float64 rounding (1e-12).
+    ny, nx = shape
+    y = np.arange(ny, dtype=float)[:, None]
+    x = np.arange(nx, dtype=float)[None, :]
+    d = np.minimum(np.minimum(y, ny - 1 - y), np.minimum(x, nx - 1 - x))
+    img = np.exp(-d / max(min(nx, ny) / 24.0, 1.0)) + 0.1 * y / max(ny - 1, 1)
+    med = np.median(img)
+    sig = np.median(np.abs(img - med)) * 1.4826
+    sig = sig if sig > 0 else img.std()
+    expected = (img - med) / sig if sig > 0 else np.zeros_like(img)
+    np.testing.assert_allclose(synthetic_template(ny, nx), expected, rtol=0, atol=1e-12)
 
 
 def test_synthetic_template_normalised_and_edge_bright():
@@ -430,9 +450,8 @@ def test_zero_noise_is_exactly_zero():
 
 
 # ================================================================== reproducibility
-@pytest.mark.parametrize("mode", ["exact", "fast"])
-def test_threads_do_not_change_frames(mode):
-    params = ALL_ON.replace(pink_mode=mode)
+def test_threads_do_not_change_frames():
+    params = ALL_ON
     a = _gen(params, rng=81, threads=1).cube(3, nints=2)
     b = _gen(params, rng=81, threads=2).cube(3, nints=2)
     c = _gen(params, rng=81, threads=3).cube(3, nints=2)

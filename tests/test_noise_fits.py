@@ -26,7 +26,7 @@ KEYWORDS = {
     "ktc": "KTCNOISE", "bias_offset": "BIASOFF", "bias_amp": "BIASAMP",
     "rtn_fraction": "RTNFRAC", "rtn_amp": "RTNAMP", "rtn_tau_low": "RTNTLOW",
     "rtn_tau_high": "RTNTHIGH", "f_min": "FMIN", "pink_spectrum": "PINKSPEC",
-    "pca0_file": "PCA0FILE", "pink_mode": "PINKMODE",
+    "pca0_file": "PCA0FILE",
 }
 
 
@@ -106,8 +106,6 @@ def test_header_records_every_parameter_seed_and_version(tmp_path):
         value = getattr(params, field)
         if field == "pca0_file":
             assert hdr[key] == "synthetic"
-        elif field == "pink_mode":
-            assert hdr[key] == value
         else:
             assert _parse(hdr[key]) == value, (field, hdr[key])
     assert hdr["SEEDENT"] == "123456789"
