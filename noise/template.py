@@ -11,6 +11,7 @@ function of the array size: no file, no randomness.  A user FITS file can replac
 is normalised the same way.
 """
 
+import functools
 import os
 
 import numpy as np
@@ -31,18 +32,99 @@ def _normalise(img):
     return (img - med) / mad
 
 
+def _profiles(naxis2, naxis1):
+    """Row and column factors of the synthetic template (float64).
+
+    The edge distance is ``d = min(dy, dx)`` and ``exp`` is decreasing, so
+    ``exp(-d / w) = max(exp(-dy / w), exp(-dx / w))``: the image is
+    ``max(ey[:, None], ex[None, :]) + g[:, None]``, a broadcast, no 2-D index arrays.
+    """
+    w = max(min(naxis1, naxis2) / 24.0, 1.0)
+    y = np.arange(naxis2, dtype=float)
+    x = np.arange(naxis1, dtype=float)
+    ey = np.exp(-np.minimum(y, naxis2 - 1 - y) / w)
+    ex = np.exp(-np.minimum(x, naxis1 - 1 - x) / w)
+    g = 0.1 * (y / max(naxis2 - 1, 1))
+    return ey, ex, g
+
+
+def _count_le(ey, ex_sorted, g, v, strict=False):
+    """Number of pixels of ``max(ey, ex) + g`` that are <= ``v`` (< with ``strict``).
+
+    Row ``y`` holds values <= v where both ``ey[y]`` and ``ex`` are <= ``v - g[y]``:
+    ``ex_sorted`` (ascending) gives the column count by binary search, O(ny log nx).
+    """
+    lim = v - g
+    side = "left" if strict else "right"
+    ok = (ey < lim) if strict else (ey <= lim)
+    cols = np.searchsorted(ex_sorted, lim, side=side)
+    return int(np.sum(np.where(ok, cols, 0)))
+
+
+def _order_stat(count_le, k, lo, hi):
+    """Smallest ``v`` in ``[lo, hi]`` with ``count_le(v) >= k + 1`` (bisection to the
+    last float64 bit)."""
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        if count_le(mid) >= k + 1:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+@functools.lru_cache(maxsize=8)
+def _synthetic_stats(naxis2, naxis1):
+    """Median and robust sigma (1.4826 MAD) of the raw synthetic template.
+
+    Computed from the separable form by counting (:func:`_count_le`) and bisection,
+    without building the image: O(ny log nx) per step instead of sorting ny * nx values
+    (1.6 s for 4096^2).  Exact to float64 rounding.
+    """
+    ey, ex, g = _profiles(naxis2, naxis1)
+    exs = np.sort(ex)
+    n = naxis1 * naxis2
+    lo, hi = float(min(ey.min(), ex.min()) - 1.0), float(max(ey.max(), ex.max()) + 1.0)
+    le = functools.partial(_count_le, ey, exs, g)
+
+    def median(count, a, b):
+        if n % 2:
+            return _order_stat(count, n // 2, a, b)
+        return 0.5 * (_order_stat(count, n // 2 - 1, a, b) + _order_stat(count, n // 2, a, b))
+
+    med = median(le, lo, hi)
+    # |img - med| <= t  <=>  med - t <= img <= med + t
+    mad = median(lambda t: le(med + t) - le(med - t, strict=True), 0.0, hi - lo)
+    sig = mad * 1.4826
+    if not sig > 0:            # degenerate (tiny) arrays: fall back as _normalise does
+        sig = float(np.std(np.maximum(ey[:, None], ex[None, :]) + g[:, None]))
+    return med, sig
+
+
+def _synthetic_region(naxis2, naxis1, y0, y1, x0, x1):
+    """Rows ``y0:y1`` and columns ``x0:x1`` of :func:`synthetic_template` (float64)."""
+    med, sig = _synthetic_stats(naxis2, naxis1)
+    ey, ex, g = _profiles(naxis2, naxis1)
+    img = np.maximum(ey[y0:y1, None], ex[None, x0:x1])
+    img += g[y0:y1, None]
+    if not np.isfinite(sig) or sig <= 0:
+        return np.zeros_like(img)
+    img -= med
+    img /= sig
+    return img
+
+
 def synthetic_template(naxis2, naxis1):
     """Synthetic picture-frame template of the full array, shape (naxis2, naxis1).
 
     ``exp(-d / w)`` with ``d`` the distance to the nearest edge and ``w = min(shape)/24``,
-    plus a 10 % linear gradient along rows, normalised to unit robust sigma.
+    plus a 10 % linear gradient along rows, normalised to zero median and unit robust
+    sigma (the statistics are computed without building the image, see
+    :func:`_synthetic_stats`; cached per array size).
     """
-    y = np.arange(naxis2, dtype=float)[:, None]
-    x = np.arange(naxis1, dtype=float)[None, :]
-    d = np.minimum(np.minimum(y, naxis2 - 1 - y), np.minimum(x, naxis1 - 1 - x))
-    w = max(min(naxis1, naxis2) / 24.0, 1.0)
-    img = np.exp(-d / w) + 0.1 * (y / max(naxis2 - 1, 1))
-    return _normalise(img)
+    return _synthetic_region(naxis2, naxis1, 0, naxis2, 0, naxis1)
 
 
 def load_template(path, detector):
@@ -75,6 +157,6 @@ def template_for(detector, path=None):
     """Template for the read-out image of ``detector``, shape (ny, nx), float32."""
     if path:
         return load_template(path, detector).astype(np.float32)
-    full = synthetic_template(detector.naxis2, detector.naxis1)
-    return full[detector.y0:detector.y0 + detector.ny,
-                detector.x0:detector.x0 + detector.nx].astype(np.float32)
+    return _synthetic_region(detector.naxis2, detector.naxis1,
+                             detector.y0, detector.y0 + detector.ny,
+                             detector.x0, detector.x0 + detector.nx).astype(np.float32)
