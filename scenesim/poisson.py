@@ -22,10 +22,23 @@ so that ``P(X = k) = F(k) - F(k-1) = p_k``.  Vectorised: all elements start at
 *active* elements (``R > 0``, i.e. ``U > F(k-1)``) and counts the passes each element
 survives.  ``F(k)`` is non-decreasing in floating point too (adding ``p >= 0``), so an
 element that stops never restarts and ``X = #{k : R_k > 0}``.  When the active set has
-shrunk below half of the arrays being processed, it is compressed (``np.flatnonzero`` and
+shrunk below half of the arrays being processed, it is compressed (``nonzero`` and
 ``take``), so late passes touch only the few elements still in the tail.  The uniform
 is drawn into the output buffer (viewed as float64) and ``R`` is updated there in
-place, which saves one array allocation per call.
+place, which saves one array allocation per call.  Pass 0 is the fast path of tiny
+means: ``X = 0`` wherever ``U <= exp(-lam)`` (97.5 % of the elements at
+``lam = 0.025``), and only the rest is searched further.
+
+Routing: means above ``small`` go to ``g.poisson`` (PTRS for ``lam >= 10``).  So do
+the means above ``_FEW_LAM = 1`` when there are at most ``_FEW = 256`` of them (a
+star on a faint background): the search runs about ``max(lam)`` passes of ~6 numpy
+calls (~3-4 us each pass for a small active set), so a handful of bright elements
+would cost ~10-20 passes, while ``g.poisson`` draws them in ~50 ns each.  Both
+samplers are exact, so the routing changes run time, not the law.  The elements that
+go to ``g.poisson`` keep their place in the inversion with their mean set to 0 (their
+uniform is drawn and unused) when they are at most half of the array, which is
+cheaper than gathering and scattering the rest; otherwise only the others are
+gathered for the inversion.
 
 Exactness
 ---------
@@ -41,11 +54,12 @@ law; this changes the distribution by < 1e-15 in total variation.  ``lam = 0`` g
 ``p_0 = 1`` and ``R = U - 1 < 0``, i.e. exactly 0, from the same single uniform.
 Means above ``small`` are drawn with ``g.poisson`` (PTRS, Hormann 1993), exact.
 
-Random-number consumption is fixed by the input: ``g.random(n_small)`` (one float64
-per element with ``lam <= small``, in array order), then ``g.poisson`` for the rare
-guard leftovers, then ``g.poisson`` for the elements with ``lam > small`` in array
-order.  The same generator state therefore gives the same output.  It is *not* the
-same stream as ``g.poisson(lam)``.
+Random-number consumption is fixed by the input: ``g.random`` for the inversion (one
+float64 per element of the inversion array, in array order: every element, or only
+the elements not routed to ``g.poisson`` when those are more than half), then
+``g.poisson`` for the rare guard leftovers, then ``g.poisson`` for the routed
+elements in array order.  The same generator state and means therefore give the same
+output.  It is *not* the same stream as ``g.poisson(lam)``.
 
 Cost model
 ----------
@@ -69,6 +83,13 @@ fresh output each call for both; ``python -m scenesim.poisson`` reprints it):
 at 30, so ``small`` may be raised to 20, but the default 10 keeps the PTRS branch for
 every mean where numpy itself switches to it.  Numbers vary by +-30 % with machine load
 and with the allocator (first-touch page faults dominate some rows).
+
+Small arrays are dominated by per-call overhead (~0.4-1.5 us per numpy call).  The
+64x64 time-series window (0.51 e-/s x 49.4 ms = 0.025 e- per read plus one star with
+24 pixels above 1 e-, up to 72 e-), best of 200 calls, one thread: 4096 means (one
+read) 78 -> 52 us with the routing above, 20480 means (five reads in one call, as the
+engine batches them) 224 -> 158 us, i.e. 7.7 ns per draw (``g.poisson``: 11.7 ns per
+draw at this mean).
 """
 
 import functools
@@ -92,6 +113,10 @@ _TAIL = 1e-15
 #: Compress the active set when fewer than this fraction of the processed elements
 #: are still active (measured optimum between 0.3 and 0.5).
 _COMPRESS = 0.5
+#: When at most ``_FEW`` elements have a mean above ``_FEW_LAM``, they are drawn with
+#: ``g.poisson`` (see :func:`poisson`).
+_FEW = 256
+_FEW_LAM = 1.0
 
 
 def _k_max(lam_max):
@@ -155,7 +180,7 @@ def _inversion(g, lam, out):
     since = 1
     while True:
         if n_act < _COMPRESS * active.size or n_act == 0 or k == k_max or since == 255:
-            sel = np.flatnonzero(active)
+            sel = active.nonzero()[0]
             if idx is None:
                 # R is no longer needed where it lives: keep the active R's, then
                 # overwrite the shared buffer with the counts.
@@ -202,7 +227,9 @@ def poisson(g, lam, *, small=10.0):
         float64.
     small : float, keyword-only, default 10.0
         Elements with ``lam <= small`` are drawn by vectorised inversion (one uniform
-        each); larger ones with ``g.poisson``.  ``0 <= small <= 100``.
+        each); larger ones with ``g.poisson``, and so are the elements above 1 when
+        there are at most 256 of them (see the module docstring).
+        ``0 <= small <= 100``.
 
     Returns
     -------
@@ -242,16 +269,28 @@ def poisson(g, lam, *, small=10.0):
     if flat.size and lo > small:
         return g.poisson(flat).astype(np.int64, copy=False).reshape(lam.shape)
     out = np.empty(flat.size, np.int64)
-    if flat.size == 0 or hi <= small:
+    is_large = None
+    if flat.size and hi > small:
+        is_large = flat > small
+    if flat.size and hi > _FEW_LAM and small > _FEW_LAM:
+        # A few means above _FEW_LAM would keep the search running for ~lam passes
+        # over an almost empty active set: draw them with g.poisson instead.
+        over = flat > _FEW_LAM
+        if np.count_nonzero(over) <= _FEW:
+            is_large = over
+    if is_large is None:
         _inversion(g, flat, out)
         return out.reshape(lam.shape)
-    is_small = flat <= small
-    small_idx = np.flatnonzero(is_small)
-    if small_idx.size:
+    large_idx = is_large.nonzero()[0]
+    if 2 * large_idx.size <= flat.size:
+        # Inversion over the whole array with the large means set to 0 (their
+        # uniforms are drawn and unused: cheaper than gathering and scattering).
+        _inversion(g, np.where(is_large, 0.0, flat), out)
+    else:
+        small_idx = (~is_large).nonzero()[0]
         out_small = np.empty(small_idx.size, np.int64)
         _inversion(g, flat[small_idx], out_small)
         out[small_idx] = out_small
-    large_idx = np.flatnonzero(~is_small)
     out[large_idx] = g.poisson(flat[large_idx])
     return out.reshape(lam.shape)
 

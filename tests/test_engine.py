@@ -431,3 +431,71 @@ def test_variable_source_exact_charge_two_integrations(reset_mode):
             others = np.ones(det.shape, bool)
             others[pix[:, 0], pix[:, 1]] = False
             assert np.all(c[i, k][others] == 0)
+
+
+def test_sparse_chunk_grouped_reads_poisson_and_independent():
+    """A third of the pixels charged (a sparse stream chunk, its 20 reads drawn in one
+    call): increments are Poisson(lam) there and 0 elsewhere, and increments of
+    consecutive reads and of the two integrations are uncorrelated."""
+    det = _det()
+    lam = 0.3
+    nreads = 20
+    yy, xx = np.mgrid[:det.ny, :det.nx]
+    on = ((xx + 2 * yy) % 3 == 0) & ~det.reference_mask()
+    ro = Readout.from_reads([[k] for k in range(nreads)], nints=2)
+    eng = ChargeEngine(det, ro, rate=np.where(on, lam / det.frame_time, 0.0), rng=99)
+    # the layout this test is about: one chunk drawing only its charged pixels, all
+    # reads of an integration in one group
+    assert len(eng._chunks) == 1 and eng._chunks[0][2] is not None
+    assert eng._group >= nreads
+    charge, _ = _collect(eng)
+    cum = charge[:, :, on]                                   # (nints, nreads, npix)
+    inc = np.diff(np.concatenate([np.zeros_like(cum[:, :1]), cum], axis=1), axis=1)
+    assert np.all(charge[:, :, ~on] == 0)
+    assert np.all(inc == np.rint(inc)) and np.all(inc >= 0)
+    x = inc.ravel()
+    n = x.size
+    # 5 sigma of the sample mean and variance (see test_poisson_increments)
+    assert abs(x.mean() - lam) < 5 * np.sqrt(lam / n)
+    assert abs(x.var(ddof=1) - lam) < 5 * np.sqrt((2 * lam ** 2 + lam) / n)
+
+    def corr(a, b):
+        a, b = a.ravel() - a.mean(), b.ravel() - b.mean()
+        return float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
+
+    # Pearson r of m independent pairs: sd ~ 1/sqrt(m); 5 sigma
+    m = inc[:, 1:].size
+    assert abs(corr(inc[:, 1:], inc[:, :-1])) < 5 / np.sqrt(m)
+    m = inc[0].size
+    assert abs(corr(inc[0], inc[1])) < 5 / np.sqrt(m)
+
+
+@pytest.mark.parametrize("case", ["exact", "sparse", "gauss", "2d"])
+def test_multichunk_results_threads_independent(case):
+    """Several stream chunks on the thread pool (> 65536 charged pixels), dense or
+    sparse chunks, grouped reads, a light-curve source and two integrations: the
+    charge and the SCI are identical for threads=1 and threads=2."""
+    det = preset("H2RG", naxis1=512, naxis2=512)
+    g = np.random.default_rng(31)
+    rate = g.uniform(0, 50, det.shape)
+    if case == "sparse":
+        rate[g.random(det.shape) > 0.4] = 0.0                # ~40 % charged
+    idx = np.arange(200 * 512 + 100, 200 * 512 + 140)        # a stamp in one chunk
+    src = VariableSource(idx, np.full(idx.size, 300.0), LightCurve.step(2.5 * 0.7))
+    ro = Readout.from_reads([[k] for k in range(5)], nints=2)
+    opts = {"exact": {}, "sparse": {}, "gauss": {"gauss_above": 20.0},
+            "2d": {"arrivals": "2d"}}[case]
+
+    def run(threads):
+        eng = ChargeEngine(det, ro, rate=rate, variable_sources=[src], rng=5,
+                           options=EngineOptions(threads=threads, **opts))
+        assert len(eng._chunks) == 4 and eng._npix_charged > 65536   # pool is used
+        assert eng._group == (2 if case == "sparse" else 1)
+        charge, _ = _collect(eng)
+        return charge, write_exposure(eng, None)["sci"]
+
+    c1, s1 = run(1)
+    c2, s2 = run(2)
+    np.testing.assert_array_equal(c1, c2)
+    np.testing.assert_array_equal(s1, s2)
+    assert np.all(c1[:, :, det.reference_mask()] == 0)

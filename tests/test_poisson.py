@@ -12,7 +12,7 @@ from scenesim.poisson import _k_max, _k_max_exact, poisson
 N = 200_000
 
 
-@pytest.mark.parametrize("lam", [1e-3, 0.1, 1.0, 3.0, 9.9, 10.1, 100.0, 1e4])
+@pytest.mark.parametrize("lam", [1e-3, 0.025, 0.1, 0.3, 1.0, 3.0, 9.9, 10.1, 100.0, 1e4])
 def test_mean_and_variance(lam):
     g = np.random.default_rng(20240611)
     x = poisson(g, np.full(N, lam))
@@ -114,3 +114,82 @@ def test_bad_small(small):
 def test_bad_generator():
     with pytest.raises(ParameterError, match="'g'"):
         poisson(np.random.RandomState(0), np.ones(3))
+
+
+def _chi2_pvalue(x, lam):
+    """Chi-square p-value of the counts ``x`` against the Poisson(lam) pmf.
+
+    Bins k = 0 .. K-1 and a tail bin k >= K, with K the largest k whose tail holds an
+    expected count of at least 20 (so every bin expects >= 20: the chi-square law of
+    the statistic holds).
+    """
+    n = x.size
+    pmf = stats.poisson(lam)
+    K = int(np.max(np.flatnonzero(n * pmf.sf(np.arange(200) - 1) >= 20)))
+    obs = np.bincount(np.minimum(x, K), minlength=K + 1)
+    exp = n * np.append(pmf.pmf(np.arange(K)), pmf.sf(K - 1))
+    assert obs.sum() == n and K >= 1
+    return stats.chisquare(obs, exp).pvalue
+
+
+# Layouts of one call (4096 means): the background at a tiny mean plus
+#   few:  40 means of 4.0 (at most 256 above 1: routed to g.poisson, kept in place),
+#   many: 1000 means of 4.0 (more than 256 above 1: all drawn by inversion),
+#   most: 3000 means of 20.0 (above `small` and more than half: the background is
+#         gathered for the inversion).
+_LAYOUTS = {"few": (40, 4.0), "many": (1000, 4.0), "most": (3000, 20.0)}
+
+
+@pytest.mark.parametrize("layout", list(_LAYOUTS))
+@pytest.mark.parametrize("lam", [1e-3, 0.025, 0.3])
+def test_tiny_means_among_bright_ones(lam, layout):
+    """Tiny means (the pass-0 fast path of the inversion) drawn together with brighter
+    elements, as in a star on a faint background: both groups follow their Poisson
+    law whichever way the bright ones are routed."""
+    n_bright, lam_b = _LAYOUTS[layout]
+    g = np.random.default_rng(20251121)
+    pos = np.random.default_rng(1).permutation(4096)[:n_bright]   # scattered
+    means = np.full(4096, lam)
+    means[pos] = lam_b
+    bright = np.zeros(4096, bool)
+    bright[pos] = True
+    calls = 100
+    x = np.stack([poisson(g, means) for _ in range(calls)])
+    bg, br = x[:, ~bright].ravel(), x[:, bright].ravel()
+    for v, mu in ((bg, lam), (br, lam_b)):
+        n = v.size
+        # 5 sigma of the sample mean (sd sqrt(mu / n)) and variance
+        # (sd sqrt((mu + 2 mu^2) / n)), as in test_mean_and_variance
+        assert abs(v.mean() - mu) < 5 * math.sqrt(mu / n)
+        assert abs(v.var(ddof=1) - mu) < 5 * math.sqrt((mu + 2 * mu ** 2) / n)
+        # Fixed seed; a correct sampler fails with probability 1e-4 per check.
+        assert _chi2_pvalue(v, mu) > 1e-4
+
+
+def test_tiny_mean_two_plus_counts():
+    """At lam = 1e-3 the chi-square above sees only k = 0 and k >= 1; check k >= 2
+    separately: 2e6 draws expect N P(X >= 2) = 0.999 such counts (Poisson), so at
+    most 8 (P(more) = 1e-6), and the k = 1 count within 5 sigma of N p_1 (a
+    binomial count: sd <= sqrt(N p_1))."""
+    g = np.random.default_rng(4)
+    lam, n = 1e-3, 2_000_000
+    x = np.concatenate([poisson(g, np.full(n // 10, lam)) for _ in range(10)])
+    p1, p2 = stats.poisson(lam).pmf(1), stats.poisson(lam).sf(1)
+    assert np.count_nonzero(x >= 2) <= 8 and stats.poisson(n * p2).sf(8) < 2e-6
+    assert abs(np.count_nonzero(x == 1) - n * p1) < 5 * math.sqrt(n * p1)
+
+
+def test_routing_keeps_values_in_place():
+    """Bright means routed to g.poisson land at their own positions: with means of
+    1e4 and 0 interleaved among a tiny background, every draw is near its own mean."""
+    g = np.random.default_rng(8)
+    means = np.full(5000, 0.025)
+    means[7::61] = 1e4                                  # 82 elements: routed
+    means[3::61] = 0.0
+    for _ in range(20):
+        x = poisson(g, means)
+        # Poisson(1e4): sd 100; 7 sd bounds every one of 1640 draws (P ~ 2e-9)
+        assert np.all(np.abs(x[7::61] - 1e4) < 700)
+        assert np.all(x[3::61] == 0)
+        # Poisson(0.025) exceeds 6 with probability ~2e-15 per draw
+        assert x[means == 0.025].max() <= 6
