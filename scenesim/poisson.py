@@ -61,6 +61,25 @@ the elements not routed to ``g.poisson`` when those are more than half), then
 elements in array order.  The same generator state and means therefore give the same
 output.  It is *not* the same stream as ``g.poisson(lam)``.
 
+One mean shared by most elements
+--------------------------------
+A frame's read interval is the same for every pixel after the first read, so a uniform
+background gives most pixels the *same* mean.  When a call of at least 4096 means has
+one value held by at least half of them (16 evenly spaced probes propose it, one
+comparison pass confirms it), every element is drawn from that mean by **guide-table
+inversion** (Chen & Asau 1974; Devroye 1986, ch. III.2.4) and the other elements are
+then overwritten by their own draws (the rules here, recursively).  The table splits
+``[0, 1)`` into ``M = 2**16`` buckets; ``guide[b]`` is the value ``X(u)`` common to
+every ``u`` of bucket ``b``, or a mark when ``F`` steps inside it.  A draw takes 16
+random bits ``b`` (four per raw 64-bit output of the bit generator) and one table
+look-up; only in a marked bucket (probability about ``k_max / M``, < 0.3 %) does it draw
+a 53-bit ``v`` and invert ``u = (b + v) / M`` by binary search on ``F``.  ``u`` is
+thereby uniform to 69 bits where it matters and the law is exact up to the float64
+values of ``F`` (scipy's ``pdtr``, relative error ~1e-15), as for the inversion.  A
+dominant mean of 0 gives zeros without any draw.  Cost: ~4-5 ns per element instead of
+9-40 ns (for means up to 100; larger ones keep the rules above).  Random-number
+consumption is still fixed by the input values alone.
+
 Cost model
 ----------
 Per element: one uniform (~2.4 ns), one ``exp`` (~1 ns, SIMD), then about ``lam + 1``
@@ -98,6 +117,7 @@ import numbers
 import time
 
 import numpy as np
+from scipy.special import pdtr
 
 from noise.errors import ParameterError
 
@@ -215,6 +235,80 @@ def _inversion(g, lam, out):
         n_act = int(np.count_nonzero(active))
 
 
+# ------------------------------------------------------------ one mean, many elements
+#: Arrays at least this long are checked for a dominant mean (:func:`_dominant`).
+_SHARED_MIN = 4096
+#: Largest common mean drawn from a guide table (larger ones straddle more buckets).
+_SHARED_MAX = 100.0
+#: Guide-table resolution: buckets of width 2**-16 of the uniform.
+_GUIDE_BITS = 16
+
+
+@functools.lru_cache(maxsize=64)
+def _guide(lam):
+    """Guide table and CDF of Poisson(``lam``), ``0 < lam <= _SHARED_MAX``.
+
+    ``guide[b]`` is the value ``X(u) = min{k : u < F(k)}`` shared by every ``u`` of
+    bucket ``[b, b + 1) / M`` (``M = 2**16``), or 255 when ``F`` steps inside the bucket
+    (uint8: ``k_max(100) < 255``; a 64 kB table that stays in cache).
+    ``F(k)`` is scipy's regularised incomplete gamma ``pdtr`` (relative error ~1e-15)
+    up to ``k_max`` (the same ``P(X > k_max) < 1e-15`` cap as the inversion).
+    """
+    m = 1 << _GUIDE_BITS
+    cdf = pdtr(np.arange(_k_max(lam) + 1, dtype=np.float64), lam)
+    edges = np.arange(m + 1, dtype=np.float64) / m
+    lo = np.searchsorted(cdf, edges[:-1], side="right")
+    hi = np.searchsorted(cdf, np.nextafter(edges[1:], 0.0), side="right")
+    guide = np.where(lo == hi, lo, 255).astype(np.uint8)
+    guide.flags.writeable = False
+    cdf.flags.writeable = False
+    return guide, cdf
+
+
+def _shared(g, lam, n, out):
+    """``out[:] =`` ``n`` Poisson(``lam``) draws of one mean, by guide-table inversion.
+
+    Inversion of ``u = (b + v) / M`` with the bucket ``b`` 16 random bits and, only
+    where the bucket straddles a step of ``F`` (probability ~``k_max / M``), ``v`` a
+    53-bit float64 uniform: ``u`` is then uniform to 69 bits there, and elsewhere the
+    bucket alone fixes ``X``.  Exact to the float64 rounding of ``F`` (as the
+    inversion); ``u`` beyond ``F(k_max)`` (probability < 1e-15) is redrawn with
+    ``g.poisson``.  Cost ~3 ns per draw against 9-40 ns for the searches.
+    """
+    if lam == 0.0:
+        out[:] = 0
+        return
+    guide, cdf = _guide(lam)
+    # 16-bit buckets: the four 16-bit slices of each raw 64-bit output of the bit
+    # generator (PCG64's output bits are all uniform and independent)
+    b = g.bit_generator.random_raw(-(-n // 4)).view(np.uint16)[:n]
+    k = guide[b]
+    s = (k == 255).nonzero()[0]
+    out[:] = k
+    if s.size:
+        u = (b[s] + g.random(s.size)) * (1.0 / (1 << _GUIDE_BITS))
+        ks = np.searchsorted(cdf, u, side="right")
+        beyond = ks >= cdf.size
+        if beyond.any():
+            ks[beyond] = g.poisson(lam, int(beyond.sum()))
+        out[s] = ks
+
+
+def _dominant(flat):
+    """A mean held by at least half of ``flat`` (float64, 1-D), or None.
+
+    16 evenly spaced probes propose the most frequent value; one pass confirms it.
+    """
+    probes = flat[np.linspace(0, flat.size - 1, 16).astype(np.intp)]
+    vals, counts = np.unique(probes, return_counts=True)
+    if counts.max() < 6:
+        return None
+    c = float(vals[np.argmax(counts)])
+    if not c <= _SHARED_MAX:
+        return None
+    return c
+
+
 def poisson(g, lam, *, small=10.0):
     """Exact Poisson variates; inversion for means ``<= small``, numpy above.
 
@@ -266,6 +360,19 @@ def poisson(g, lam, *, small=10.0):
             bad = flat[~((flat >= 0.0) & (flat <= _LAM_MAX))][0]
             raise ParameterError(f"'lam' must be finite and in [0, {_LAM_MAX:.4g}], "
                                  f"got {bad!r}")
+    if flat.size >= _SHARED_MIN:
+        c = _dominant(flat)
+        if c is not None:
+            other = (flat != c).nonzero()[0]
+            if 2 * other.size <= flat.size:
+                # Most elements share one mean (a uniform background over a frame
+                # whose pixels all integrate the same interval): a guide table for
+                # all of them, then the others overwritten with their own draws.
+                out = np.empty(flat.size, np.int64)
+                _shared(g, c, flat.size, out)
+                if other.size:
+                    out[other] = poisson(g, flat[other], small=small)
+                return out.reshape(lam.shape)
     if flat.size and lo > small:
         return g.poisson(flat).astype(np.int64, copy=False).reshape(lam.shape)
     out = np.empty(flat.size, np.int64)

@@ -7,15 +7,27 @@ import pytest
 from scipy import stats
 
 from noise.errors import ParameterError
-from scenesim.poisson import _k_max, _k_max_exact, poisson
+from scenesim.poisson import _GUIDE_BITS, _guide, _k_max, _k_max_exact, poisson
 
 N = 200_000
 
 
-@pytest.mark.parametrize("lam", [1e-3, 0.025, 0.1, 0.3, 1.0, 3.0, 9.9, 10.1, 100.0, 1e4])
-def test_mean_and_variance(lam):
+def _means(lam, n, path):
+    """``n`` means of ``lam``: all equal ('shared': the guide-table path), or cycling
+    through lam * (1 - 1e-12, 1, 1 + 1e-12) so that no value holds half of them
+    ('search': the sequential-search inversion / numpy).  The 1e-12 changes no
+    moment at the precision tested."""
+    if path == "shared":
+        return np.full(n, lam)
+    return lam * (1.0 + 1e-12 * (np.arange(n) % 3 - 1.0))
+
+
+@pytest.mark.parametrize("path", ["shared", "search"])
+@pytest.mark.parametrize("lam", [1e-3, 0.025, 0.1, 0.3, 1.0, 3.0, 9.9, 10.1, 30.0, 100.0,
+                                 1e4])
+def test_mean_and_variance(lam, path):
     g = np.random.default_rng(20240611)
-    x = poisson(g, np.full(N, lam))
+    x = poisson(g, _means(lam, N, path))
     assert x.dtype == np.int64 and x.shape == (N,)
     # Sample mean: sd sqrt(lam / N); 5 sigma.
     assert abs(x.mean() - lam) < 5 * math.sqrt(lam / N)
@@ -24,18 +36,24 @@ def test_mean_and_variance(lam):
     assert abs(x.var(ddof=1) - lam) < 5 * math.sqrt((lam + 2 * lam ** 2) / N)
 
 
-@pytest.mark.parametrize("lam", [3.0, 0.5])
-def test_pmf_chi_square(lam):
+@pytest.mark.parametrize("path", ["shared", "search"])
+@pytest.mark.parametrize("lam", [3.0, 0.5, 30.0, 100.0])
+def test_pmf_chi_square(lam, path):
     # Fixed seed: the test fails for this seed only if the draws are off; a correct
     # sampler would fail a fresh seed with probability 1e-4.
     g = np.random.default_rng(777)
-    x = poisson(g, np.full(N, lam))
+    x = poisson(g, _means(lam, N, path))
     pmf = stats.poisson(lam)
-    # Bins k = 0..kmax with expected count >= 20 each, the rest pooled into one tail bin.
-    kmax = int(np.max(np.flatnonzero(N * pmf.pmf(np.arange(60)) >= 20)))
-    obs = np.bincount(np.minimum(x, kmax + 1), minlength=kmax + 2)
-    exp = N * np.append(pmf.pmf(np.arange(kmax + 1)), pmf.sf(kmax))
-    assert obs.sum() == N and kmax >= 4
+    # Bins k = kmin..kmax with expected count >= 20 each; both tails pooled into one
+    # bin each (k < kmin, k > kmax).
+    ok = np.flatnonzero(N * pmf.pmf(np.arange(400)) >= 20)
+    kmin, kmax = int(ok.min()), int(ok.max())
+    obs = np.bincount(np.clip(x, kmin - 1, kmax + 1) - (kmin - 1), minlength=kmax - kmin + 3)
+    exp = N * np.concatenate([[pmf.cdf(kmin - 1)], pmf.pmf(np.arange(kmin, kmax + 1)),
+                              [pmf.sf(kmax)]])
+    if kmin == 0:                      # no lower tail bin
+        obs, exp = obs[1:], exp[1:]
+    assert obs.sum() == N and kmax - kmin >= 4
     assert stats.chisquare(obs, exp).pvalue > 1e-4
 
 
@@ -193,3 +211,42 @@ def test_routing_keeps_values_in_place():
         assert np.all(x[3::61] == 0)
         # Poisson(0.025) exceeds 6 with probability ~2e-15 per draw
         assert x[means == 0.025].max() <= 6
+
+
+@pytest.mark.parametrize("lam", [1e-3, 0.025, 1.0, 3.0, 10.0, 100.0])
+def test_guide_table_is_the_inverse_cdf(lam):
+    """Every bucket [b, b+1)/M of the uniform either maps to the one k that the exact
+    inverse CDF (scipy) gives at both of its ends, or is marked as straddling."""
+    guide, cdf = _guide(lam)
+    m = 1 << _GUIDE_BITS
+    exact = stats.poisson(lam).cdf(np.arange(cdf.size))
+    np.testing.assert_allclose(cdf, exact, rtol=0, atol=1e-14)
+    lo = np.searchsorted(exact, np.arange(m) / m, side="right")
+    hi = np.searchsorted(exact, (np.arange(m) + 1) / m - 1e-15, side="right")
+    pure = guide != 255
+    np.testing.assert_array_equal(guide[pure], lo[pure])
+    assert np.all(lo[pure] == hi[pure])
+    # straddling buckets are few: at most one per CDF step inside (0, 1)
+    assert np.count_nonzero(~pure) <= cdf.size
+
+
+def test_shared_mean_among_others_and_zero_background():
+    """A dominant mean (background) with scattered others: each group follows its own
+    law; a dominant mean of 0 gives exact zeros (no draws needed)."""
+    g = np.random.default_rng(31)
+    n = 8192
+    means = np.full(n, 2.0)
+    pos = np.random.default_rng(2).permutation(n)[:2000]
+    means[pos[:1000]] = 0.0
+    means[pos[1000:]] = 50.0
+    x = np.stack([poisson(g, means) for _ in range(50)])
+    for mu, sel in ((2.0, means == 2.0), (50.0, means == 50.0)):
+        v = x[:, sel].ravel()
+        # 5 sigma of the sample mean and variance, as in test_mean_and_variance
+        assert abs(v.mean() - mu) < 5 * math.sqrt(mu / v.size)
+        assert abs(v.var(ddof=1) - mu) < 5 * math.sqrt((mu + 2 * mu ** 2) / v.size)
+    assert not x[:, means == 0.0].any()
+    zero_bg = np.zeros(n)
+    zero_bg[::100] = 5.0
+    y = poisson(g, zero_bg)
+    assert not y[zero_bg == 0].any()
