@@ -538,7 +538,7 @@ def _plots(directory, fit, rate, var_opt, use, rows, notes):
 
 def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=None,
             radius=4.0, edges=DEFAULT_EDGES, cr_sigma=10.0, plots=None, notes=(),
-            readout=None):
+            readout=None, ipc_deconvolved=False):
     """Compare fitted slopes with the truth.
 
     Parameters
@@ -591,6 +591,16 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         notes.append("truth has no RATE_IPC: compared with RATE (before IPC and flat)")
     else:
         raise FileFormatError("truth has neither 'RATE_IPC' nor 'RATE'")
+    kernel = None
+    if ipc_deconvolved and "RATE_IPC" in truth:
+        from .fitting import header_ipc_kernel, undo_ipc
+        kernel = header_ipc_kernel(truth["header"])
+        if kernel is not None:
+            # what a fit of IPC-deconvolved ramps recovers: RATE_IPC with IPC undone
+            # (exact with a flat field too, which the engine applies after IPC)
+            rate = undo_ipc(rate, kernel, tolerance=1e-9 * max(1.0, np.abs(rate).max()))
+            notes.append("fit undid IPC (IPCDECON): compared with RATE_IPC with the "
+                         "IPCKERN kernel undone")
     if rate.shape != f["slope"].shape:
         raise FileFormatError(
             f"truth rate shape {rate.shape} does not match the fit's slope shape "
@@ -618,6 +628,9 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
             raise ParameterError("'read_noise' not given and neither the truth header "
                                  "(RDNOISE) nor the fit has it")
     read_noise = float(read_noise)
+    if kernel is not None:        # undoing IPC amplified the white read noise
+        from .fitting import ipc_noise_gain
+        read_noise *= ipc_noise_gain(kernel)
     if read_times is None:
         if "TFRAME" not in hdr:
             raise FileFormatError("truth header lacks 'TFRAME'; pass 'read_times' or the "
@@ -704,6 +717,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     gain = float(hdr["GAIN"]) if "GAIN" in hdr else None
     fit = read_slopes(fit_path, gain=gain)
     notes = [f"fit layout: {fit['layout']}"]
+    ipc_deconvolved = bool(fits.getheader(os.fspath(fit_path)).get("IPCDECON", False))
     read_times = nints = ro = None
     if exposure is not None:
         ro, ehdr = _readout_from_exposure(exposure)
@@ -714,4 +728,4 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
         notes.append("read times from the exposure's READS table")
     return compare(fit, truth, read_times=read_times, nints=nints, psf=psf,
                    radius=radius, edges=edges, cr_sigma=cr_sigma, plots=plots,
-                   notes=notes, readout=ro)
+                   notes=notes, readout=ro, ipc_deconvolved=ipc_deconvolved)

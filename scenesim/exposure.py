@@ -6,7 +6,13 @@ calibration library's ramp fitting without changing its layout:
 * primary HDU (no data) with the exposure keywords: NINTS, NGROUPS, NFRAMES, GROUPGAP,
   DROPFRM1, TFRAME, TGROUP, READPATT, NOUTPUTS, DETECTOR, SUBARRAY (+ SUBSTRT/SUBSIZE),
   GAIN (e-/DN), RDNOISE (e- per read, not CDS), SEED, SCENE and SSIMVER, plus every
-  detector and noise parameter;
+  detector and noise parameter, and the charge effects: FULLWELL (e-), NONLIN and
+  NLCOEFF (``c2,c3,...`` of ``m = q + c2 q^2 + c3 q^3``, e-), IPC (T/F) and, when
+  IPC is on, IPCKERN: the nine values of the 3x3 kernel of
+  :func:`scenesim.effects.apply_ipc`, row by row (``k[1+dy, 1+dx]`` is the fraction
+  of a pixel's signal seen by its neighbour at ``(y+dy, x+dx)``; ``%.10g``; the
+  engine's kernel as given, which ``apply_ipc`` renormalises to sum 1), so that a
+  fit can undo it (:func:`scenesim.fitting.header_ipc_kernel`);
 * ``SCI``: uint16 DN, shape (nints, ngroups, ny, nx), streamed resultant by resultant;
 * ``READS``: one row per resultant with its read indices, read times and mean time (the
   per-resultant read times that uneven patterns need).
@@ -252,6 +258,10 @@ def _header_cards(engine, cards):
     out.append(("FULLWELL", float(np.max(engine.full_well)) if engine.full_well is not None
                 else 0.0, "[e-] full well (max over pixels; 0 = none)"))
     out.append(("IPC", engine.ipc_kernel is not None, "IPC applied"))
+    if engine.ipc_kernel is not None:
+        kern = np.asarray(engine.ipc_kernel, dtype=np.float64).ravel()
+        out.append(("IPCKERN", ",".join(f"{v:.10g}" for v in kern),
+                    "3x3 IPC kernel row by row, k[1+dy,1+dx]"))
     out.append(("NONLIN", engine.nonlinearity is not None, "nonlinearity applied"))
     if engine.nonlinearity is not None:
         out.append(("NLCOEFF", ",".join(f"{c:.10g}" for c in engine.nonlinearity.coeffs),

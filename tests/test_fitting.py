@@ -83,6 +83,9 @@ def test_prepare_without_data_driven_steps_is_dn_times_gain(tmp_path):
     assert cards["RNSOURCE"] == "model" and cards["CMREMOVE"] is False
     assert cards["REFPIX"] == "none" and cards["RNCONV"] == "per read"
     assert cards["READPATT"] == "RAPID" and cards["NINTS"] == 2
+    # no IPC in this exposure: nothing undone, the read noise as in the header
+    assert cards["IPCDECON"] is False and cards["IPCRNFAC"] == 1.0
+    assert cards["IPC"] is False and "IPCKERN" not in cards
     # the reference correction is refpix.correct_reference on the e- cube
     q = prepare_exposure(path, refpix="jwst", remove_common_mode=False,
                          measure_noise=False)
@@ -188,6 +191,7 @@ def test_exposure_card_fits_for_a_long_path(tmp_path):
     (dict(remove_common_mode=1), "'remove_common_mode'"),
     (dict(measure_noise="no"), "'measure_noise'"),
     (dict(threads=0), "'threads'"),
+    (dict(deconvolve_ipc=1), "'deconvolve_ipc'"),
 ])
 def test_prepare_checks_parameters_before_reading(tmp_path, kwargs, match):
     with pytest.raises(ParameterError, match=match):

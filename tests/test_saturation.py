@@ -12,6 +12,11 @@ charge first reaches ``FW`` is known exactly from the simulation.
 What the defect was: a pixel held at ``FW`` reads ``(1 - 4a) p(FW) + a (sum of its
 neighbours)``, 0.90-0.92 FW for the bright-star scene's coefficients, so a level test
 at 97 % of ``FW`` never flags it, and the flat end of its ramp bends the slope.
+
+The pipeline tests (engine exposures through ``prepare_exposure``) cover both cases:
+IPC undone (the header records the kernel, ``IPCKERN``: flags on the pixels that
+reach FW only, the ADC ceiling judged on the raw ramps and grown), and IPC kept
+(``deconvolve_ipc=False`` or no ``IPCKERN``: flags grown to the 3 x 3 box).
 """
 
 import numpy as np
@@ -266,11 +271,10 @@ def test_reference_pixels_with_a_high_bias_are_not_saturated():
 
 
 # ---------------------------------------------------------------- pipeline
-def test_prepare_exposure_flags_engine_saturation_and_grows_with_ipc():
-    # The engine's own record of the first read at FW (RAPID: read = resultant)
-    # against prepare_exposure's flags for a star with IPC and nonlinearity in the
-    # header: every saturating pixel within one resultant, every flag within the
-    # 3 x 3 box of a saturating pixel and not before its onset.
+def _engine_exposure():
+    """An engine exposure of the star above (RAPID: read = resultant; FW reached at
+    read 12) with IPC and nonlinearity in the header, and the engine's record of the
+    first read at FW per pixel."""
     import noise
     from scenesim.engine import ChargeEngine, EngineOptions
     from scenesim.exposure import write_exposure
@@ -278,7 +282,6 @@ def test_prepare_exposure_flags_engine_saturation_and_grows_with_ipc():
 
     det = preset("H2RG", naxis1=32, naxis2=32)
     ro = Readout.multiaccum(1, 20, name="RAPID")
-    # the same star as above in frame times: FW reached at read 12
     rate = star(det.shape, [(15, 16)], [3.5e4 * T_FRAME / det.frame_time])
     eng = ChargeEngine(det, ro, rate=rate, full_well=FW,
                        nonlinearity=Nonlinearity((C2, C3)),
@@ -286,21 +289,67 @@ def test_prepare_exposure_flags_engine_saturation_and_grows_with_ipc():
                        noise_params=noise.NoiseParams(), rng=17,
                        options=EngineOptions(threads=1))
     out = write_exposure(eng, None)
-    truth = out["sat_read"].astype(np.int64)
-    assert np.sum(truth >= 0) >= 1
-    prep = prepare_exposure(out["exposure"], remove_common_mode=False,
-                            measure_noise=False)
+    return out["exposure"], out["sat_read"].astype(np.int64)
+
+
+def test_prepare_exposure_flags_engine_saturation_without_growth_once_ipc_undone():
+    # The header records the IPC kernel, so prepare_exposure undoes it before the
+    # flags: a full pixel then reads exactly p(FW) above its zero level and its
+    # neighbours no longer bend when it stops collecting.  Every saturating pixel
+    # is flagged within one resultant of the engine's first read at FW, and no
+    # other pixel is flagged (formerly the 3 x 3 box was, from the core's onset).
+    exp, truth = _engine_exposure()
+    assert "IPCKERN" in exp.header and np.sum(truth >= 0) >= 1
+    prep = prepare_exposure(exp, remove_common_mode=False, measure_noise=False)
     first = first_flag(prep.saturated)
     hit = truth >= 0
     assert np.all(np.abs(first[hit] - truth[hit]) <= 1)
-    # the earliest onset that can reach each pixel: its 3 x 3 box's
-    onset = np.where(hit, truth, 10 ** 6)
-    pad = np.pad(onset, ((0, 0), (1, 1), (1, 1)), constant_values=10 ** 6)
-    box = np.min([pad[:, 1 + dy:33 + dy, 1 + dx:33 + dx]
-                  for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
-    flagged = first >= 0
-    assert np.all(box[flagged] < 10 ** 6)
-    assert np.all(first[flagged] >= box[flagged] - 1)
+    assert np.all(first[~hit] < 0)
+
+
+def test_prepare_exposure_grows_flags_when_ipc_is_not_undone():
+    # deconvolve_ipc=False, or a file from before IPCKERN existed (kernel unknown):
+    # flags grown to the 3 x 3 box as JWST's n_pix_grow_sat = 1 -- every flag
+    # within the box of a saturating pixel and not before its onset, every
+    # saturating pixel within one resultant.
+    exp, truth = _engine_exposure()
+    old_header = exp.header.copy()
+    del old_header["IPCKERN"]
+    from scenesim.exposure import Exposure
+    for prep in (prepare_exposure(exp, remove_common_mode=False, measure_noise=False,
+                                  deconvolve_ipc=False),
+                 prepare_exposure(Exposure(exp.sci, old_header, exp.reads),
+                                  remove_common_mode=False, measure_noise=False)):
+        first = first_flag(prep.saturated)
+        hit = truth >= 0
+        assert np.all(np.abs(first[hit] - truth[hit]) <= 1)
+        # the earliest onset that can reach each pixel: its 3 x 3 box's
+        onset = np.where(hit, truth, 10 ** 6)
+        pad = np.pad(onset, ((0, 0), (1, 1), (1, 1)), constant_values=10 ** 6)
+        box = np.min([pad[:, 1 + dy:33 + dy, 1 + dx:33 + dx]
+                      for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+        flagged = first >= 0
+        assert np.all(box[flagged] < 10 ** 6)
+        assert np.all(first[flagged] >= box[flagged] - 1)
+        # grown: the whole box of the first saturating pixel is flagged
+        y, x = np.argwhere(hit[0])[0]
+        assert np.all(first[0, y - 1:y + 2, x - 1:x + 2] >= 0)
+
+
+def test_adc_ceiling_is_judged_on_the_raw_ramps_and_grown_when_ipc_undone():
+    # The ADC clip is not linear: undoing IPC would spread a clipped pixel's error
+    # (alpha times the clipped signal) into its neighbours, so with IPC undone the
+    # ceiling is tested on the raw ramps and its flags grown to the 3 x 3 box.
+    # Here one dark pixel is set to the 16-bit ceiling from resultant 6 on.
+    from scenesim.exposure import Exposure
+    exp, truth = _engine_exposure()
+    sci = exp.sci.copy()
+    sci[0, 6:, 8, 9] = 65535
+    prep = prepare_exposure(Exposure(sci, exp.header, exp.reads),
+                            remove_common_mode=False, measure_noise=False)
+    first = first_flag(prep.saturated)
+    np.testing.assert_array_equal(first[0, 7:10, 8:11], 6)
+    assert np.all(first[0, 5:13, 5:14][first[0, 5:13, 5:14] != 6] < 0)
 
 
 # ---------------------------------------------------------------- arguments
