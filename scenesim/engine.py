@@ -532,7 +532,7 @@ class ChargeEngine:
 
         noise_iter = None
         if self.noise is not None:
-            noise_iter = self.noise.frames(ro.nreads, needed, nints=nints)
+            noise_iter = self.noise.frames(ro.nreads, needed, nints=nints, reuse=True)
         maxdn = np.float32(2 ** self.adc_bits - 1)
         gain = np.float32(self.gain)
         q = np.empty(shape, dtype=np.float32) if self._has_charge else None
@@ -603,7 +603,9 @@ class ChargeEngine:
                     each(digitise)
                     rr.count += 1
                     if rr.count == len(rr.reads):
-                        out_dn = _mean_dn(rr.dn_sum, rr.count, maxdn)
+                        out_dn = np.empty(shape, dtype=np.uint16)
+                        each(lambda b, rr=rr: _mean_dn(rr.dn_sum[b], rr.count, maxdn,
+                                                       out_dn[b]))
                         ch = (rr.charge_sum / rr.count).astype(np.float32) \
                             if save_charge else None
                         nz = (rr.noise_sum / rr.count).astype(np.float32) \
@@ -644,13 +646,25 @@ class ChargeEngine:
         return out
 
 
-def _mean_dn(dn_sum, count, maxdn):
-    """uint16 resultant: the rounded mean of ``count`` digitised reads (exact sum)."""
+def _mean_dn(dn_sum, count, maxdn, out):
+    """``out[:] =`` uint16 resultant: the rounded mean of ``count`` digitised reads.
+
+    ``dn_sum`` is the exact uint32 sum.  For ``count <= 128`` the mean is taken in
+    float32, which gives the same result as float64: the sum (< 128 * 65536 = 2**23) is
+    exact in float32, the quotient is off by at most half an ulp (<= 2**-9 below
+    65536), while a quotient that is not exactly a half-integer is at least
+    ``1 / (2 count) >= 2**-8`` away from one, so rounding (half to even, as in float64
+    for exact halves) cannot change.  Larger counts use float64.
+    """
     if count == 1:
-        return dn_sum.astype(np.uint16)
-    m = dn_sum / count                      # float64: exact for any uint32 sum
+        np.copyto(out, dn_sum, casting="unsafe")
+        return out
+    dt = np.float32 if count <= 128 else np.float64
+    m = np.divide(dn_sum, dt(count), dtype=dt)
     np.rint(m, out=m)
-    return np.clip(m, 0, maxdn, out=m).astype(np.uint16)
+    np.clip(m, 0, maxdn, out=m)
+    np.copyto(out, m, casting="unsafe")
+    return out
 
 
 def _per_pixel(name, value, shape):
