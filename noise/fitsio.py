@@ -232,10 +232,10 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
             out.begin_image(shape, dtype, cards)
             # DN frames are converted in the generator's worker threads (bit-identical
             # to to_uint16_dn)
-            frames = generator.frames(nframes, nints=nints,
-                                      dn_gain=None if unit == "e" else gain)
             # frame k is written by a writer thread while frame k + 1 is generated
-            # (each frame is a new array; writes stay in order, one pending at most)
+            # (two frame buffers in turn; writes stay in order, one pending at most)
+            frames = generator.frames(nframes, nints=nints,
+                                      dn_gain=None if unit == "e" else gain, reuse=2)
             with ThreadPoolExecutor(1) as writer:
                 pending = None
                 try:

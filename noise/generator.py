@@ -224,14 +224,15 @@ class NoiseGenerator:
         # sharing one sigma row vector (a handful of runs instead of a full map)
         self._sig_runs = []
         if p.enabled("rd_noise"):
-            rd = p.per_output("rd_noise", nout)[det.output_of_column()]
-            sig = np.broadcast_to(rd[None, :], det.shape).astype(np.float32)
-            sig = np.where(det.reference_mask(), sig * np.float32(p.ref_ratio),
-                           sig).astype(np.float32)
-            starts = np.flatnonzero(np.any(sig[1:] != sig[:-1], axis=1)) + 1
+            rd = p.per_output("rd_noise", nout)[det.output_of_column()].astype(np.float32)
+            ref = det.reference_mask()
+            # rows differ only where the reference mask does (the sigma of a pixel is
+            # rd of its output, times ref_ratio on reference pixels)
+            starts = np.flatnonzero(np.any(ref[1:] != ref[:-1], axis=1)) + 1
             bounds = [0] + starts.tolist() + [det.ny]
-            self._sig_runs = [(a, b, sig[a].copy())
-                              for a, b in zip(bounds[:-1], bounds[1:])]
+            self._sig_runs = [
+                (a, b, np.where(ref[a], rd * np.float32(p.ref_ratio), rd).astype(np.float32))
+                for a, b in zip(bounds[:-1], bounds[1:])]
         # per-integration reset level: a map if kTC or the bias pattern is on
         self._level_map = p.ktc > 0 or p.bias_amp > 0
         self._chunks = [(c0, min(c0 + _WHITE_ROWS, det.ny))
@@ -440,7 +441,7 @@ class NoiseGenerator:
                 np.clip(d, 0, 65535, out=d)
                 out[a:b] = d
 
-    def frame(self, slot, integration, pool=None, *, dn_gain=None):
+    def frame(self, slot, integration, pool=None, *, dn_gain=None, out=None):
         """Noise frame of absolute frame slot ``slot`` in ``integration``.
 
         The frame is made in bands of rows: the rows of band ``k`` are assembled while
@@ -458,6 +459,9 @@ class NoiseGenerator:
         dn_gain : float, optional, keyword-only
             If given (e-/DN, > 0), return the frame in DN as :func:`noise.to_uint16_dn`
             would convert it, computed in the worker threads.
+        out : ndarray, optional, keyword-only
+            C-contiguous array of shape (ny, nx) and the returned dtype to write the
+            frame into (saves allocating, and the kernel zeroing, a fresh frame).
 
         Returns
         -------
@@ -488,7 +492,13 @@ class NoiseGenerator:
                 tasks.append((-series.nseries, len(tasks), task))
             return [task for *_, task in sorted(tasks)]
 
-        img = np.empty(det.shape, dtype=np.float32 if dn_gain is None else np.uint16)
+        dtype = np.float32 if dn_gain is None else np.uint16
+        if out is not None and (out.shape != det.shape or out.dtype != dtype
+                                or not out.flags.c_contiguous):
+            raise ParameterError(f"'out' must be a C-contiguous {np.dtype(dtype).name} "
+                                 f"array of shape {det.shape}, got {out.dtype} "
+                                 f"{out.shape}")
+        img = np.empty(det.shape, dtype=dtype) if out is None else out
 
         def rows(k):
             ra, rb = bands[k]
@@ -504,7 +514,8 @@ class NoiseGenerator:
             self._run(pool, (lines(k + 1) if k + 1 < len(bands) else []) + rows(k))
         return img
 
-    def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None):
+    def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None,
+               reuse=False):
         """Iterate over ``(integration, read, frame)`` of the requested reads in time order.
 
         Every argument is checked when this is called, before any frame is made.
@@ -526,11 +537,17 @@ class NoiseGenerator:
             Gain in e-/DN (> 0).  If given, frames are uint16 DN, exactly
             ``noise.to_uint16_dn(frame, dn_gain)`` of the float32 e- frames, but
             converted in the worker threads while the rows are in cache.
+        reuse : int or bool, keyword-only
+            If ``n >= 1`` (True: 1), frames are written into ``n`` arrays in turn, so a
+            yielded frame is overwritten ``n`` frames later: for consumers that are done
+            with a frame by then (the charge engine: 1; the FITS writer, which writes
+            one frame while the next is made: 2).  Saves a fresh frame per read (and
+            the kernel's zeroing of its pages).  Default 0: a new array per read.
 
         Returns
         -------
         iterator of (int, int, ndarray (ny, nx))
-            A new frame array per read: float32 e-, or uint16 DN with ``dn_gain``.
+            float32 e-, or uint16 DN with ``dn_gain``.
         """
         nreads = check_int("nreads", nreads, minimum=1)
         nints = check_int("nints", nints, minimum=1)
@@ -540,20 +557,28 @@ class NoiseGenerator:
             _index_list("integrations", integrations, nints)
         if dn_gain is not None:
             dn_gain = check_float("dn_gain", dn_gain, minimum=0.0, strict_min=True)
-        return self._frames(nreads, reads, ints, dn_gain)
+        nbuf = int(reuse) if isinstance(reuse, bool) else check_int("reuse", reuse,
+                                                                      minimum=0)
+        return self._frames(nreads, reads, ints, dn_gain, nbuf)
 
-    def _frames(self, nreads, reads, ints, dn_gain):
+    def _frames(self, nreads, reads, ints, dn_gain, nbuf):
         self._rtn_state = self._rtn_slot = None
         self._reset_int = None
         # small frames (windows) run inline: dispatching their tiny tasks to threads
         # costs more than it saves (results do not depend on it)
         big = self.detector.ny * self.detector.nx >= _POOL_MIN_PIXELS
         pool = ThreadPoolExecutor(self.threads) if self.threads > 1 and big else None
+        bufs, n = [], 0
         try:
             for i in ints:
                 for k in reads:
                     slot = i * (1 + nreads) + 1 + k
-                    yield i, k, self.frame(slot, i, pool, dn_gain=dn_gain)
+                    buf = bufs[n % nbuf] if nbuf and len(bufs) == nbuf else None
+                    img = self.frame(slot, i, pool, dn_gain=dn_gain, out=buf)
+                    if nbuf and buf is None:
+                        bufs.append(img)
+                    n += 1
+                    yield i, k, img
         finally:
             if pool is not None:
                 pool.shutdown()

@@ -620,3 +620,26 @@ def test_bad_dn_gain(gain):
 def test_cube_needs_at_least_one_frame(nframes, nints, match):
     with pytest.raises(ParameterError, match=match):
         _gen(ZERO_NOISE, rng=1).cube(nframes, nints=nints)
+
+
+@pytest.mark.parametrize("reuse", [1, 2, True])
+def test_reused_frame_buffers_give_the_same_frames(reuse):
+    """Frames written into rotating buffers equal fresh frames, and the buffers are
+    really reused (frame k and k + n share memory)."""
+    n = 2 if reuse == 2 else 1
+    ref = [f.copy() for *_, f in _gen(ALL_ON, rng=86).frames(4, nints=2)]
+    got, ids = [], []
+    for *_, f in _gen(ALL_ON, rng=86).frames(4, nints=2, reuse=reuse):
+        got.append(f.copy())
+        ids.append(id(f))
+    for a, b in zip(ref, got):
+        np.testing.assert_array_equal(a, b)
+    assert len(set(ids)) == n
+
+
+def test_bad_reuse_and_out():
+    gen = _gen(ALL_ON, rng=87)
+    with pytest.raises(ParameterError, match="'reuse'"):
+        gen.frames(2, reuse=-1)
+    with pytest.raises(ParameterError, match="'out'"):
+        gen.frame(1, 0, out=np.empty((3, 3), np.float32))

@@ -138,9 +138,10 @@ def test_default_spectrum_recorded_as_one_over_f(tmp_path):
 class _FailingGenerator(NoiseGenerator):
     """Yields one frame, then fails as a crashed run would."""
 
-    def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None):
+    def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None,
+               reuse=0):
         it = super().frames(nreads, reads, nints=nints, integrations=integrations,
-                            dn_gain=dn_gain)
+                            dn_gain=dn_gain, reuse=reuse)
         yield next(it)
         raise RuntimeError("simulated failure midway")
 
