@@ -517,7 +517,9 @@ def run_case(name, case, threads):
 
 def _child(name, case, threads, queue):
     import noise  # noqa: F401  (imports count in base_rss, not in the case's peak)
+    from noise.memory import keep_freed_memory
     from . import engine, exposure, fit, readout  # noqa: F401
+    keep_freed_memory()            # as the scenesim command does (noise.memory)
     try:
         queue.put(("ok", run_case(name, case, threads)))
     except BaseException as exc:  # report any failure to the parent, then exit

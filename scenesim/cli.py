@@ -16,6 +16,7 @@ import sys
 import time
 
 from noise.errors import ScenesimError
+from noise.memory import keep_freed_memory
 
 __all__ = ["main"]
 
@@ -194,6 +195,7 @@ def _parser():
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
     args = _parser().parse_args(argv)
+    keep_freed_memory()            # process-wide malloc policy: see noise.memory
     try:
         return args.func(args)
     except ScenesimError as exc:
