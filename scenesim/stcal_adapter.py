@@ -3,9 +3,11 @@
 :func:`fit_exposure_stcal` takes an exposure (a file written by scenesim, or the
 same contents in memory), runs *the same* pre-processing as
 :func:`scenesim.fitting.fit_exposure_file` -- literally the same function,
-:func:`scenesim.fitting.prepare_exposure`: DN to e- with ``GAIN``, saturation flags
-on the estimated last read of each resultant, reference correction, removal of the
-per-output common mode and the per-column read noise measured from the ramps --
+:func:`scenesim.fitting.prepare_exposure`: DN to e- with ``GAIN``, IPC undone when
+the header records its kernel (``IPCKERN``), saturation flags on the estimated last
+read of each resultant, reference correction, the classical nonlinearity inverted
+(``NLCOEFF``), removal of the per-output common mode and the per-column read noise
+measured from the ramps --
 hands the resulting ramps (the e- cube divided by ``GAIN``, in DN) and that same
 read-noise map (converted with :func:`stcal_read_noise`) to
 ``stcal.ramp_fitting.ramp_fit.ramp_fit_data``, and writes the rates in scenesim's
