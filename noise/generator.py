@@ -41,13 +41,13 @@ in bands of ``_BAND_ROWS`` rows with one barrier per band:
   same task.
 
 Measured on the 2-core development machine (full-frame H2RG, 4 outputs, NG defaults,
-steady state, in-process, fastest and median of 12-20 frames against the floor measured
-alternately in the same process): 1 thread 0.185-0.21 s per frame (1.55-1.75x the
-floor), 2 threads 0.105-0.117 s (1.7-1.8x; parallel efficiency ~0.94); with
-``pink_mode='fast'`` 0.133-0.148 s and 0.089-0.099 s (1.1-1.25x and 1.45-1.5x).  The
-previous implementation took 0.23 s and 0.125 s (~2.0x).  The first frame of a run also
-pays for the kTC map (counted in the floor), the coarse 1/f levels and first-touch
-memory (~0.1 s of CPU).
+steady state, in-process, 15 frames, ``reuse=1``, :func:`noise.memory.keep_freed_memory`
+applied): 1 thread 0.119-0.127 s per frame (0.8x the numpy float32 floor of 0.154 s,
+2.2x a floor drawn with :mod:`noise.normal`'s sampler, 0.058 s), 2 threads
+0.089-0.098 s (1.2x and 3.0x; the second thread buys only 1.3x, not diagnosed further:
+the FFTs and the frame assembly passes are the likely limit).  Before the Box-Muller sampler (numpy's ziggurat) it was
+0.185-0.21 s and 0.105-0.117 s.  The first frame of a run also pays for the kTC map,
+the coarse 1/f levels and first-touch memory (~0.1 s of CPU).
 
 Randomness: every component, output, chunk and block has its own stream,
 ``SeedSequence(entropy, spawn_key=prefix + (component, ...))``, so the frames do not
