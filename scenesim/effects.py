@@ -93,6 +93,7 @@ __all__ = [
     "Nonlinearity",
     "ipc_kernel",
     "apply_ipc",
+    "ipc_keep",
     "apply_flat",
     "to_dn",
     "from_dn",
@@ -448,6 +449,39 @@ def ipc_kernel(alpha, alpha_diag=0.0):
     return k
 
 
+def ipc_keep(kernel, ny, nx):
+    """Fraction of its own charge each pixel keeps under :func:`apply_ipc`.
+
+    The centre weight plus every offset whose destination is off the array (that charge
+    stays in the pixel, which is how :func:`apply_ipc` conserves charge at the edges).
+
+    Parameters
+    ----------
+    kernel : ndarray, shape (3, 3)
+        A checked IPC kernel.
+    ny, nx : int
+        Image shape.
+
+    Returns
+    -------
+    ndarray, shape (ny, nx), float64
+    """
+    k = np.asarray(kernel, dtype=np.float64)
+    keep = np.full((ny, nx), k[1, 1])
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            w = k[1 + dy, 1 + dx]
+            if (dy, dx) == (0, 0) or w == 0.0:
+                continue
+            off = np.zeros((ny, nx), dtype=bool)
+            if dy:
+                off[-1 if dy == 1 else 0, :] = True
+            if dx:
+                off[:, -1 if dx == 1 else 0] = True
+            keep[off] += w
+    return keep
+
+
 def apply_ipc(image, kernel):
     """Convolve the last two axes with a 3x3 IPC kernel, conserving charge.
 
@@ -478,23 +512,7 @@ def apply_ipc(image, kernel):
     dtype = np.result_type(img.dtype, np.float32)
     img = img.astype(dtype, copy=False)
     ny, nx = img.shape[-2:]
-    # Fraction each pixel keeps: the centre plus every offset whose target is off-array.
-    keep = np.full((ny, nx), k[1, 1])
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            w = k[1 + dy, 1 + dx]
-            if (dy, dx) == (0, 0) or w == 0.0:
-                continue
-            off = np.zeros((ny, nx), dtype=bool)
-            if dy == 1:
-                off[-1, :] = True
-            elif dy == -1:
-                off[0, :] = True
-            if dx == 1:
-                off[:, -1] = True
-            elif dx == -1:
-                off[:, 0] = True
-            keep[off] += w
+    keep = ipc_keep(k, ny, nx)
     out = img * keep.astype(dtype)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):

@@ -145,6 +145,7 @@ from astropy.io import fits
 from noise.detector import Detector, detector_from_header
 from noise.errors import FileFormatError, ParameterError
 
+from . import effects as fx
 from .exposure import Exposure
 from .fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
 from .readout import Readout
@@ -752,25 +753,6 @@ def _kernel_for_deconvolution(kernel):
     return k
 
 
-def _ipc_keep(k, ny, nx):
-    """Fraction of its own signal each pixel keeps under
-    :func:`scenesim.effects.apply_ipc`: the centre plus every offset whose target is
-    off the array, (ny, nx) float64."""
-    keep = np.full((ny, nx), k[1, 1])
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            w = k[1 + dy, 1 + dx]
-            if (dy, dx) == (0, 0) or w == 0.0:
-                continue
-            off = np.zeros((ny, nx), dtype=bool)
-            if dy:
-                off[-1 if dy == 1 else 0, :] = True
-            if dx:
-                off[:, -1 if dx == 1 else 0] = True
-            keep[off] += w
-    return keep
-
-
 #: Pixels per row block of the IPC deconvolution (the block and its halo stay in the
 #: cache through the iterations: 128 rows of a 2048-wide frame).
 _DECONV_BLOCK = 1 << 18
@@ -803,7 +785,7 @@ class _Deconvolver:
                        for w, offs in groups.items()]
         self.inv_centre = self.dtype.type(1.0 / k[1, 1])
         # border: x = (S - sum) / keep = (S / c - sum / c) * (c / keep)
-        keep = _ipc_keep(k, ny, nx)
+        keep = fx.ipc_keep(k, ny, nx)
         fac = (k[1, 1] / keep).astype(self.dtype)
         # max |K 1 - 1|, on the border only (0 for a kernel with k[1+d] = k[1-d]; see
         # __call__); K 1 at a pixel depends only on which of its neighbours exist,
