@@ -38,9 +38,10 @@ coarse series) to float32 rounding.
 
 Blocks are computed four at a time (scipy's FFT runs four transforms at once with
 SIMD: batches of a multiple of four rows cost half as much per transform), and the
-white noise is drawn straight into the FFT input layout, one row per block: group
-``g`` (four blocks) draws each row's ``B`` new samples from one stream and copies each
-row's first 4096 samples from the end of the previous row.
+white noise is laid out as the FFT input, one row per block: group ``g`` (four blocks)
+draws its ``4 B`` new samples per series from one stream in one call (few large calls
+keep the second thread from waiting on the GIL), copies them into the rows and copies
+each row's first 4096 samples from the end of the previous row.
 
 Properties:
 
@@ -332,8 +333,11 @@ class _Level:
             if g < 0:                    # the head of group 0: w[0, _OV)
                 self._draw(bitgen, arr[s, 0, self.B:])
                 continue
-            for k in range(self.group):
-                self._draw(bitgen, arr[s, k, _OV:])
+            # one call for the whole group (few large calls: the sampler's small
+            # per-block numpy calls would otherwise contend for the GIL)
+            tmp = np.empty((self.group, self.B), dtype=np.float32)
+            self._draw(bitgen, tmp)
+            arr[s, :, _OV:] = tmp
             for k in range(1, self.group):
                 arr[s, k, :_OV] = arr[s, k - 1, self.B:]
 
