@@ -75,6 +75,7 @@ switched on (a zero amplitude skips a component entirely without shifting any dr
 """
 
 import functools
+import math
 import numbers
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -103,6 +104,30 @@ _BAND_ROWS = 512      # rows per band of the 1/f pipeline (a multiple of _WHITE_
 _NSETS = 2            # band buffer sets (the lines of band k+1 while the rows of k run)
 _BATCH_PIXELS = 1 << 17   # small frames: pixels per batch (K frames made at once)
 _BATCH_FRAMES = 64        # ... and at most this many frames per batch
+
+
+def _to_dn(e, gain, out, d64):
+    """``out[:] =`` uint16 DN of float32 electrons ``e``, exactly as
+    :func:`noise.to_uint16_dn` (``rint(float64(e) / gain)`` clipped to [0, 65535]).
+
+    When ``gain`` is a power of two the quotient is exact in float32 as well (scaling
+    by 2**-k only changes the exponent), so the rounding is done in float32 in place in
+    ``e`` (two passes fewer, no float64 scratch); otherwise in the float64 scratch
+    ``d64`` (same shape).  Returns ``out``.
+    """
+    mant, _ = math.frexp(gain)
+    if mant == 0.5:                                   # gain = 2**k: exact in float32
+        if gain != 1.0:
+            np.multiply(e, np.float32(1.0 / gain), out=e)
+        np.rint(e, out=e)
+        np.clip(e, 0, 65535, out=e)
+        np.copyto(out, e, casting="unsafe")
+        return out
+    np.divide(e, gain, out=d64, dtype=np.float64)
+    np.rint(d64, out=d64)
+    np.clip(d64, 0, 65535, out=d64)
+    np.copyto(out, d64, casting="unsafe")
+    return out
 
 
 def root_seed(rng):
@@ -456,11 +481,7 @@ class NoiseGenerator:
                     blk.ravel()[self._rtn_idx[lo:hi] - a * nx] += \
                         np.float32(p.rtn_amp) * self._rtn_state[lo:hi]
             if dn_gain is not None:
-                d = dn[:b - a]
-                np.divide(blk, dn_gain, out=d, dtype=np.float64)     # as to_uint16_dn
-                np.rint(d, out=d)
-                np.clip(d, 0, 65535, out=d)
-                out[a:b] = d
+                _to_dn(blk, dn_gain, out[a:b], dn[:b - a])
 
     def frame(self, slot, integration, pool=None, *, dn_gain=None, out=None):
         """Noise frame of absolute frame slot ``slot`` in ``integration``.
@@ -634,13 +655,8 @@ class NoiseGenerator:
             batch = order[j0:j0 + K]
             m = len(batch)
             img = self._small_batch(batch, work[:m], scratch[:m], lines)
-            if dn_gain is not None:                                  # as to_uint16_dn
-                d = d64[:m]
-                np.divide(img, dn_gain, out=d, dtype=np.float64)
-                np.rint(d, out=d)
-                np.clip(d, 0, 65535, out=d)
-                dn[:m] = d
-                img = dn[:m]
+            if dn_gain is not None:
+                img = _to_dn(img, dn_gain, dn[:m], d64[:m])
             for (i, k, _), src in zip(batch, img):
                 if nbuf:
                     if len(bufs) < nbuf:

@@ -584,18 +584,20 @@ def test_frames_selected_integrations_in_order():
     assert got == [(0, 0), (0, 1), (2, 0), (2, 1)]      # sorted, duplicates removed
 
 
+@pytest.mark.parametrize("size", [256, 64])                  # threaded / batched path
 @pytest.mark.parametrize("gain, offset", [(1.0, 5000.0), (2.7, 5000.0), (1.0, 0.0),
-                                          (0.5, 32767.0)])
-def test_dn_frames_equal_converted_electron_frames(gain, offset):
+                                          (0.5, 32767.0), (2.0, 5000.0), (4.0, 100.0)])
+def test_dn_frames_equal_converted_electron_frames(gain, offset, size):
     """frames(dn_gain=g) is exactly to_uint16_dn(frame, g), clipping at 0 and 65535
     included (offset 0 clips about half the pixels low, 32767 e- at 0.5 e-/DN high).
 
     With g = 2.7 a float32 division would round ~1e-4 of the pixels differently from
     to_uint16_dn's float64 one (e/g near a half-integer): the 256x256 frames make that
     visible (~40 pixels), so the comparison checks the arithmetic, not just the layout.
+    Powers of two (0.5, 1, 2, 4) take the float32 shortcut, which must agree exactly.
     """
     params = ALL_ON.replace(bias_offset=offset)
-    det = preset("H2RG", naxis1=256, naxis2=256, n_out=4)
+    det = preset("H2RG", naxis1=size, naxis2=size, n_out=4)
     e = list(_gen(params, det=det, rng=86, threads=1).frames(3, nints=2))
     dn = list(_gen(params, det=det, rng=86, threads=2).frames(3, nints=2, dn_gain=gain))
     assert [(i, k) for i, k, _ in dn] == [(i, k) for i, k, _ in e]
