@@ -112,6 +112,8 @@ from scipy.special import erf, j0, j1
 
 from noise.errors import FileFormatError, ParameterError
 
+from .readout import _check_int
+
 __all__ = [
     "GaussianPSF",
     "AiryPSF",
@@ -141,14 +143,6 @@ def _check_positive(name, value):
     if not math.isfinite(value) or value <= 0:
         raise ParameterError(f"{name!r} must be a finite number > 0, got {value!r}")
     return value
-
-
-def _check_int(name, value, minimum):
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ParameterError(f"{name!r} must be an integer >= {minimum}, got {value!r}")
-    if value < minimum:
-        raise ParameterError(f"{name!r} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 # ----------------------------------------------------------------------------- models
