@@ -10,6 +10,7 @@ interrupted or failed run never leaves a partial or corrupt file.
 import contextlib
 import os
 import shutil
+import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
@@ -73,6 +74,7 @@ class StreamingFITS:
         self._written = 0
         self._first = True
         self._dtype = None
+        self._buf = None
 
     def _header(self, shape, dtype, cards, name):
         dtype = np.dtype(dtype)
@@ -110,6 +112,7 @@ class StreamingFITS:
         self.f.write(hdr.tostring().encode("ascii"))
         self._first = False
         self._dtype = np.dtype(dtype)
+        self._buf = None
         self._remaining = int(np.prod(shape)) if len(shape) else 0
         self._written = 0
 
@@ -118,15 +121,21 @@ class StreamingFITS:
         data = np.asarray(data, dtype=self._dtype)
         if data.size > self._remaining:
             raise ParameterError("more data written than the image shape holds")
-        if self._dtype == np.uint16:
-            # FITS stores uint16 as int16 with BZERO 32768: v - 32768 is v with its top
-            # bit flipped, read as int16 (one pass instead of three)
-            raw = (data ^ np.uint16(0x8000)).view(np.int16).astype(">i2", copy=False)
-        elif self._dtype == np.uint32:
-            raw = (data ^ np.uint32(0x80000000)).view(np.int32).astype(">i4", copy=False)
+        if self._dtype in (np.uint16, np.uint32):
+            # FITS stores uintN as intN with BZERO 2**(N-1): v - 2**(N-1) is v with
+            # its top bit flipped, read as intN; flipped and byte-swapped in place in a
+            # reused buffer (the file object has taken the bytes when write returns)
+            if self._buf is None or self._buf.size < data.size:
+                self._buf = np.empty(data.size, dtype=self._dtype)
+            raw = self._buf[:data.size].reshape(data.shape)
+            top = 0x8000 if self._dtype == np.uint16 else 0x80000000
+            np.bitwise_xor(data, self._dtype.type(top), out=raw)
+            if sys.byteorder == "little":
+                raw.byteswap(inplace=True)
         else:
-            raw = data.astype(self._dtype.newbyteorder(">"), copy=False)
-        self.f.write(np.ascontiguousarray(raw).data)
+            raw = np.ascontiguousarray(data.astype(self._dtype.newbyteorder(">"),
+                                                   copy=False))
+        self.f.write(raw.data)
         self._remaining -= data.size
         self._written += raw.nbytes
 
@@ -227,7 +236,7 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
              ("SEEDKEY", ",".join(map(str, generator.key)) or "-", "root spawn key")]
     cards += det.to_header_cards() + generator.params.to_header_cards() + list(extra_cards)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        with open(tmp, "wb") as f:
+        with open(tmp, "wb", buffering=1 << 20) as f:
             out = StreamingFITS(f)
             out.begin_image(shape, dtype, cards)
             # DN frames are converted in the generator's worker threads (bit-identical

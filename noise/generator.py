@@ -54,24 +54,37 @@ without the thread pool, ``K`` requested frames at a time (``K * ny * nx <=
 _BATCH_PIXELS``, ``K <= _BATCH_FRAMES``), because there the per-frame Python overhead
 (band planning, one :meth:`PinkSeries.plan` per series, a dozen small numpy calls) was
 comparable to the arithmetic.  The batch path draws the same streams (white per
-``(slot, chunk)``, pedestal per slot, kTC per integration and chunk, RTN per slot) and
-takes each 1/f series once per group of nearly consecutive slots (one contiguous range
-of its time line, the reset slot between integrations included), then applies the same
-float32 operations to every pixel in the same order as :meth:`NoiseGenerator.frame`,
-vectorised over the ``(K, ny, nx)`` block: its frames are bit-identical (tested).
-Frames are copied out of the batch buffer one at a time, so ``reuse`` keeps its meaning.
-Measured (64x64 window, 1 output, NIRSpec defaults, 300 integrations x 5 reads, 1
-thread, same noisy 2-core machine, best of 12): 0.333 ms per frame before, 0.275 ms
-after.  What is left is intrinsic to the streams: the 1/f synthesis of the three
-full-rate lines over the whole time line (overheads and reset slots included, ~18k
-samples per frame: ~0.21 ms, normals and FFTs) and the two streams a frame needs
-(``SeedSequence`` + ``PCG64`` construction, ~12 us each) plus its 4096 white normals
-(~25 us).
+``(slot, chunk)``, pedestal per block of slots, kTC per integration and chunk, RTN per
+slot) and takes each 1/f series once per group of nearly consecutive slots (one
+contiguous range of its time line, the reset slot between integrations included), then
+applies the same float32 operations to every pixel in the same order as
+:meth:`NoiseGenerator.frame`, vectorised over the ``(K, ny, nx)`` block: its frames are
+bit-identical (tested).  The white draws of a batch go through one Box-Muller transform
+(:func:`noise.normal.standard_normal_rows`, bit-identical to one call per stream).
+With two or more threads, the 1/f lines and reset levels are made ahead by a forked
+helper process (:mod:`noise.producer`): threads lost to GIL hand-overs between the many
+small calls of the frame assembly and the line synthesis.  Frames are copied out of
+the batch buffer one at a time, so ``reuse`` keeps its meaning.
+
+Measured (64x64 window, 1 output, NIRSpec defaults, 300 integrations x 5 reads, through
+the charge engine to a FITS file, ``scenesim bench timeseries``): 0.60 s and 3.4x the
+random-number floor before; 0.33-0.44 s and 1.7-1.8x (median of 10 runs) with the
+merged single-output pink (below), the pedestal per block of slots, batched white
+draws and the forked helper.  What is left is the 1/f synthesis in the helper (two
+full-rate lines over the whole time line, reset slots included, ~12 ns per sample) and,
+here, the charge engine's per-read work and the white draws.
+
+On a detector with one active output, correlated and uncorrelated pink land on the
+same pixels through the same clock; their sum is one Gaussian 1/f process of amplitude
+``hypot(c_pink, u_pink)`` and is synthesised as one series (the same law for a third
+less work).
 
 Randomness: every component, output, chunk and block has its own stream,
 ``SeedSequence(entropy, spawn_key=prefix + (component, ...))``, so the frames do not
 depend on the chunking, on the number of threads, or on which other components are
-switched on (a zero amplitude skips a component entirely without shifting any draw).
+switched on (a zero amplitude skips a component entirely without shifting any draw;
+the one exception is the merged pink of a single-output detector, whose one series
+takes the correlated-pink stream whatever the two amplitudes).
 """
 
 import functools
@@ -87,7 +100,8 @@ from .detector import Detector
 from .errors import ParameterError
 from .params import NoiseParams
 from .pink import PinkSeries
-from .normal import standard_normal
+from .producer import ForkedProducer, available as producer_available
+from .normal import standard_normal, standard_normal_rows
 from .template import template_for
 
 __all__ = ["NoiseGenerator", "COMPONENTS", "root_seed"]
@@ -99,11 +113,15 @@ _POOL_MIN_PIXELS = 1 << 16
 COMPONENTS = {"white": 1, "c_pink": 2, "u_pink": 3, "acn": 4, "pca0": 5, "pedestal": 6,
               "ktc": 7, "rtn": 8}
 _WHITE_ROWS = 64      # rows per white-noise / reset-level stream (fixed: chunk-independent)
-_SUB_ROWS = 64        # rows processed at once (one stream chunk; fits in L2 cache)
+_SUB_ROWS = 64        # rows processed at once (one stream chunk; fits in L2 cache;
+                      # _small_batch relies on _SUB_ROWS == _WHITE_ROWS)
 _BAND_ROWS = 512      # rows per band of the 1/f pipeline (a multiple of _WHITE_ROWS)
 _NSETS = 2            # band buffer sets (the lines of band k+1 while the rows of k run)
 _BATCH_PIXELS = 1 << 17   # small frames: pixels per batch (K frames made at once)
 _BATCH_FRAMES = 64        # ... and at most this many frames per batch
+_PED_BLOCK = 1024          # pedestal: slots per stream
+_AHEAD = 2                # small frames: batches whose 1/f lines are made ahead
+_FORK_MIN_BATCHES = 4     # ... by a forked process, if at least this many batches
 
 
 def _to_dn(e, gain, out, d64):
@@ -190,6 +208,15 @@ class NoiseGenerator:
     threads : int, optional
         Worker threads (default: all cores).  Results do not depend on it.
 
+    Notes
+    -----
+    On a detector with a single active output (most windows), correlated and
+    uncorrelated pink reach the same pixels through the same clock, so only their sum
+    is observable; it is one Gaussian 1/f process with amplitude
+    ``hypot(c_pink, u_pink)`` (both series use the same filters), and is synthesised
+    as one series: the same law at two thirds of the 1/f cost of such a window.
+    :meth:`timeline` then offers only 'pink', their sum.
+
     Examples
     --------
     >>> gen = NoiseGenerator(rng=1)                       # doctest: +SKIP
@@ -240,12 +267,18 @@ class NoiseGenerator:
         # one series object per output (and one for the correlated series), each with
         # its own stream keys; their work is split into tasks by PinkSeries.plan
         self._common = None
+        u_amps = p.per_output("u_pink", nout) if p.enabled("u_pink") else np.zeros(nout)
+        # one active output: correlated and uncorrelated pink land on the same pixels
+        # through the same clock, and their sum is one Gaussian 1/f process of
+        # amplitude hypot(c_pink, u_pink) (same filters): synthesised as one series
+        self._merged = nout == 1 and p.c_pink > 0 and u_amps[0] > 0
         if p.c_pink > 0:
-            self._common = PinkSeries(1 / det.dt, L, [p.c_pink],
+            amp = math.hypot(p.c_pink, u_amps[0]) if self._merged else p.c_pink
+            self._common = PinkSeries(1 / det.dt, L, [amp],
                                       seed_keys=[self.key + (COMPONENTS["c_pink"],)], **kw)
         self._u_pink = [None] * nout
-        if p.enabled("u_pink"):
-            for o, amp in enumerate(p.per_output("u_pink", nout)):
+        if p.enabled("u_pink") and not self._merged:
+            for o, amp in enumerate(u_amps):
                 if amp > 0:
                     self._u_pink[o] = PinkSeries(
                         1 / det.dt, L, [amp],
@@ -296,6 +329,7 @@ class NoiseGenerator:
         self._reset_int = None
         self._reset_level = None
         self._lines = None
+        self._ped_block = None
 
     def _line_buffers(self):
         """Band buffers of the 1/f time lines (``_NSETS`` sets) and their image views.
@@ -366,24 +400,47 @@ class NoiseGenerator:
         return lvl
 
     def pedestal(self, slot):
-        """Pedestal offset of frame slot ``slot`` (e-)."""
+        """Pedestal offset of frame slot ``slot`` (e-).
+
+        The offsets of slots ``[b P, (b + 1) P)`` (``P = _PED_BLOCK``) are ``P``
+        float64 standard normals from the stream ``(pedestal, b)``, times the sigma: one
+        stream per block of slots rather than per slot (a stream costs ~12 us to set
+        up, a draw 0.01 us); the last block is kept.
+        """
         if self.params.pedestal <= 0:
             return 0.0
-        return float(self.params.pedestal
-                     * self._stream(COMPONENTS["pedestal"], slot).standard_normal())
+        b = slot // _PED_BLOCK
+        if self._ped_block is None or self._ped_block[0] != b:
+            z = self._stream(COMPONENTS["pedestal"], b).standard_normal(_PED_BLOCK)
+            self._ped_block = (b, self.params.pedestal * z)
+        return float(self._ped_block[1][slot % _PED_BLOCK])
 
     def timeline(self, component, output, start, n):
         """Raw time-line samples of a 1/f component, e-, float32.
 
         Parameters
         ----------
-        component : {'c_pink', 'u_pink', 'acn', 'pca0'}
+        component : {'c_pink', 'u_pink', 'pink', 'acn', 'pca0'}
+            'pink' is the sum of the correlated and uncorrelated pink of ``output``.
+            On a detector with one active output, with both on, only 'pink' exists:
+            the two are synthesised as one series (see :meth:`__init__` notes).
         output : int
             Output index (ignored for 'c_pink' and 'pca0').
         start, n : int
             Absolute sample range on that series' own time line (pixel rate; half rate
             for each ACN parity, which returns shape (2, n); row rate for 'pca0').
         """
+        if component == "pink" and (self._common is not None
+                                    or self._u_pink[output] is not None):
+            if self._merged:
+                return self._common.get(start, n)[0]
+            parts = [s.get(start, n)[0] for s in (self._common, self._u_pink[output])
+                     if s is not None]
+            return parts[0] if len(parts) == 1 else parts[0] + parts[1]
+        if self._merged and component in ("c_pink", "u_pink"):
+            raise ParameterError(
+                f"'component' {component!r}: with one active output, c_pink and u_pink "
+                f"are synthesised as one series; ask for 'pink' (their sum)")
         if component == "c_pink" and self._common is not None:
             return self._common.get(start, n)[0]
         if component == "u_pink" and self._u_pink[output] is not None:
@@ -394,7 +451,8 @@ class NoiseGenerator:
             return self._pf.get(start, n)[0]
         raise ParameterError(
             f"'component' {component!r} (output {output}) is not enabled; enabled 1/f "
-            f"components are those with amplitude > 0 among c_pink, u_pink, acn, pca0")
+            f"components are those with amplitude > 0 among c_pink, u_pink, pink, acn, "
+            f"pca0")
 
     def _advance_rtn(self, slot):
         p, det = self.params, self.detector
@@ -639,62 +697,161 @@ class NoiseGenerator:
         ``nbuf`` rotating arrays, so ``reuse`` means exactly what it does for large
         frames.  The copy (a few us per frame) is far cheaper than the per-frame
         Python overhead the batch removes.
+
+        With more than one thread, the 1/f lines and the reset levels of the batches
+        are made ahead by a forked helper process (:mod:`noise.producer`; Linux, and
+        only while a single thread runs, else here), while this process draws the
+        white noise, assembles the frames and its consumer uses them (a worker thread
+        lost to GIL hand-overs what it gained; drawing the white noise in the helper
+        too left it the slower of the two: timeseries bench ratio 2.03-2.07 against
+        1.73-1.79).  The draws depend only on their indices, so the frames do not
+        depend on the path.
         """
         det = self.detector
         order = [(i, k, i * (1 + nreads) + 1 + k) for i in ints for k in reads]
         K = max(1, min(_BATCH_FRAMES, _BATCH_PIXELS // (det.ny * det.nx), len(order)))
+        batches = [order[j0:j0 + K] for j0 in range(0, len(order), K)]
         work = np.empty((K,) + det.shape, dtype=np.float32)
         scratch = np.empty_like(work)
-        lines = [None]                     # 1/f line buffers, grown on demand
         if dn_gain is not None:
             dn = np.empty(work.shape, dtype=np.uint16)
             d64 = np.empty(work.shape, dtype=np.float64)
         dtype = np.float32 if dn_gain is None else np.uint16
-        bufs, n = [], 0
-        for j0 in range(0, len(order), K):
-            batch = order[j0:j0 + K]
-            m = len(batch)
-            img = self._small_batch(batch, work[:m], scratch[:m], lines)
-            if dn_gain is not None:
-                img = _to_dn(img, dn_gain, dn[:m], d64[:m])
-            for (i, k, _), src in zip(batch, img):
-                if nbuf:
-                    if len(bufs) < nbuf:
-                        bufs.append(np.empty(det.shape, dtype=dtype))
-                    frame = bufs[n % nbuf]
-                    np.copyto(frame, src)
-                else:
-                    frame = src.copy()
-                n += 1
-                yield i, k, frame
+        jobs = self._line_buffers()[0]
+        groups = [self._small_groups([s for *_, s in batch]) for batch in batches]
+        need = max(sum(span for *_, span in g) for g in groups) * self._L if jobs else 0
+        # integrations whose reset level batch j needs (in order)
+        levels = [list(dict.fromkeys(i for i, *_ in batch)) if self._level_map else []
+                  for batch in batches]
+        shapes = [(len(jobs), need), (max(len(v) for v in levels),) + det.shape]
 
-    def _small_batch(self, batch, img, scratch, lines):
+        def make(j, outs):
+            """The 1/f lines and reset levels of batch ``j``."""
+            lines, lvl = outs
+            for task in self._small_line_tasks(groups[j], lines):
+                task()
+            for q, i in enumerate(levels[j]):
+                for c0, c1 in self._chunks:
+                    self._level_task(lvl[q], i, c0, c1)
+
+        producer = None
+        if self.threads > 1 and (jobs or self._level_map) \
+                and len(batches) >= _FORK_MIN_BATCHES and producer_available():
+            producer = ForkedProducer(make, len(batches), shapes, _AHEAD + 1)
+        else:
+            own = [np.empty(shape, dtype=np.float32) for shape in shapes]
+        bufs, n = [], 0
+        try:
+            for j, batch in enumerate(batches):
+                m = len(batch)
+                self._small_white([s for *_, s in batch], work[:m])
+                if producer is not None:
+                    if j:
+                        producer.release(j - 1)  # its frames have all been used
+                    lines, lvl = producer.get(j)
+                else:
+                    make(j, own)
+                    lines, lvl = own
+                img = self._small_batch(batch, work[:m], scratch[:m],
+                                        (groups[j], lines) if jobs else None,
+                                        dict(zip(levels[j], lvl)))
+                if dn_gain is not None:
+                    img = _to_dn(img, dn_gain, dn[:m], d64[:m])
+                for (i, k, _), src in zip(batch, img):
+                    if nbuf:
+                        if len(bufs) < nbuf:
+                            bufs.append(np.empty(det.shape, dtype=dtype))
+                        frame = bufs[n % nbuf]
+                        np.copyto(frame, src)
+                    else:
+                        frame = src.copy()
+                    n += 1
+                    yield i, k, frame
+        finally:
+            if producer is not None:
+                producer.close()
+
+    def _small_white(self, slots, out):
+        """White noise of ``slots`` into ``out`` (m, ny, nx), unit sigma, float32.
+
+        One stream per (slot, chunk), drawn as :meth:`frame` draws it (one
+        :func:`standard_normal` call per chunk, as ``_SUB_ROWS == _WHITE_ROWS``), the
+        transforms of all the frames at once (:func:`standard_normal_rows`).
+        """
+        if not self._sig_runs:
+            return
+        m, nx = len(slots), self.detector.nx
+        for c0, c1 in self._chunks:
+            gens = [self._stream(COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
+                    for slot in slots]
+            if len(self._chunks) == 1:
+                standard_normal_rows(gens, out.reshape(m, -1))
+            else:
+                dst = np.empty((m, (c1 - c0) * nx), dtype=np.float32)
+                standard_normal_rows(gens, dst)
+                out[:, c0:c1] = dst.reshape(m, c1 - c0, nx)
+
+    @staticmethod
+    def _small_groups(slots):
+        """Groups of nearly consecutive slots (gaps of at most one slot, the reset slot
+        between integrations), each fetched as one range of every 1/f series.
+
+        Returns a list of ``(g0, g1, s0, span)``: batch positions ``g0:g1``, first slot
+        and number of slots covered.
+        """
+        slots = np.asarray(slots)
+        cut = np.flatnonzero(np.diff(slots) > 2) + 1
+        return [(g0, g1, int(slots[g0]), int(slots[g1 - 1]) - int(slots[g0]) + 1)
+                for g0, g1 in zip([0] + cut.tolist(), cut.tolist() + [slots.size])]
+
+    def _small_line_tasks(self, groups, store):
+        """Tasks (one per 1/f series) writing the lines of ``groups`` into ``store``.
+
+        ``store`` has one row per job of :meth:`_line_buffers`; group ``q`` occupies
+        ``span_q * frame_samples`` samples after those of the groups before it (an ACN
+        pair interleaved even/odd, so it is one full-rate line).  A series' task calls
+        :meth:`PinkSeries.plan` and runs the result for each group in turn.
+        """
+        jobs = self._line_buffers()[0]
+        rs, L = self.detector.row_samples, self._L
+
+        def task(series, per_row, nfr, line):
+            off = 0
+            for *_, s0, span in groups:
+                n = span * nfr
+                seg = line[off:off + span * L]
+                dst = seg[None, :n] if per_row == rs else seg[:2 * n].reshape(-1, 2).T
+                series.plan(s0 * nfr, n, dst)()
+                off += span * L
+
+        return [functools.partial(task, series, per_row, nfr, line)
+                for (series, per_row, nfr), line in zip(jobs, store)]
+
+    def _small_batch(self, batch, img, scratch, lines, levels):
         """Frames ``batch`` (list of ``(integration, read, slot)`` in time order) into
-        ``img``, shape (m, ny, nx), float32, e-; returns ``img``.
+        ``img``, shape (m, ny, nx), float32, e-; returns ``img``.  On entry ``img``
+        holds the batch's unit white draws (:meth:`_small_white`) if white noise is on.
 
         Bit-identical to :meth:`frame` of each slot: every pixel goes through the same
         float32 operations in the same order (white draw from the same
         ``(slot, chunk)`` stream, times sigma, + reset level, + template * pf,
         + pedestal/offset scalar, + the sum of its output's 1/f lines in scan order,
         + RTN), only vectorised over the frames of the batch.  The 1/f series are
-        fetched once per group of nearly consecutive slots (the time line of slot
-        ``s`` starts at ``s * frame_samples``, so a group is one contiguous range;
-        a gap of one slot, the reset slot between integrations, is fetched along).
-        The sample values do not depend on how the range is requested (see
-        :mod:`noise.pink`).  ``scratch`` is a float32 buffer of ``img``'s shape;
-        ``lines`` a one-item list holding the reusable 1/f line buffers.
+        fetched once per group of nearly consecutive slots (:meth:`_small_groups`;
+        the time line of slot ``s`` starts at ``s * frame_samples``, so a group is one
+        contiguous range).  The sample values do not depend on how the range is
+        requested (see :mod:`noise.pink`).  ``scratch`` is a float32 buffer of
+        ``img``'s shape; ``lines`` is ``(groups, store)`` with the batch's lines
+        already made by :meth:`_small_line_tasks`, or None if no 1/f line is on;
+        ``levels`` maps each integration of the batch to its reset level (when kTC or
+        the bias pattern is on), made by :meth:`_level_task`.
         """
         det, p = self.detector, self.params
         ny, ncol, rs, L = det.ny, det.ncols_out, det.row_samples, self._L
         m = len(batch)
         slots = np.array([s for *_, s in batch])
-        # white noise: one stream per (slot, chunk), drawn as frame() draws it
+        # white noise (drawn into img by _small_white), times sigma
         if self._sig_runs:
-            for j, slot in enumerate(slots.tolist()):
-                for c0, c1 in self._chunks:
-                    rng = self._stream(COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
-                    for a in range(c0, c1, _SUB_ROWS):
-                        standard_normal(rng, img[j, a:min(a + _SUB_ROWS, c1)])
             for r0, r1, vec in self._sig_runs:
                 np.multiply(img[:, r0:r1], vec, out=img[:, r0:r1])
         # reset level, per run of frames of one integration
@@ -705,26 +862,19 @@ class NoiseGenerator:
                 j1 = j0 + 1
                 while j1 < m and batch[j1][0] == i:
                     j1 += 1
-                if self._reset_int != i:
-                    self._reset_level = self._make_reset_level(i, None)
-                    self._reset_int = i
                 if self._sig_runs:
-                    np.add(img[j0:j1], self._reset_level, out=img[j0:j1])
+                    np.add(img[j0:j1], levels[i], out=img[j0:j1])
                 else:
-                    img[j0:j1] = self._reset_level
+                    img[j0:j1] = levels[i]
                 j0 = j1
         elif not self._sig_runs:
             img.fill(0.0)
-        # groups of slots fetched as one range of each 1/f series (gaps <= 1 slot)
-        cut = np.flatnonzero(np.diff(slots) > 2) + 1
-        groups = list(zip([0] + cut.tolist(), cut.tolist() + [m]))
+        groups = self._small_groups(slots)
         # picture frame: template times the row series of each frame
         if self._pf is not None:
             npf = ny + det.nfoh
             pf = np.empty((m, ny), dtype=np.float32)
-            for g0, g1 in groups:
-                s0 = int(slots[g0])
-                span = int(slots[g1 - 1]) - s0 + 1
+            for g0, g1, s0, span in groups:
                 y = self._pf.get(s0 * npf, span * npf)[0].reshape(span, npf)
                 pf[g0:g1] = y[slots[g0:g1] - s0, :ny]
             img += np.multiply(self._template, pf[:, :, None], out=scratch)
@@ -737,31 +887,26 @@ class NoiseGenerator:
         else:
             for j in nonzero.tolist():
                 img[j] += scalar[j]
-        # 1/f time lines: fetched per group, summed per output in scan order per run of
-        # consecutive slots, added once (mirrored on reversed outputs)
-        jobs = self._line_buffers()[0]
+        # 1/f time lines (made per group by _small_line_tasks): summed per output in
+        # scan order per run of consecutive slots, added once (mirrored on reversed
+        # outputs)
         owners = []
         if self._common is not None:
             owners.append(None)
         for o in range(det.n_out_active):
             owners += [o] * ((self._u_pink[o] is not None) + (self._acn[o] is not None))
         tmp_buf = scratch.reshape(-1)[:m * ny * ncol].reshape(m, ny, ncol)
-        for g0, g1 in groups if jobs else []:
-            s0 = int(slots[g0])
-            span = int(slots[g1 - 1]) - s0 + 1
-            if lines[0] is None or lines[0].shape[1] < span * L:
-                lines[0] = np.empty((len(jobs), span * L), dtype=np.float32)
-            for (series, per_row, nfr), line in zip(jobs, lines[0]):
-                n = span * nfr
-                dst = line[None, :n] if per_row == rs else line[:2 * n].reshape(-1, 2).T
-                series.plan(s0 * nfr, n, dst)()
+        off = 0
+        for g0, g1, s0, span in groups if lines is not None else []:
+            store = lines[1][:, off * L:(off + span) * L]
+            off += span
             rel = slots[g0:g1] - s0
             brk = np.flatnonzero(np.diff(rel) != 1) + 1
             for q0, q1 in zip([0] + brk.tolist(), brk.tolist() + [g1 - g0]):
                 a, b = int(rel[q0]), int(rel[q1 - 1]) + 1
                 for o in range(det.n_out_active):
-                    views = [line[:span * L].reshape(span, -1, rs)[a:b, :ny, :ncol]
-                             for line, owner in zip(lines[0], owners)
+                    views = [line.reshape(span, -1, rs)[a:b, :ny, :ncol]
+                             for line, owner in zip(store, owners)
                              if owner is None or owner == o]
                     if not views:
                         continue

@@ -40,7 +40,7 @@ import numpy as np
 
 from .errors import ParameterError
 
-__all__ = ["standard_normal", "TAIL_V"]
+__all__ = ["standard_normal", "standard_normal_rows", "TAIL_V"]
 
 #: Radius uniforms at or below this value are redrawn in float64 (``r >= 3.72``).
 TAIL_V = 2.0 ** -10
@@ -96,4 +96,68 @@ def standard_normal(gen, out):
         v *= t                                                  # r sin(theta)
     if n % 2:
         flat[-1] = gen.standard_normal(dtype=np.float32)
+    return out
+
+
+def standard_normal_rows(gens, out):
+    """Fill row ``i`` of ``out`` exactly as ``standard_normal(gens[i], out[i])`` would.
+
+    For many short rows, each from its own stream (a batch of small frames): the
+    uniforms are drawn row by row, the transform runs once over all rows (~16 numpy
+    calls per batch instead of per row).  Same draws from each generator in the same
+    order, same float32 operations on every element: bit-identical to the row loop.
+
+    Parameters
+    ----------
+    gens : sequence of numpy.random.Generator
+        One per row of ``out``.
+    out : ndarray, float32, C-contiguous, shape (len(gens), n)
+        Filled in place.
+
+    Returns
+    -------
+    ndarray
+        ``out``.
+    """
+    if not isinstance(out, np.ndarray) or out.dtype != np.float32 or out.ndim != 2:
+        raise ParameterError(f"'out' must be a 2-D float32 ndarray, got "
+                             f"{getattr(out, 'dtype', type(out).__name__)} "
+                             f"{getattr(out, 'shape', '')}")
+    if not out.flags.c_contiguous:
+        raise ParameterError("'out' must be C-contiguous")
+    if len(gens) != out.shape[0]:
+        raise ParameterError(f"'gens' must hold one generator per row of 'out': "
+                             f"{len(gens)} for {out.shape[0]} rows")
+    m, n = out.shape
+    if n > _BLOCK or m < 2:                 # several blocks per row: as standard_normal
+        for gen, row in zip(gens, out):
+            standard_normal(gen, row)
+        return out
+    h = n // 2
+    # the halves of every row side by side in two contiguous buffers (strided
+    # ufuncs are ~40 % slower); the products are written into the rows at the end
+    v = np.empty((m, h), dtype=np.float32)
+    c = np.empty((m, h), dtype=np.float32)
+    for gen, vr, cr in zip(gens, v, c):
+        gen.random(out=vr, dtype=np.float32)
+        gen.random(out=cr, dtype=np.float32)
+    np.subtract(np.float32(1.0), v, out=v)
+    rows, cols = np.nonzero(v <= _TAIL32)               # row-major: each row in order
+    if rows.size:                                       # each row's tail draws, in order
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+        u = np.empty(rows.size)
+        for a, b in zip(starts.tolist(), np.r_[starts[1:], rows.size].tolist()):
+            gens[rows[a]].random(out=u[a:b])
+        v[rows, cols] = (1.0 - u) * TAIL_V
+    np.log(v, out=v)
+    v *= np.float32(-2.0)
+    np.sqrt(v, out=v)
+    c *= _TWO_PI
+    t = np.sin(c)
+    np.cos(c, out=c)
+    np.multiply(c, v, out=out[:, h:2 * h])              # r cos(theta)
+    np.multiply(v, t, out=out[:, :h])                   # r sin(theta)
+    if n % 2:
+        for gen, row in zip(gens, out):
+            row[-1] = gen.standard_normal(dtype=np.float32)
     return out

@@ -53,6 +53,9 @@ from noise.fitsio import StreamingFITS, atomic_path
 __all__ = ["Exposure", "write_exposure", "truth_path_for", "read_exposure",
            "read_truth"]
 
+#: Output file buffer (bytes): small frames are written 1 MB at a time, not per frame.
+_WRITE_BUFFER = 1 << 20
+
 
 @dataclass(frozen=True, eq=False)
 class Exposure:
@@ -173,7 +176,7 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
         sci_mem = None
         if path is not None:
             tmp = stack.enter_context(atomic_path(path, overwrite=overwrite))
-            fobj = stack.enter_context(open(tmp, "wb"))
+            fobj = stack.enter_context(open(tmp, "wb", buffering=_WRITE_BUFFER))
             stream = StreamingFITS(fobj)
             stream.begin_image((), np.uint8, header)
             stream.end_image()

@@ -283,6 +283,17 @@ def test_pedestal_common_per_frame():
     assert abs(np.corrcoef(v[:-1], v[1:])[0, 1]) < 5 / np.sqrt(n - 1)
 
 
+def test_pedestal_does_not_depend_on_request_order():
+    """Offsets are drawn per block of slots; any order of requests gives each slot's
+    value (across a block edge too)."""
+    slots = [5, 2000, 1023, 1024, 3, 4096, 1024]
+    gen = _gen(ZERO_NOISE.replace(pedestal=4.0), rng=42)
+    got = [gen.pedestal(s) for s in slots]
+    want = [_gen(ZERO_NOISE.replace(pedestal=4.0), rng=42).pedestal(s) for s in slots]
+    assert got == want
+    assert len(set(got)) == len(set(slots))
+
+
 def test_ktc_and_bias_per_integration():
     ktc, offset, amp = 29.0, 5000.0, 500.0
     params = ZERO_NOISE.replace(ktc=ktc, bias_offset=offset, bias_amp=amp)
