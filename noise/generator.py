@@ -101,6 +101,7 @@ from .errors import ParameterError
 from .params import NoiseParams
 from .pink import PinkSeries
 from .producer import ForkedProducer, available as producer_available
+from .streams import spawned_generators
 from .normal import standard_normal, standard_normal_rows
 from .template import template_for
 
@@ -776,14 +777,20 @@ class NoiseGenerator:
 
         One stream per (slot, chunk), drawn as :meth:`frame` draws it (one
         :func:`standard_normal` call per chunk, as ``_SUB_ROWS == _WHITE_ROWS``), the
-        transforms of all the frames at once (:func:`standard_normal_rows`).
+        transforms of all the frames at once (:func:`standard_normal_rows`); the
+        streams' seeds are hashed together (:mod:`noise.streams`, the same generators
+        as ``SeedSequence`` builds one by one).
         """
         if not self._sig_runs:
             return
         m, nx = len(slots), self.detector.nx
         for c0, c1 in self._chunks:
-            gens = [self._stream(COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
-                    for slot in slots]
+            if isinstance(self.entropy, (int, list, tuple)):    # hashed together
+                gens = spawned_generators(self.entropy, self.key + (COMPONENTS["white"],),
+                                          [(slot, c0 // _WHITE_ROWS) for slot in slots])
+            else:
+                gens = [self._stream(COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
+                        for slot in slots]
             if len(self._chunks) == 1:
                 standard_normal_rows(gens, out.reshape(m, -1))
             else:
