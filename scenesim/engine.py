@@ -181,6 +181,7 @@ class ChargeEngine:
     gain : float
         e-/DN.
     adc_bits : int
+        ADC resolution, 1 to 16 (resultants are stored as uint16).
     rng : int, SeedSequence, Generator or None
     options : EngineOptions
     """
@@ -207,6 +208,10 @@ class ChargeEngine:
             cr = CosmicRayHits(cr.time[keep], cr.index[keep], cr.charge[keep])
         self.cosmic_rays = cr
         self.gain = check_float("gain", gain, minimum=0.0, strict_min=True)
+        if isinstance(adc_bits, bool) or not isinstance(adc_bits, (int, np.integer)) \
+                or not 1 <= adc_bits <= 16:
+            raise ParameterError(f"'adc_bits' must be an integer in [1, 16] (the "
+                                 f"resultants are uint16), got {adc_bits!r}")
         self.adc_bits = int(adc_bits)
         if full_well is not None:
             full_well = _per_pixel("full_well", full_well, shape)
@@ -571,7 +576,10 @@ class ChargeEngine:
                     rr = res[r_index]
                     first = rr.count == 0
                     if first:
-                        rr.dn_sum = np.empty(shape, dtype=np.uint32)
+                        # a one-read resultant is digitised straight into its uint16
+                        # output (the same values: f is integral and in [0, maxdn])
+                        rr.dn_sum = np.empty(shape, dtype=np.uint16 if len(rr.reads) == 1
+                                             else np.uint32)
                         if save_charge:
                             rr.charge_sum = np.zeros(shape, dtype=np.float64)
                         if save_noise:
@@ -603,9 +611,12 @@ class ChargeEngine:
                     each(digitise)
                     rr.count += 1
                     if rr.count == len(rr.reads):
-                        out_dn = np.empty(shape, dtype=np.uint16)
-                        each(lambda b, rr=rr: _mean_dn(rr.dn_sum[b], rr.count, maxdn,
-                                                       out_dn[b]))
+                        if rr.dn_sum.dtype == np.uint16:
+                            out_dn = rr.dn_sum
+                        else:
+                            out_dn = np.empty(shape, dtype=np.uint16)
+                            each(lambda b, rr=rr: _mean_dn(rr.dn_sum[b], rr.count, maxdn,
+                                                           out_dn[b]))
                         ch = (rr.charge_sum / rr.count).astype(np.float32) \
                             if save_charge else None
                         nz = (rr.noise_sum / rr.count).astype(np.float32) \

@@ -103,7 +103,9 @@ at 30, so ``small`` may be raised to 20, but the default 10 keeps the PTRS branc
 every mean where numpy itself switches to it.  Numbers vary by +-30 % with machine load
 and with the allocator (first-touch page faults dominate some rows).
 
-Small arrays are dominated by per-call overhead (~0.4-1.5 us per numpy call).  The
+Small arrays are dominated by per-call overhead (~0.4-1.5 us per numpy call): arrays
+of fewer than ``_NUMPY_BELOW = 2048`` means go to ``g.poisson`` whole (in particular the
+few non-background pixels left after a shared-mean draw).  The
 64x64 time-series window (0.51 e-/s x 49.4 ms = 0.025 e- per read plus one star with
 24 pixels above 1 e-, up to 72 e-), best of 200 calls, one thread: 4096 means (one
 read) 78 -> 52 us with the routing above, 20480 means (five reads in one call, as the
@@ -137,6 +139,10 @@ _COMPRESS = 0.5
 #: ``g.poisson`` (see :func:`poisson`).
 _FEW = 256
 _FEW_LAM = 1.0
+#: Arrays with fewer elements go to ``g.poisson`` whole: there numpy's per-element loop
+#: beats the per-pass overhead of the search (measured: 256 means 9 vs 17-44 us, 1024
+#: means 26-58 vs 29-132 us, 2048 means 30-107 vs 43-148 us; equal near 4096).
+_NUMPY_BELOW = 2048
 
 
 def _k_max(lam_max):
@@ -322,7 +328,8 @@ def poisson(g, lam, *, small=10.0):
     small : float, keyword-only, default 10.0
         Elements with ``lam <= small`` are drawn by vectorised inversion (one uniform
         each); larger ones with ``g.poisson``, and so are the elements above 1 when
-        there are at most 256 of them (see the module docstring).
+        there are at most 256 of them, and arrays of fewer than 2048 means (see the
+        module docstring).
         ``0 <= small <= 100``.
 
     Returns
@@ -373,7 +380,7 @@ def poisson(g, lam, *, small=10.0):
                 if other.size:
                     out[other] = poisson(g, flat[other], small=small)
                 return out.reshape(lam.shape)
-    if flat.size and lo > small:
+    if flat.size and (lo > small or flat.size < _NUMPY_BELOW):
         return g.poisson(flat).astype(np.int64, copy=False).reshape(lam.shape)
     out = np.empty(flat.size, np.int64)
     is_large = None

@@ -917,7 +917,7 @@ class EffectsConfig:
     gain : float
         e-/DN (> 0).
     adc_bits : int
-        ADC resolution, 1 to 32 (output uint16 up to 16 bits).
+        ADC resolution, 1 to 16 (the exposure stores uint16 resultants).
     """
 
     cosmic_ray_rate: float = 0.0
@@ -947,7 +947,7 @@ class EffectsConfig:
                           allow_none=True))
         set_(self, "flat", _rate_or_map("flat", self.flat))
         set_(self, "gain", _real("gain", self.gain, minimum=0.0, strict=True))
-        set_(self, "adc_bits", _int("adc_bits", self.adc_bits, minimum=1, maximum=32))
+        set_(self, "adc_bits", _int("adc_bits", self.adc_bits, minimum=1, maximum=16))
         coeffs = self.nonlinearity
         if _is_real(coeffs):
             coeffs = (coeffs,)

@@ -11,7 +11,7 @@ computed here from those formulas, not from the engine.
 import numpy as np
 import pytest
 
-from noise.detector import preset
+from noise.detector import Detector, preset
 from noise.errors import ParameterError
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
 from scenesim.exposure import write_exposure
@@ -515,3 +515,11 @@ def test_mean_dn_rounds_like_float64(count):
     expected = np.clip(np.rint(s / count), 0, 65535).astype(np.uint16)
     out = np.empty(s.size, np.uint16)
     np.testing.assert_array_equal(_mean_dn(s, count, np.float32(65535), out), expected)
+
+
+@pytest.mark.parametrize("bits", [0, 17, 32, 12.5, True])
+def test_adc_bits_must_fit_the_uint16_resultants(bits):
+    """Resultants are uint16: more than 16 ADC bits would wrap, so they are refused."""
+    det = Detector(name="T", naxis1=8, naxis2=8, n_out=1, nroh=0, nfoh=0, ref_border=0)
+    with pytest.raises(ParameterError, match="adc_bits"):
+        ChargeEngine(det, Readout.named("RAPID", 2), rate=1.0, adc_bits=bits, rng=1)

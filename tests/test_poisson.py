@@ -250,3 +250,15 @@ def test_shared_mean_among_others_and_zero_background():
     zero_bg[::100] = 5.0
     y = poisson(g, zero_bg)
     assert not y[zero_bg == 0].any()
+
+
+def test_small_arrays_are_numpy_stream():
+    """Fewer than _NUMPY_BELOW means: g.poisson whole (faster there); at the threshold
+    the search takes over (a different stream)."""
+    from scenesim.poisson import _NUMPY_BELOW
+    lam = np.linspace(0.01, 5.0, _NUMPY_BELOW - 1)
+    a = poisson(np.random.default_rng(11), lam)
+    np.testing.assert_array_equal(a, np.random.default_rng(11).poisson(lam))
+    lam = np.linspace(0.01, 5.0, _NUMPY_BELOW)
+    assert not np.array_equal(poisson(np.random.default_rng(11), lam),
+                              np.random.default_rng(11).poisson(lam))
