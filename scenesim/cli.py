@@ -41,12 +41,11 @@ def _noise(args):
     cb = None
     total = args.frames * args.nints
     if not args.quiet and total >= 3:
-        from tqdm import tqdm
-        bar = tqdm(total=total, unit="frame", desc="noise", leave=False)
+        from .run import _progress_bar
+        bar = _progress_bar(total, "frame", "noise")
 
         def cb(n):
-            bar.n = n
-            bar.refresh()
+            bar.update(n - bar.n)          # drawn at most every 0.1 s
     try:
         noise.write_noise_fits(args.output, gen, args.frames, nints=args.nints,
                                unit=args.unit, gain=args.gain, progress=cb)

@@ -50,6 +50,24 @@ class RunResult:
     engine: ChargeEngine
 
 
+def _progress_bar(total, unit, desc):
+    """A tqdm bar refreshed by our callbacks, without tqdm's monitor thread.
+
+    The monitor only matters for bars that stop being updated; ours are updated after
+    every read (and drawn at most every 0.1 s).  Without it the process keeps a single thread, so small frames may use the
+    forked helper of :mod:`noise.producer` (which refuses to fork a multi-threaded
+    process).
+    """
+    from tqdm import tqdm
+    interval = tqdm.monitor_interval
+    tqdm.monitor_interval = 0
+    try:
+        # miniters=1: no dynamic skipping (which needs the monitor to recover)
+        return tqdm(total=total, unit=unit, desc=desc, leave=False, miniters=1)
+    finally:
+        tqdm.monitor_interval = interval
+
+
 def _stream(seed, *key):
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=key)))
 
@@ -236,12 +254,10 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     bar = None
     cb = None
     if progress and nreads >= 20:
-        from tqdm import tqdm
-        bar = tqdm(total=nreads, unit="read", desc="simulate", leave=False)
+        bar = _progress_bar(nreads, "read", "simulate")
 
         def cb(n, bar=bar):
-            bar.n = n
-            bar.refresh()
+            bar.update(n - bar.n)          # drawn at most every 0.1 s
     try:
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
                                  save_charge=out_cfg.save_charge,

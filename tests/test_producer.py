@@ -212,3 +212,18 @@ def test_pink_is_the_sum_on_several_outputs():
     total = gen.timeline("pink", 2, 500, 1000)
     parts = gen.timeline("c_pink", 0, 500, 1000) + gen.timeline("u_pink", 2, 500, 1000)
     np.testing.assert_array_equal(total, parts)
+
+
+def test_progress_bar_starts_no_thread():
+    """The command's progress bar leaves the process single-threaded (so small frames
+    may still fork) and leaves tqdm's own setting as it was."""
+    from tqdm import tqdm
+
+    from scenesim.run import _progress_bar
+    before = tqdm.monitor_interval
+    bar = _progress_bar(100, "read", "test")
+    try:
+        assert threading.active_count() == 1 and available()
+        assert tqdm.monitor_interval == before
+    finally:
+        bar.close()
