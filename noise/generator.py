@@ -67,12 +67,13 @@ small calls of the frame assembly and the line synthesis.  Frames are copied out
 the batch buffer one at a time, so ``reuse`` keeps its meaning.
 
 Measured (64x64 window, 1 output, NIRSpec defaults, 300 integrations x 5 reads, through
-the charge engine to a FITS file, ``scenesim bench timeseries``): 0.60 s and 3.4x the
-random-number floor before; 0.33-0.44 s and 1.7-1.8x (median of 10 runs) with the
-merged single-output pink (below), the pedestal per block of slots, batched white
-draws and the forked helper.  What is left is the 1/f synthesis in the helper (two
-full-rate lines over the whole time line, reset slots included, ~12 ns per sample) and,
-here, the charge engine's per-read work and the white draws.
+the charge engine to a FITS file, ``scenesim bench timeseries``, 2 threads): 0.60 s and
+3.4x the random-number floor before; 0.26-0.40 s, median 1.65x over 16 runs (1.2-2.2)
+with the merged single-output pink (below), the pedestal per block of slots, batched
+white draws and the forked helper.  The two processes are then about equally busy: the
+helper with the 1/f synthesis (two full-rate lines over the whole time line, reset
+slots included, ~12 ns per sample) and the reset levels, this process with the white
+draws and the charge engine's per-read work.
 
 On a detector with one active output, correlated and uncorrelated pink land on the
 same pixels through the same clock; their sum is one Gaussian 1/f process of amplitude
