@@ -101,7 +101,8 @@ def _count_forks(monkeypatch):
     return made
 
 
-@pytest.mark.parametrize("kwargs", [dict(nints=100), dict(nints=130, reads=[0, 3])])
+@pytest.mark.parametrize("kwargs", [dict(nints=100), dict(nints=130, reads=[0, 3]),
+                                    dict(nints=100, dn_gain=2.0, reuse=2)])
 def test_forked_draws_give_the_in_process_frames(monkeypatch, kwargs):
     """All components on (RTN too), a window: 2 threads (forked helper) == 1 thread.
 
