@@ -58,6 +58,18 @@ def _det(n):
 _IDENTITY_IPC = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
 
 
+def _noiseless_stcal_fit(tmp_path, det, ro, rate, gain, algorithm, **engine_kw):
+    """stcal fit (read noise 10 e-, no common mode, no noise measurement) of a
+    noise-free, shot-noise-free exposure of ``rate``."""
+    eng = ChargeEngine(det, ro, rate=rate, gain=gain, rng=1,
+                       options=EngineOptions(shot_noise=False), **engine_kw)
+    exp = str(tmp_path / "noiseless.fits")
+    write_exposure(eng, exp)
+    return fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
+                              read_noise=10.0, remove_common_mode=False,
+                              measure_noise=False)
+
+
 def _white_exposure(tmp_path, det, ro, *, sigma, gain, rate=0.0, seed=7, name="w"):
     noise = ZERO_NOISE.replace(rd_noise=sigma, bias_offset=2000.0)
     no_charge = bool(np.all(np.asarray(rate) == 0))
@@ -130,14 +142,8 @@ def test_noiseless_rate_recovered_within_adc_rounding(tmp_path, algorithm):
     gain = 2.0
     yy, xx = np.mgrid[0:64, 0:64]
     rate = 5.0 + 0.5 * xx + 0.2 * yy                       # e-/s, 5 .. 49
-    eng = ChargeEngine(det, ro, rate=rate, gain=gain, rng=1,
-                       options=EngineOptions(shot_noise=False))
-    exp = str(tmp_path / "flat.fits")
-    write_exposure(eng, exp)
     # stcal divides by the read noise, so the weights need a value > 0 even here
-    res = fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                             read_noise=10.0, remove_common_mode=False,
-                             measure_noise=False)
+    res = _noiseless_stcal_fit(tmp_path, det, ro, rate, gain, algorithm)
     tg = T_FRAME
     if algorithm == "OLS_C":
         bound = 0.5 * gain * 25.0 / (82.5 * tg)
@@ -193,13 +199,8 @@ def test_saturation_handled_as_scenesim_does(tmp_path, algorithm):
     gain = 2.0
     xx = np.mgrid[0:32, 0:32][1]
     rate = np.select([xx < 12, xx < 22], [5.0, 2000.0], 3050.0)
-    eng = ChargeEngine(det, ro, rate=rate, gain=gain, full_well=60000.0, rng=1,
-                       options=EngineOptions(shot_noise=False))
-    exp = str(tmp_path / "sat.fits")
-    write_exposure(eng, exp)
-    res = fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                             read_noise=10.0, remove_common_mode=False,
-                             measure_noise=False)
+    res = _noiseless_stcal_fit(tmp_path, det, ro, rate, gain, algorithm,
+                               full_well=60000.0)
     reg = ~det.reference_mask()
     low, mid, high = (reg & (rate == r) for r in (5.0, 2000.0, 3050.0))
     bound = gain / T_FRAME
