@@ -12,14 +12,14 @@ write_noise_fits
     Stream a ramp to FITS (float32 e- or uint16 DN), atomically.
 """
 
-from .detector import PRESETS, Detector, Subarray, preset
-from .errors import FileFormatError, ParameterError, ScenesimError
-from .fitsio import atomic_path, package_version, to_uint16_dn, write_noise_fits
-from .generator import COMPONENTS, NoiseGenerator, root_seed
-from .params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
-from .pink import (PinkSeries, measure_psd_error, pink_psd_shape, realised_psd,
+from noise.clock import PRESETS, Detector, Subarray, preset
+from noise.errors import FileFormatError, ParameterError, ScenesimError
+from noise.fitsio import atomic_path, package_version, to_uint16_dn, write_noise_fits
+from noise.generator import COMPONENTS, NoiseGenerator, root_seed
+from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
+from noise.pink import (PinkSeries, measure_psd_error, pink_psd_shape, realised_psd,
                    unit_frame_variance)
-from .template import synthetic_template, template_for
+from noise.template import synthetic_template, template_for
 
 __all__ = [
     "Detector", "Subarray", "PRESETS", "preset",

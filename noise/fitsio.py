@@ -18,8 +18,8 @@ from importlib import metadata
 import numpy as np
 from astropy.io import fits
 
-from ._validate import check_float, check_writable
-from .errors import ParameterError
+from noise.validate import check_float, check_writable
+from noise.errors import ParameterError
 
 __all__ = ["atomic_path", "StreamingFITS", "package_version", "to_uint16_dn",
            "write_noise_fits"]

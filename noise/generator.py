@@ -1,7 +1,7 @@
 """Frame-by-frame HxRG noise generator (Rauscher 2015), streamed in bounded memory.
 
 Each read frame is assembled from the components of :mod:`noise.params`, driven by the
-clock of :mod:`noise.detector`:
+clock of :mod:`noise.clock`:
 
 * time-line components (correlated pink, uncorrelated pink, ACN) are sampled once per
   pixel time on each output's time line, overheads included, and placed in the image in
@@ -41,9 +41,9 @@ in bands of ``_BAND_ROWS`` rows with one barrier per band:
   same task.
 
 Measured on the 2-core development machine (full-frame H2RG, 4 outputs, NG defaults,
-steady state, in-process, 15 frames, ``reuse=1``, :func:`noise.memory.keep_freed_memory`
+steady state, in-process, 15 frames, ``reuse=1``, :func:`noise.fast.memory.keep_freed_memory`
 applied): 1 thread 0.119-0.127 s per frame (0.8x the numpy float32 floor of 0.154 s,
-2.2x a floor drawn with :mod:`noise.normal`'s sampler, 0.058 s), 2 threads
+2.2x a floor drawn with :mod:`noise.fast.normal`'s sampler, 0.058 s), 2 threads
 0.089-0.098 s (1.2x and 3.0x; the second thread buys only 1.3x, not diagnosed further:
 the FFTs and the frame assembly passes are the likely limit).  Before the Box-Muller sampler (numpy's ziggurat) it was
 0.185-0.21 s and 0.105-0.117 s.  The first frame of a run also pays for the kTC map,
@@ -60,9 +60,9 @@ contiguous range of its time line, the reset slot between integrations included)
 applies the same float32 operations to every pixel in the same order as
 :meth:`NoiseGenerator.frame`, vectorised over the ``(K, ny, nx)`` block: its frames are
 bit-identical (tested).  The white draws of a batch go through one Box-Muller transform
-(:func:`noise.normal.standard_normal_rows`, bit-identical to one call per stream).
+(:func:`noise.fast.normal.standard_normal_rows`, bit-identical to one call per stream).
 With two or more threads, the 1/f lines and reset levels are made ahead by a forked
-helper process (:mod:`noise.producer`): threads lost to GIL hand-overs between the many
+helper process (:mod:`noise.fast.producer`): threads lost to GIL hand-overs between the many
 small calls of the frame assembly and the line synthesis.  Frames are copied out of
 the batch buffer one at a time, so ``reuse`` keeps its meaning.
 
@@ -96,15 +96,15 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ._validate import check_float, check_int
-from .detector import Detector
-from .errors import ParameterError
-from .params import NoiseParams
-from .pink import PinkSeries
-from .producer import ForkedProducer, available as producer_available
-from .streams import spawned_generators
-from .normal import standard_normal, standard_normal_rows
-from .template import template_for
+from noise.validate import check_float, check_int
+from noise.clock import Detector
+from noise.errors import ParameterError
+from noise.params import NoiseParams
+from noise.pink import PinkSeries
+from noise.fast.producer import ForkedProducer, available as producer_available
+from noise.fast.seedhash import spawned_generators
+from noise.fast.normal import standard_normal, standard_normal_rows
+from noise.template import template_for
 
 __all__ = ["NoiseGenerator", "COMPONENTS", "root_seed"]
 
@@ -701,7 +701,7 @@ class NoiseGenerator:
         Python overhead the batch removes.
 
         With more than one thread, the 1/f lines and the reset levels of the batches
-        are made ahead by a forked helper process (:mod:`noise.producer`; Linux, and
+        are made ahead by a forked helper process (:mod:`noise.fast.producer`; Linux, and
         only while a single thread runs, else here), while this process draws the
         white noise, assembles the frames and its consumer uses them (a worker thread
         lost to GIL hand-overs what it gained; drawing the white noise in the helper
@@ -779,7 +779,7 @@ class NoiseGenerator:
         One stream per (slot, chunk), drawn as :meth:`frame` draws it (one
         :func:`standard_normal` call per chunk, as ``_SUB_ROWS == _WHITE_ROWS``), the
         transforms of all the frames at once (:func:`standard_normal_rows`); the
-        streams' seeds are hashed together (:mod:`noise.streams`, the same generators
+        streams' seeds are hashed together (:mod:`noise.fast.seedhash`, the same generators
         as ``SeedSequence`` builds one by one).
         """
         if not self._sig_runs:

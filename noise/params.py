@@ -39,8 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import check_float
-from .errors import ParameterError
+from noise.validate import check_float
+from noise.errors import ParameterError
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE"]
 

@@ -56,7 +56,7 @@ Properties:
   on the other series of the batch.  Blocks nobody asks for (skipped frames) are never
   computed; only the coarse levels, which cost 1/D of the finest, run through them.
 * **Cost** (one core, measured): one float32 normal per output sample (3-6 ns with the
-  Box-Muller sampler of :mod:`noise.normal`, exact to float32 in the body and to 53-bit
+  Box-Muller sampler of :mod:`noise.fast.normal`, exact to float32 in the body and to 53-bit
   resolution in the tails; numpy's ziggurat costs 9-11 ns) plus ~5 ns of FFT work and
   ~1 ns of copies; :meth:`PinkSeries.plan` hands a range of samples to a thread pool as
   one independent task per series.  Requests are served by whole groups, so up to one
@@ -77,8 +77,8 @@ import time
 import numpy as np
 import scipy.fft as sfft
 
-from .errors import ParameterError
-from .normal import standard_normal
+from noise.errors import ParameterError
+from noise.fast.normal import standard_normal
 
 __all__ = ["PinkSeries", "pink_psd_shape", "realised_psd",
            "unit_frame_variance", "set_fft_workers", "measure_psd_error"]

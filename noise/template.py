@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from .errors import FileFormatError
+from noise.errors import FileFormatError
 
 __all__ = ["synthetic_template", "load_template", "template_for"]
 

@@ -16,7 +16,7 @@ import sys
 import time
 
 from noise.errors import ScenesimError
-from noise.memory import keep_freed_memory
+from noise.fast.memory import keep_freed_memory
 
 __all__ = ["main"]
 
@@ -41,7 +41,7 @@ def _noise(args):
     cb = None
     total = args.frames * args.nints
     if not args.quiet and total >= 3:
-        from .run import _progress_bar
+        from scenesim.run import _progress_bar
         bar = _progress_bar(total, "frame", "noise")
 
         def cb(n):
@@ -61,9 +61,9 @@ def _noise(args):
 
 
 def _run(args):
-    from .engine import EngineOptions
-    from .run import run_scene
-    from .scene import load_scene
+    from scenesim.engine import EngineOptions
+    from scenesim.run import run_scene
+    from scenesim.scene.config import load_scene
 
     scene = load_scene(args.scene)
     options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
@@ -87,11 +87,11 @@ def _run(args):
 
 
 def _fit(args):
-    from .fitting import fit_exposure_file
+    from scenesim.calib.prepare import fit_exposure_file
 
     out = args.output or _default_fit_path(args.exposure, args.fitter)
     if args.fitter.lower().startswith("stcal-"):
-        from .stcal_adapter import fit_exposure_stcal
+        from scenesim.adapters.stcal import fit_exposure_stcal
         fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
                            refpix=args.refpix)
     else:
@@ -110,7 +110,7 @@ def _default_fit_path(path, fitter):
 def _compare(args):
     import os
 
-    from .compare import compare_files
+    from scenesim.validate.compare import compare_files
 
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
@@ -121,7 +121,7 @@ def _compare(args):
 
 
 def _bench(args):
-    from .bench import main as bench_main
+    from scenesim.bench import main as bench_main
 
     return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
                       threads=args.threads)
@@ -194,7 +194,7 @@ def _parser():
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
     args = _parser().parse_args(argv)
-    keep_freed_memory()            # process-wide malloc policy: see noise.memory
+    keep_freed_memory()            # process-wide malloc policy: see noise.fast.memory
     try:
         return args.func(args)
     except ScenesimError as exc:

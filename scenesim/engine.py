@@ -27,7 +27,7 @@ Reads are digitised one by one and averaged into resultants (rounded), like on-b
 frame averaging.  Only a few frames are held in memory; finished resultants are
 written straight to the output file.
 
-Poisson draws use :func:`scenesim.poisson.poisson` (exact inversion for means up to
+Poisson draws use :func:`noise.fast.poisson.poisson` (exact inversion for means up to
 10 e-, numpy's sampler above; 1.4-3x faster than numpy's at the small means of
 dark current and background).
 
@@ -61,12 +61,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise._validate import check_float
+from noise.validate import check_float
 from noise.errors import ParameterError
 from noise.generator import NoiseGenerator, root_seed
 
-from . import effects as fx
-from .poisson import poisson
+from scenesim.detector import effects as fx
+from noise.fast.poisson import poisson
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
            "ARRIVALS"]
@@ -89,7 +89,7 @@ class VariableSource:
         Flat pixel indices of its stamp on the read-out image.
     weight : ndarray of float
         Rate at relative flux 1 in each stamp pixel, e-/s.
-    light_curve : scenesim.lightcurve.LightCurve
+    light_curve : scenesim.sky.lightcurve.LightCurve
         Relative flux versus time (s from the start of the exposure).
     """
 
@@ -165,7 +165,7 @@ class ChargeEngine:
     Parameters
     ----------
     detector : noise.Detector
-    readout : scenesim.readout.Readout
+    readout : scenesim.detector.readout.Readout
     noise_params : noise.NoiseParams or None
         ``None`` (or all amplitudes 0) adds no noise.
     rate : float or ndarray (ny, nx)
@@ -175,7 +175,7 @@ class ChargeEngine:
     cosmic_rays : CosmicRayHits or None
     full_well : float, ndarray (ny, nx) or None
         Saturation level, e-.
-    nonlinearity : scenesim.effects.Nonlinearity or None
+    nonlinearity : scenesim.detector.effects.Nonlinearity or None
     ipc_kernel : ndarray (3, 3) or None
     flat : float, ndarray (ny, nx) or None
     gain : float

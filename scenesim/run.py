@@ -1,10 +1,10 @@
-"""Orchestrator: a validated :class:`~scenesim.scene.Scene` in, files out.
+"""Orchestrator: a validated :class:`~scenesim.scene.config.Scene` in, files out.
 
 Only the outputs asked for are made: with ``[output] ramp = false`` (slopes only) no
 ramp file is written at all -- the resultants are kept in memory
 (``write_exposure(engine, None)``) and fitted from there
-(:func:`scenesim.fitting.prepare_exposure` takes an in-memory
-:class:`~scenesim.exposure.Exposure` whose header and read table are those the file
+(:func:`scenesim.calib.prepare.prepare_exposure` takes an in-memory
+:class:`~scenesim.io.exposure.Exposure` whose header and read table are those the file
 would have had, so the slopes equal those of a fit of the written file, bit for
 bit; checked on the 2048 x 2048 star field).  What it saves there
 (``scenes/h2rg_starfield.toml`` with ``fit = "gls"``, 10 resultants, an 84 MB ramp,
@@ -12,11 +12,11 @@ bit; checked on the 2048 x 2048 star field).  What it saves there
 the 84 MB on disk -- about 1 % of the ~26 s run, below the run-to-run scatter of
 the end-to-end time (25-30 s on a quiet machine).
 
-Stages, each in its own module: rates (:mod:`scenesim.sources`, :mod:`scenesim.psf`,
-:mod:`scenesim.lightcurve`), discrete events (:mod:`scenesim.cosmic`), charge and
-effects read by read (:mod:`scenesim.engine`, :mod:`scenesim.effects`), noise
-(:mod:`noise`), files (:mod:`scenesim.exposure`), then optionally fitting
-(:mod:`scenesim.fit`) and the comparison with truth (:mod:`scenesim.compare`).
+Stages, each in its own module: rates (:mod:`scenesim.sky.sources`, :mod:`scenesim.sky.psf`,
+:mod:`scenesim.sky.lightcurve`), discrete events (:mod:`scenesim.sky.cosmic`), charge and
+effects read by read (:mod:`scenesim.engine`, :mod:`scenesim.detector.effects`), noise
+(:mod:`noise`), files (:mod:`scenesim.io.exposure`), then optionally fitting
+(:mod:`scenesim.rampfit.fit`) and the comparison with truth (:mod:`scenesim.validate.compare`).
 
 Random streams: the scene seed is the root ``SeedSequence``; spawn keys ``(0,)`` the
 engine (noise ``(0, 1)``, Poisson ``(0, 2, ...)``), ``(3,)`` cosmic rays, ``(4,)`` hot
@@ -32,8 +32,8 @@ from astropy.table import vstack
 
 from noise.errors import ParameterError
 
-from .engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from .exposure import write_exposure
+from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
+from scenesim.io.exposure import write_exposure
 
 __all__ = ["build_engine", "run_scene", "RunResult", "build_light_curve"]
 
@@ -55,7 +55,7 @@ def _progress_bar(total, unit, desc):
 
     The monitor only matters for bars that stop being updated; ours are updated after
     every read (and drawn at most every 0.1 s).  Without it the process keeps a single thread, so small frames may use the
-    forked helper of :mod:`noise.producer` (which refuses to fork a multi-threaded
+    forked helper of :mod:`noise.fast.producer` (which refuses to fork a multi-threaded
     process).
     """
     from tqdm import tqdm
@@ -73,8 +73,8 @@ def _stream(seed, *key):
 
 
 def build_light_curve(cfg):
-    """A :class:`scenesim.lightcurve.LightCurve` from a ``LightCurveConfig``."""
-    from .lightcurve import LightCurve
+    """A :class:`scenesim.sky.lightcurve.LightCurve` from a ``LightCurveConfig``."""
+    from scenesim.sky.lightcurve import LightCurve
 
     if cfg.kind == "transit":
         return LightCurve.transit(cfg.t0, cfg.duration, cfg.depth, cfg.ingress)
@@ -89,9 +89,9 @@ def build_light_curve(cfg):
 
 def _rates(scene, seed):
     """Static rate map (e-/s), variable sources, rendered catalogue."""
-    from . import psf as psfmod
-    from .scene import load_map
-    from .sources import draw_hot_pixels
+    from scenesim.sky import psf as psfmod
+    from scenesim.scene.config import load_map
+    from scenesim.sky.sources import draw_hot_pixels
 
     det = scene.detector
     src = scene.sources
@@ -137,7 +137,7 @@ def _cosmic_rays(scene, seed, t_total):
     eff = scene.effects
     if eff.cosmic_ray_rate <= 0:
         return None
-    from .cosmic import CosmicRayModel, draw_cosmic_rays
+    from scenesim.sky.cosmic import CosmicRayModel, draw_cosmic_rays
 
     det = scene.detector
     median, sigma_ln = eff.cosmic_ray_charge
@@ -158,7 +158,7 @@ def build_engine(scene, *, options=EngineOptions()):
 
     ``scene.seed`` must be set (see :meth:`Scene.ensure_seed`).
     """
-    from .scene import load_map
+    from scenesim.scene.config import load_map
 
     if scene.seed is None:
         raise ParameterError("'seed' must be set before building the engine; call "
@@ -242,7 +242,7 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     truth_path = out_cfg.truth_path if out_cfg.truth else None
     fit_path = None
     if out_cfg.fit:
-        from noise._validate import check_writable
+        from noise.validate import check_writable
         stem, ext = os.path.splitext(out_cfg.path)
         fit_path = check_writable("fit path", f"{stem}_{out_cfg.fit}{ext or '.fits'}")
     cards = list(scene.to_header_cards())
@@ -268,13 +268,13 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
             bar.close()
     report = None
     if out_cfg.fit:
-        from .fitting import fit_exposure_file
+        from scenesim.calib.prepare import fit_exposure_file
         exposure = exp_path if keep_ramp else written["exposure"]
         del written
         fit_exposure_file(exposure, fit_path, fitter=out_cfg.fit, refpix=out_cfg.refpix)
         del exposure
         if out_cfg.compare and truth_path is not None:
-            from .compare import compare_files
+            from scenesim.validate.compare import compare_files
             report = compare_files(fit_path, truth_path, plots=plots,
                                    exposure=exp_path if keep_ramp else None)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,

@@ -1,4 +1,4 @@
-"""Tests of scenesim.compare against closed forms on synthetic fit and truth files.
+"""Tests of scenesim.validate.compare against closed forms on synthetic fit and truth files.
 
 Synthetic fits are ``truth + sqrt(V) * N(0, 1)`` with a known ``V``.  The optimal
 variance is checked in two limits with closed forms:
@@ -21,8 +21,8 @@ from astropy.table import Table
 from scipy.special import erf
 
 from noise.errors import FileFormatError, ParameterError
-from scenesim.compare import Report, compare, compare_files
-from scenesim.fit import DO_NOT_USE, JUMP_DET, FitResult, write_fit
+from scenesim.validate.compare import Report, compare, compare_files
+from scenesim.rampfit.fit import DO_NOT_USE, JUMP_DET, FitResult, write_fit
 
 NG, TF, NINTS, GAIN = 6, 10.0, 2, 2.0
 
@@ -180,7 +180,7 @@ def test_jump_hits_are_deposits_inside_a_ramp(tmp_path):
     ((7 i + 1) t_f + t_pix, (7 i + 6) t_f + t_pix]; SATGROUP g ends it at the last
     read of resultant g - 1.
     """
-    from noise.detector import preset
+    from noise.clock import preset
 
     det = preset("H2RG").window(100, 100, 16, 12, "W")
     tf = det.frame_time
@@ -237,7 +237,7 @@ def test_ipc_neighbours_of_deposits_are_not_clean(tmp_path):
 
 
 def _gauss_image(shape, xs, ys, fluxes, sigma):
-    """Exact pixel integrals of circular Gaussians (erf), independent of scenesim.psf."""
+    """Exact pixel integrals of circular Gaussians (erf), independent of scenesim.sky.psf."""
     ny, nx = shape
     out = np.zeros(shape)
     s = math.sqrt(2) * sigma
@@ -251,7 +251,7 @@ def _gauss_image(shape, xs, ys, fluxes, sigma):
 
 def test_photometry_aperture_correction(tmp_path):
     pytest.importorskip("photutils", reason="photutils is needed for photometry")
-    pytest.importorskip("scenesim.psf", reason="scenesim.psf provides encircled_energy")
+    pytest.importorskip("scenesim.sky.psf", reason="scenesim.sky.psf provides encircled_energy")
     rng = np.random.default_rng(14)
     shape = (120, 120)
     fwhm, radius, bkg, flux = 2.0, 4.0, 10.0, 4000.0
@@ -341,7 +341,7 @@ def test_read_times_from_exposure(tmp_path):
     Rate 0, resultants of 2 reads (groupgap 1): white resultant noise sigma^2 / 2, so
     V_opt = (sigma^2 / 2) / sum (tbar - <tbar>)^2 / nints with tbar = 10 * (1.5 + 3 g).
     """
-    from scenesim.readout import Readout
+    from scenesim.detector.readout import Readout
     rng = np.random.default_rng(16)
     sigma, shape = 8.0, (40, 50)
     ro = Readout.multiaccum(2, NG, groupgap=1, nints=NINTS)

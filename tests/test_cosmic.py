@@ -1,4 +1,4 @@
-"""Tests of scenesim.cosmic: Poisson counts, uniform times, charge bookkeeping."""
+"""Tests of scenesim.sky.cosmic: Poisson counts, uniform times, charge bookkeeping."""
 
 import math
 import pickle
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from noise.errors import ParameterError
-from scenesim.cosmic import CosmicRayModel, draw_cosmic_rays
+from scenesim.sky.cosmic import CosmicRayModel, draw_cosmic_rays
 
 
 def test_event_count_mean_and_variance_are_poisson():

@@ -1,4 +1,4 @@
-"""Tests of noise.detector: the one clock, scan directions, subarrays, reference pixels.
+"""Tests of noise.clock: the one clock, scan directions, subarrays, reference pixels.
 
 Expected values are typed in from the design brief and the paper (Rauscher 2015,
 Table 1 and Fig. 5): frame time (ncols_out + nroh) * (nrows + nfoh) * dt, pixel times
@@ -11,7 +11,7 @@ import pickle
 import numpy as np
 import pytest
 
-from noise.detector import PRESETS, Detector, Subarray, preset
+from noise.clock import PRESETS, Detector, Subarray, preset
 from noise.errors import ParameterError
 
 T_FRAME_H2RG = (512 + 12) * (2048 + 1) * 1e-5     # 10.73676 s (DESIGN.md section 2)

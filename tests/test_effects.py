@@ -1,4 +1,4 @@
-"""Tests of scenesim.effects against closed forms: saturation, nonlinearity, IPC, ADC."""
+"""Tests of scenesim.detector.effects against closed forms: saturation, nonlinearity, IPC, ADC."""
 
 import math
 import pickle
@@ -8,7 +8,7 @@ import pytest
 from scipy.signal import convolve2d
 
 from noise.errors import ParameterError
-from scenesim.effects import (Nonlinearity, apply_flat, apply_ipc, apply_saturation,
+from scenesim.detector.effects import (Nonlinearity, apply_flat, apply_ipc, apply_saturation,
                               from_dn, ipc_kernel, to_dn)
 
 

@@ -11,12 +11,12 @@ computed here from those formulas, not from the engine.
 import numpy as np
 import pytest
 
-from noise.detector import Detector, preset
+from noise.clock import Detector, preset
 from noise.errors import ParameterError
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.exposure import write_exposure
-from scenesim.lightcurve import LightCurve
-from scenesim.readout import Readout
+from scenesim.io.exposure import write_exposure
+from scenesim.sky.lightcurve import LightCurve
+from scenesim.detector.readout import Readout
 
 
 def _det():

@@ -1,4 +1,4 @@
-"""Tests of :mod:`scenesim.exposure`: file layout, header keywords, truth contents and
+"""Tests of :mod:`scenesim.io.exposure`: file layout, header keywords, truth contents and
 atomic writing (no partial or temporary file left behind on failure)."""
 
 import os
@@ -8,13 +8,13 @@ import pytest
 from astropy.table import Table
 
 import noise
-from noise.detector import preset
+from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.exposure import (Exposure, read_exposure, read_truth, truth_path_for,
+from scenesim.io.exposure import (Exposure, read_exposure, read_truth, truth_path_for,
                                write_exposure)
-from scenesim.lightcurve import LightCurve
-from scenesim.readout import Readout
+from scenesim.sky.lightcurve import LightCurve
+from scenesim.detector.readout import Readout
 
 
 def _det():

@@ -1,4 +1,4 @@
-"""Tests of scenesim.fit against closed forms and seeded Monte Carlo ramps.
+"""Tests of scenesim.rampfit.fit against closed forms and seeded Monte Carlo ramps.
 
 The ramps are simulated here, independently of the simulator: Poisson increments of
 charge between consecutive reads at their exact times (from reset), Gaussian read
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from noise.errors import FileFormatError, ParameterError
-from scenesim import fit
-from scenesim.fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
+from scenesim.rampfit import fit
+from scenesim.rampfit.fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
                           FitResult, common_mode, fit_ramps, measure_read_noise,
                           model_chi2, ols_variance, optimal_variance,
                           rauscher2007_variance, read_fit, write_fit)
@@ -552,7 +552,7 @@ def test_common_mode_leaves_read_noise_limited_slopes_unbiased(name):
 
 
 def test_saturation_flags_use_the_last_read_of_a_resultant():
-    from scenesim.fitting import saturation_flags
+    from scenesim.calib.prepare import saturation_flags
 
     # Resultants of 8 reads (MEDIUM8-like: 8 read, 2 skipped), zero level 0, rate
     # f: read at frame k holds min(f k t_f, FW).  Resultant 3 averages frames
@@ -578,7 +578,7 @@ def test_saturation_flags_use_the_last_read_of_a_resultant():
 
 @pytest.mark.parametrize("flag", ["remove_common_mode", "measure_noise"])
 def test_fit_exposure_file_checks_flags_first(tmp_path, flag):
-    from scenesim.fitting import fit_exposure_file
+    from scenesim.calib.prepare import fit_exposure_file
 
     with pytest.raises(ParameterError, match=flag):
         fit_exposure_file(str(tmp_path / "missing.fits"), str(tmp_path / "out.fits"),

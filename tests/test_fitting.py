@@ -1,8 +1,8 @@
-"""Tests of :mod:`scenesim.fitting`: the shared pre-processing, fits of in-memory
+"""Tests of :mod:`scenesim.calib.prepare`: the shared pre-processing, fits of in-memory
 exposures, and the header of the slope file.
 
 * ``prepare_exposure`` with every data-driven step off is exactly DN x GAIN (then the
-  reference correction of :mod:`scenesim.refpix`), with the header's read noise;
+  reference correction of :mod:`scenesim.calib.refpix`), with the header's read noise;
 * an exposure kept in memory (``write_exposure(engine, None)``) prepares and fits to
   the same bits as the file written from the same engine and seed, and
   ``run_scene`` with ``ramp = false`` (no ramp file) gives the same slope file as
@@ -19,17 +19,17 @@ import pytest
 from astropy.io import fits
 
 import noise
-from noise.detector import preset
+from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, EngineOptions
-from scenesim.exposure import Exposure, read_exposure, write_exposure
-from scenesim.fit import read_fit
-from scenesim.fitting import (PreparedExposure, exposure_readout, fit_exposure_file,
+from scenesim.io.exposure import Exposure, read_exposure, write_exposure
+from scenesim.rampfit.fit import read_fit
+from scenesim.calib.prepare import (PreparedExposure, exposure_readout, fit_exposure_file,
                               load_exposure, prepare_exposure)
-from scenesim.readout import Readout
-from scenesim.refpix import correct_reference
+from scenesim.detector.readout import Readout
+from scenesim.calib.refpix import correct_reference
 from scenesim.run import run_scene
-from scenesim.scene import parse_scene
+from scenesim.scene.config import parse_scene
 
 _FIT_FIELDS = ("slope", "var_read", "var_poisson", "chi2", "dof", "dq", "slope_ints",
                "var_ints", "n_jumps")
@@ -221,8 +221,8 @@ def test_linearize_resultants_inverts_the_recorded_nonlinearity():
     round-off of values ~5e4 e-, i.e. < 0.01 e-), and the header round-trips."""
     from astropy.io import fits
 
-    from scenesim.effects import Nonlinearity
-    from scenesim.fitting import header_nonlinearity, linearize_resultants
+    from scenesim.detector.effects import Nonlinearity
+    from scenesim.calib.prepare import header_nonlinearity, linearize_resultants
     nl = Nonlinearity((-8e-7, -2e-12))
     t = (np.arange(6) + 1) * 10.0                       # s
     f = np.array([[10.0, 300.0], [1000.0, 800.0]])      # e-/s, up to 6e4 e-

@@ -1,4 +1,4 @@
-"""Undoing IPC before the nonlinearity is inverted (:mod:`scenesim.fitting`).
+"""Undoing IPC before the nonlinearity is inverted (:mod:`scenesim.calib.prepare`).
 
 The engine makes every read ``F * K(p(q))``: the charge ``q`` since reset, the
 classical nonlinearity ``p(q) = q + c2 q^2 + c3 q^3``, the 3x3 IPC convolution ``K``
@@ -24,16 +24,16 @@ import pytest
 from astropy.io import fits
 
 import noise
-from noise.detector import preset
+from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
-from scenesim.effects import Nonlinearity, ipc_kernel
+from scenesim.detector.effects import Nonlinearity, ipc_kernel
 from scenesim.engine import ChargeEngine, EngineOptions
-from scenesim.exposure import read_exposure, write_exposure
-from scenesim.fit import SATURATED, fit_ramps
-from scenesim.fitting import (fit_exposure_file, header_ipc_kernel, ipc_noise_gain,
+from scenesim.io.exposure import read_exposure, write_exposure
+from scenesim.rampfit.fit import SATURATED, fit_ramps
+from scenesim.calib.prepare import (fit_exposure_file, header_ipc_kernel, ipc_noise_gain,
                               linearize_resultants, prepare_exposure,
                               saturation_flags, undo_ipc)
-from scenesim.readout import Readout
+from scenesim.detector.readout import Readout
 
 C2, C3 = -8e-7, -2e-12          # nonlinearity of the bright-star scene (e-^-1, e-^-2)
 FW = 8e4                        # e-
@@ -117,7 +117,7 @@ def test_undo_ipc_is_the_inverse_of_the_dense_operator(kernel):
 def test_row_blocks_give_the_same_result_as_one_block(monkeypatch):
     # A 300-row frame is done in row blocks with halos; forcing 8-pixel blocks (one
     # row per block, shorter than the halo) must give the same bits as one block.
-    import scenesim.fitting as fitting
+    import scenesim.calib.prepare as fitting
     rng = np.random.default_rng(5)
     s = rng.normal(1e4, 2e3, (2, 300, 8)).astype(np.float32)
     s[0, 150, 4] += 7e4

@@ -1,4 +1,4 @@
-"""Tests of scenesim.lightcurve: exact integrals against closed forms and quadrature."""
+"""Tests of scenesim.sky.lightcurve: exact integrals against closed forms and quadrature."""
 
 import math
 import pickle
@@ -10,7 +10,7 @@ from astropy.table import Table
 from scipy.integrate import quad
 
 from noise.errors import FileFormatError, ParameterError
-from scenesim.lightcurve import LightCurve
+from scenesim.sky.lightcurve import LightCurve
 
 
 def test_integral_matches_quad_for_random_curve():

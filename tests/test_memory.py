@@ -1,4 +1,4 @@
-"""noise.memory: the malloc policy is applied on glibc and changes no result."""
+"""noise.fast.memory: the malloc policy is applied on glibc and changes no result."""
 
 import sys
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from noise import NoiseGenerator, NoiseParams, preset
-from noise.memory import keep_freed_memory
+from noise.fast.memory import keep_freed_memory
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc only")

@@ -1,11 +1,11 @@
-"""noise.normal: the Box-Muller sampler against the standard normal law."""
+"""noise.fast.normal: the Box-Muller sampler against the standard normal law."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
 from noise.errors import ParameterError
-from noise.normal import TAIL_V, _BLOCK, standard_normal, standard_normal_rows
+from noise.fast.normal import TAIL_V, _BLOCK, standard_normal, standard_normal_rows
 
 N = 4_000_000
 

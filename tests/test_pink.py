@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from noise import ZERO_NOISE, NoiseGenerator, PinkSeries, pink_psd_shape, preset
-from noise.detector import Detector
+from noise.clock import Detector
 from noise.pink import measure_psd_error
 
 DET = preset("H2RG", naxis1=128, naxis2=128, n_out=4)   # 4 outputs of 32 columns

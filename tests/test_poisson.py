@@ -1,4 +1,4 @@
-"""Tests of scenesim.poisson against the Poisson law (moments, pmf, tail guard)."""
+"""Tests of noise.fast.poisson against the Poisson law (moments, pmf, tail guard)."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from noise.errors import ParameterError
-from scenesim.poisson import _GUIDE_BITS, _guide, _k_max, _k_max_exact, poisson
+from noise.fast.poisson import _GUIDE_BITS, _guide, _k_max, _k_max_exact, poisson
 
 N = 200_000
 
@@ -255,7 +255,7 @@ def test_shared_mean_among_others_and_zero_background():
 def test_small_arrays_are_numpy_stream():
     """Fewer than _NUMPY_BELOW means: g.poisson whole (faster there); at the threshold
     the search takes over (a different stream)."""
-    from scenesim.poisson import _NUMPY_BELOW
+    from noise.fast.poisson import _NUMPY_BELOW
     lam = np.linspace(0.01, 5.0, _NUMPY_BELOW - 1)
     a = poisson(np.random.default_rng(11), lam)
     np.testing.assert_array_equal(a, np.random.default_rng(11).poisson(lam))

@@ -1,4 +1,4 @@
-"""The forked producer of small-frame draws (noise.producer), and what it feeds.
+"""The forked producer of small-frame draws (noise.fast.producer), and what it feeds.
 
 * the protocol: results arrive in order, a slot is reused only after its release, a
   failure in the child is raised in the parent with its traceback, closing early
@@ -19,9 +19,9 @@ import pytest
 
 import noise.generator as generator_module
 from noise import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseGenerator, preset
-from noise.detector import Detector
+from noise.clock import Detector
 from noise.errors import ParameterError
-from noise.producer import ForkedProducer, available
+from noise.fast.producer import ForkedProducer, available
 
 pytestmark = pytest.mark.skipif(not available(), reason="needs POSIX fork (Linux)")
 

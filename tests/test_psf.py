@@ -1,4 +1,4 @@
-"""Tests of scenesim.psf against closed forms and independent quadratures."""
+"""Tests of scenesim.sky.psf against closed forms and independent quadratures."""
 
 import math
 import pickle
@@ -10,7 +10,7 @@ from scipy.integrate import quad
 from scipy.special import erf, erfc, j0, j1
 
 from noise.errors import FileFormatError, ParameterError
-from scenesim.psf import (AiryPSF, GaussianPSF, ImagePSF, encircled_energy,
+from scenesim.sky.psf import (AiryPSF, GaussianPSF, ImagePSF, encircled_energy,
                           render_point_sources)
 
 SQRT2 = math.sqrt(2.0)
@@ -208,7 +208,7 @@ def test_airy_flux_accounting_against_box_integral():
 
 
 def test_chunking_does_not_change_the_result(monkeypatch):
-    import scenesim.psf as psf_module
+    import scenesim.sky.psf as psf_module
     rng = np.random.default_rng(107)
     x, y = rng.uniform(5, 35, 7), rng.uniform(5, 35, 7)
     flux = rng.uniform(1, 100, 7)

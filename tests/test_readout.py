@@ -1,4 +1,4 @@
-"""Tests of scenesim.readout: read patterns, read times, tau, slots and file round trips.
+"""Tests of scenesim.detector.readout: read patterns, read times, tau, slots and file round trips.
 
 Expected values are written independently of the module: closed forms for MULTIACCUM
 mean times and for tau, brute-force double sums for tau, literal slot tables, and a
@@ -16,7 +16,7 @@ from astropy.io import fits
 from astropy.table import Table
 
 from noise.errors import FileFormatError, ParameterError
-from scenesim.readout import (
+from scenesim.detector.readout import (
     NAMED_PATTERNS,
     ROMAN_LIKE_SKIP_TABLE,
     ROMAN_LIKE_TABLE,

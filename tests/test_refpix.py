@@ -1,4 +1,4 @@
-"""Tests of scenesim.refpix.
+"""Tests of scenesim.calib.refpix.
 
 Part 1 uses synthetic cubes built here (white noise plus known per-output offsets,
 even/odd column offsets and a row drift common to all outputs); part 2 measures the
@@ -23,11 +23,11 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from noise.detector import Detector
+from noise.clock import Detector
 from noise.errors import ParameterError
 from noise.generator import NoiseGenerator
 from noise.params import NIRSPEC_DEFAULTS
-from scenesim.refpix import (SCHEMES, correct_reference, format_measurement,
+from scenesim.calib.refpix import (SCHEMES, correct_reference, format_measurement,
                              measure_reference_correction, pool_measurements,
                              reference_layout, white_noise_added)
 

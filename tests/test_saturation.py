@@ -1,4 +1,4 @@
-"""Saturation flags of :func:`scenesim.fitting.saturation_flags` against closed forms.
+"""Saturation flags of :func:`scenesim.calib.prepare.saturation_flags` against closed forms.
 
 The ramps are simulated here, independently of the simulator: each pixel's charge
 gets Poisson increments between consecutive reads at their exact times (rolling
@@ -23,11 +23,11 @@ import numpy as np
 import pytest
 from scipy.signal import convolve2d
 
-from noise.detector import preset
+from noise.clock import preset
 from noise.errors import ParameterError
-from scenesim.effects import Nonlinearity, ipc_kernel
-from scenesim.fit import BAD_VARIANCE, DO_NOT_USE, SATURATED, fit_ramps
-from scenesim.fitting import linearize_resultants, prepare_exposure, saturation_flags
+from scenesim.detector.effects import Nonlinearity, ipc_kernel
+from scenesim.rampfit.fit import BAD_VARIANCE, DO_NOT_USE, SATURATED, fit_ramps
+from scenesim.calib.prepare import linearize_resultants, prepare_exposure, saturation_flags
 
 FW = 8e4                      # e-, full well
 C2, C3 = -8e-7, -2e-12        # nonlinearity: p(FW) = 0.923 FW
@@ -277,8 +277,8 @@ def _engine_exposure():
     first read at FW per pixel."""
     import noise
     from scenesim.engine import ChargeEngine, EngineOptions
-    from scenesim.exposure import write_exposure
-    from scenesim.readout import Readout
+    from scenesim.io.exposure import write_exposure
+    from scenesim.detector.readout import Readout
 
     det = preset("H2RG", naxis1=32, naxis2=32)
     ro = Readout.multiaccum(1, 20, name="RAPID")
@@ -315,7 +315,7 @@ def test_prepare_exposure_grows_flags_when_ipc_is_not_undone():
     exp, truth = _engine_exposure()
     old_header = exp.header.copy()
     del old_header["IPCKERN"]
-    from scenesim.exposure import Exposure
+    from scenesim.io.exposure import Exposure
     for prep in (prepare_exposure(exp, remove_common_mode=False, measure_noise=False,
                                   deconvolve_ipc=False),
                  prepare_exposure(Exposure(exp.sci, old_header, exp.reads),
@@ -341,7 +341,7 @@ def test_adc_ceiling_is_judged_on_the_raw_ramps_and_grown_when_ipc_undone():
     # (alpha times the clipped signal) into its neighbours, so with IPC undone the
     # ceiling is tested on the raw ramps and its flags grown to the 3 x 3 box.
     # Here one dark pixel is set to the 16-bit ceiling from resultant 6 on.
-    from scenesim.exposure import Exposure
+    from scenesim.io.exposure import Exposure
     exp, truth = _engine_exposure()
     sci = exp.sci.copy()
     sci[0, 6:, 8, 9] = 65535

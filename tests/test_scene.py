@@ -1,4 +1,4 @@
-"""Tests of scenesim.scene: TOML scene files validated into frozen dataclasses."""
+"""Tests of scenesim.scene.config: TOML scene files validated into frozen dataclasses."""
 
 import dataclasses
 import glob
@@ -12,10 +12,10 @@ import pytest
 from astropy.io import fits
 from astropy.table import Table
 
-from noise.detector import Detector, Subarray
+from noise.clock import Detector, Subarray
 from noise.errors import FileFormatError, ParameterError
 from noise.params import NIRSPEC_DEFAULTS, NoiseParams
-from scenesim.scene import (EffectsConfig, LightCurveConfig, OutputConfig, PSFConfig,
+from scenesim.scene.config import (EffectsConfig, LightCurveConfig, OutputConfig, PSFConfig,
                             ReadoutConfig, Scene, SourcesConfig, StarConfig, load_map,
                             load_scene, parse_scene)
 

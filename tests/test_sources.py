@@ -1,4 +1,4 @@
-"""Tests of scenesim.sources: catalogue reading, rate maps and hot pixels."""
+"""Tests of scenesim.sky.sources: catalogue reading, rate maps and hot pixels."""
 
 import math
 import os
@@ -9,9 +9,9 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
-from noise.detector import preset
+from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
-from scenesim.sources import draw_hot_pixels, read_catalogue, uniform_or_map
+from scenesim.sky.sources import draw_hot_pixels, read_catalogue, uniform_or_map
 
 
 # --------------------------------------------------------------------- catalogues

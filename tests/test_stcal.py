@@ -1,4 +1,4 @@
-"""Tests of :mod:`scenesim.stcal_adapter` (stcal's ramp fitting on scenesim files).
+"""Tests of :mod:`scenesim.adapters.stcal` (stcal's ramp fitting on scenesim files).
 
 Exposures are simulated with scenesim's own engine on small H2RG arrays whose pixel
 time ``dt`` is stretched so that one frame lasts about 10 s (as on a full H2RG):
@@ -6,8 +6,8 @@ time ``dt`` is stretched so that one frame lasts about 10 s (as on a full H2RG):
 
 * noiseless ramps: any linear unbiased fit returns the rate up to the ADC rounding;
 * white read noise, rate 0: the scatter of the slopes and stcal's reported read-noise
-  variance against the closed forms :func:`scenesim.fit.ols_variance` /
-  :func:`scenesim.fit.optimal_variance`.  The reported variance depends only on the
+  variance against the closed forms :func:`scenesim.rampfit.fit.ols_variance` /
+  :func:`scenesim.rampfit.fit.optimal_variance`.  The reported variance depends only on the
   read noise, gain and timing handed to stcal, so it pins the unit conversion
   (per-read e- -> CDS DN): a factor sqrt(2), a gain or an NFRAMES mistake fails.
 
@@ -17,7 +17,7 @@ measured noise falls to its floor, 0.1 sigma; the scatter test needs independent
 pixels);
 :func:`test_stcal_sees_the_prepared_exposure` checks the default, in which stcal gets
 the arrays and the measured read-noise map of
-:func:`scenesim.fitting.prepare_exposure`, exactly as scenesim's own fitters do.
+:func:`scenesim.calib.prepare.prepare_exposure`, exactly as scenesim's own fitters do.
 """
 
 import os
@@ -31,18 +31,18 @@ stcal = pytest.importorskip("stcal")
 
 from astropy.io import fits  # noqa: E402
 
-from noise.detector import preset  # noqa: E402
+from noise.clock import preset  # noqa: E402
 from noise.errors import FileFormatError, ParameterError  # noqa: E402
 from noise.params import ZERO_NOISE  # noqa: E402
-from scenesim.compare import compare_files  # noqa: E402
+from scenesim.validate.compare import compare_files  # noqa: E402
 from scenesim.engine import ChargeEngine, EngineOptions  # noqa: E402
-from scenesim.exposure import write_exposure  # noqa: E402
-from scenesim.fit import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # noqa: E402
+from scenesim.io.exposure import write_exposure  # noqa: E402
+from scenesim.rampfit.fit import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # noqa: E402
                           SATURATED, model_chi2, ols_variance, optimal_variance,
                           read_fit)
-from scenesim.fitting import fit_exposure_file, prepare_exposure  # noqa: E402
-from scenesim.readout import ROMAN_LIKE_TABLE, Readout  # noqa: E402
-from scenesim.stcal_adapter import (STCAL_ALGORITHMS, fit_exposure_stcal,  # noqa: E402
+from scenesim.calib.prepare import fit_exposure_file, prepare_exposure  # noqa: E402
+from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout  # noqa: E402
+from scenesim.adapters.stcal import (STCAL_ALGORITHMS, fit_exposure_stcal,  # noqa: E402
                                     stcal_read_noise)
 
 T_FRAME = 10.01   # s
@@ -99,7 +99,7 @@ def test_importing_the_adapter_does_not_import_stcal():
     root = os.path.dirname(os.path.dirname(os.path.abspath(scenesim.__file__)))
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    code = ("import sys, scenesim, scenesim.stcal_adapter; "
+    code = ("import sys, scenesim, scenesim.adapters.stcal; "
             "sys.exit(3 if any(m == 'stcal' or m.startswith('stcal.') "
             "for m in sys.modules) else 0)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -1,9 +1,9 @@
-"""noise.streams: the vectorised SeedSequence hash equals numpy's, word for word."""
+"""noise.fast.seedhash: the vectorised SeedSequence hash equals numpy's, word for word."""
 
 import numpy as np
 import pytest
 
-from noise.streams import spawned_generators, spawned_states
+from noise.fast.seedhash import spawned_generators, spawned_states
 
 CASES = [
     (123456789012345678901234567890, ()),          # 97-bit entropy, no prefix

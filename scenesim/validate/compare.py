@@ -17,7 +17,7 @@ not flagged ``DO_NOT_USE``.  For each bin, with ``r = fit - truth``:
   136, 045004, eqs. 28-29; integrations are independent, so their optimal combination
   divides it by ``nints``).  ``std_opt`` = 1 for an optimal fitter; an equal-weight
   fitter reaches ``sqrt(V_ols / V_opt)`` (``ols_ratio``, the bin mean, from
-  :func:`scenesim.fit.ols_variance`).  Its standard error is about
+  :func:`scenesim.rampfit.fit.ols_variance`).  Its standard error is about
   ``std_opt / sqrt(2 n)``;
 * ``chi2_fit``: mean reported ``CHI2`` (when the file has it);
 * ``frac_flagged``: fraction of the bin's regular pixels with any DQ bit set.
@@ -41,14 +41,14 @@ neighbour's charge, hence of its jump, into them).
 Photometry (photutils): circular apertures of radius ``radius`` (default 4 px) at the
 ``SOURCES`` positions on the slope image, minus the median of an annulus
 (``2 radius`` to ``3 radius``) times the aperture area, divided by the encircled
-energy ``scenesim.psf.encircled_energy(psf, radius)`` when the PSF is known (argument
+energy ``scenesim.sky.psf.encircled_energy(psf, radius)`` when the PSF is known (argument
 ``psf``, else ``GaussianPSF(PSFFWHM)`` from the truth header, else no correction and
 a note).  The ratio measured / injected ``flux`` is reported per source, for sources
 whose annulus lies fully on the array and whose flux exceeds 10 times the aperture
 noise ``sqrt(sum V_rep)``.  The median ratio's standard error is
 ``1.2533 std / sqrt(n)`` (the asymptotic efficiency of the median of a normal sample).
 
-Fit files: the scenesim layout (:func:`scenesim.fit.read_fit`, e-/s) or a JWST rate
+Fit files: the scenesim layout (:func:`scenesim.rampfit.fit.read_fit`, e-/s) or a JWST rate
 file (``SCI`` in DN/s, ``DQ``, ``VAR_POISSON`` and ``VAR_RNOISE`` in (DN/s)^2, or
 ``ERR``), converted to e- with the truth header's ``GAIN`` (e-/DN).  The layout is
 detected from the extension names.
@@ -71,7 +71,7 @@ from astropy.table import Table
 from noise.errors import FileFormatError, ParameterError
 from noise.fitsio import atomic_path
 
-from .fit import (DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, FitResult, ols_variance,
+from scenesim.rampfit.fit import (DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, FitResult, ols_variance,
                   optimal_variance, read_fit)
 
 __all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "read_slopes",
@@ -268,7 +268,7 @@ def _fit_dict(fit):
 
 
 def readout_from_header(header):
-    """Rebuild a MULTIACCUM :class:`scenesim.readout.Readout` from header cards.
+    """Rebuild a MULTIACCUM :class:`scenesim.detector.readout.Readout` from header cards.
 
     Parameters
     ----------
@@ -278,9 +278,9 @@ def readout_from_header(header):
 
     Returns
     -------
-    scenesim.readout.Readout
+    scenesim.detector.readout.Readout
     """
-    from .readout import Readout
+    from scenesim.detector.readout import Readout
     if "NGROUPS" not in header:
         raise FileFormatError(
             "truth header lacks 'NGROUPS'; pass the exposure file to get the read times")
@@ -296,7 +296,7 @@ def readout_from_header(header):
 
 
 def _readout_from_exposure(path):
-    from .readout import Readout
+    from scenesim.detector.readout import Readout
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileFormatError(f"'exposure': file {path!r} does not exist")
@@ -354,7 +354,7 @@ def _ramp_windows(truth, readout, t_frame):
     two resultants are unsaturated), or None when the truth lacks the detector
     cards.  Clock time of frame slot ``s``: ``s * t_frame + t_pix``.
     """
-    from noise.detector import detector_from_header
+    from noise.clock import detector_from_header
     try:
         det = detector_from_header(truth["header"])
     except (FileFormatError, ParameterError, KeyError, ValueError):
@@ -442,7 +442,7 @@ def _photometry(slope, var, bad, sources, psf, radius, notes):
     out = {"radius": float(radius), "aperture_correction": float("nan"), "n": 0,
            "sources": [], "median_ratio": float("nan"), "median_ratio_err": float("nan")}
     if psf is not None:
-        from .psf import encircled_energy
+        from scenesim.sky.psf import encircled_energy
         ee = float(encircled_energy(psf, radius))
         out["aperture_correction"] = ee
     else:
@@ -544,11 +544,11 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     Parameters
     ----------
     fit : FitResult or dict
-        A :class:`scenesim.fit.FitResult`, or a dict with ``slope`` (e-/s), ``var``
+        A :class:`scenesim.rampfit.fit.FitResult`, or a dict with ``slope`` (e-/s), ``var``
         ((e-/s)^2, reported), ``dq`` (uint32) of shape (ny, nx), optionally ``chi2`` and
         ``read_noise`` (e- per read).
     truth : dict
-        As returned by :func:`scenesim.exposure.read_truth`: ``RATE_IPC`` (or ``RATE``)
+        As returned by :func:`scenesim.io.exposure.read_truth`: ``RATE_IPC`` (or ``RATE``)
         (ny, nx) e-/s, ``header``, optionally ``CRS`` and ``SOURCES`` tables.
     read_times : sequence of 1-D arrays, seconds from reset, keyword-only
         Read times of each resultant; default rebuilt from the truth header
@@ -570,7 +570,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         Existing directory for PNG plots; None for none.
     notes : sequence of str, keyword-only
         Notes to carry into the report.
-    readout : scenesim.readout.Readout or None, keyword-only
+    readout : scenesim.detector.readout.Readout or None, keyword-only
         The exposure's readout (read indices and frame slots); default rebuilt from
         the truth header (MULTIACCUM).  Gives ``read_times`` when those are not
         given, and the times that decide which cosmic rays fell inside a ramp.
@@ -581,7 +581,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     """
     f = _fit_dict(fit)
     if not isinstance(truth, dict) or "header" not in truth:
-        raise ParameterError("'truth' must be a dict from scenesim.exposure.read_truth "
+        raise ParameterError("'truth' must be a dict from scenesim.io.exposure.read_truth "
                              f"(with 'header'), got {type(truth).__name__}")
     notes = list(notes)
     if "RATE_IPC" in truth:
@@ -593,7 +593,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         raise FileFormatError("truth has neither 'RATE_IPC' nor 'RATE'")
     kernel = None
     if ipc_deconvolved and "RATE_IPC" in truth:
-        from .fitting import header_ipc_kernel, undo_ipc
+        from scenesim.calib.prepare import header_ipc_kernel, undo_ipc
         kernel = header_ipc_kernel(truth["header"])
         if kernel is not None:
             # what a fit of IPC-deconvolved ramps recovers: RATE_IPC with IPC undone
@@ -615,9 +615,9 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     if plots is not None and not os.path.isdir(plots):
         raise ParameterError(f"'plots' must be an existing directory or None, got {plots!r}")
     if readout is not None:
-        from .readout import Readout
+        from scenesim.detector.readout import Readout
         if not isinstance(readout, Readout):
-            raise ParameterError(f"'readout' must be a scenesim.readout.Readout or None, "
+            raise ParameterError(f"'readout' must be a scenesim.detector.readout.Readout or None, "
                                  f"got {type(readout).__name__}")
     hdr = truth["header"]
     if read_noise is None:
@@ -629,7 +629,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
                                  "(RDNOISE) nor the fit has it")
     read_noise = float(read_noise)
     if kernel is not None:        # undoing IPC amplified the white read noise
-        from .fitting import ipc_noise_gain
+        from scenesim.calib.prepare import ipc_noise_gain
         read_noise *= ipc_noise_gain(kernel)
     if read_times is None:
         if "TFRAME" not in hdr:
@@ -643,7 +643,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     if nints is None:
         nints = int(hdr.get("NINTS", 1))
     if psf is None and "PSFFWHM" in hdr:
-        from .psf import GaussianPSF
+        from scenesim.sky.psf import GaussianPSF
         psf = GaussianPSF(float(hdr["PSFFWHM"]))
 
     dq = f["dq"]
@@ -699,7 +699,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     fit_path : str or os.PathLike
         scenesim fit file or JWST rate file (layout detected from extension names).
     truth_path : str or os.PathLike
-        Truth file (:func:`scenesim.exposure.read_truth`).
+        Truth file (:func:`scenesim.io.exposure.read_truth`).
     plots : str or None, keyword-only
         Directory for PNG plots.
     exposure : str or None, keyword-only
@@ -711,7 +711,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     -------
     Report
     """
-    from .exposure import read_truth
+    from scenesim.io.exposure import read_truth
     truth = read_truth(os.fspath(truth_path))
     hdr = truth["header"]
     gain = float(hdr["GAIN"]) if "GAIN" in hdr else None

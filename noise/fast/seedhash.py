@@ -28,7 +28,7 @@ The result is tested word for word against ``numpy.random.SeedSequence``; a
 import numpy as np
 from numpy.random.bit_generator import ISeedSequence
 
-from .errors import ParameterError
+from noise.errors import ParameterError
 
 __all__ = ["spawned_generators", "spawned_states"]
 

@@ -91,7 +91,7 @@ fresh memory is expensive (~350 us per MB of first-touched pages, i.e. ~2.7 ns p
 float64 element per new array), so allocations are kept few.
 
 Measured (131072 float64 means of one value, one thread, best of 5, ns per draw,
-fresh output each call for both; ``python -m scenesim.poisson`` reprints it):
+fresh output each call for both; ``python -m noise.fast.poisson`` reprints it):
 
     lam           0.03   0.3    1     3     10    15    20    30
     g.poisson     14     22     29    40    60    54    52    45

@@ -35,8 +35,8 @@ from functools import cached_property
 
 import numpy as np
 
-from ._validate import check_float, check_int
-from .errors import ParameterError
+from noise.validate import check_float, check_int
+from noise.errors import ParameterError
 
 __all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header"]
 
@@ -305,7 +305,7 @@ class Detector:
 
 def detector_from_header(header):
     """Rebuild the :class:`Detector` recorded by :meth:`Detector.to_header_cards`."""
-    from .errors import FileFormatError
+    from noise.errors import FileFormatError
 
     try:
         det = Detector(

@@ -2,8 +2,8 @@
 
 :func:`fit_exposure_stcal` takes an exposure (a file written by scenesim, or the
 same contents in memory), runs *the same* pre-processing as
-:func:`scenesim.fitting.fit_exposure_file` -- literally the same function,
-:func:`scenesim.fitting.prepare_exposure`: DN to e- with ``GAIN``, IPC undone when
+:func:`scenesim.calib.prepare.fit_exposure_file` -- literally the same function,
+:func:`scenesim.calib.prepare.prepare_exposure`: DN to e- with ``GAIN``, IPC undone when
 the header records its kernel (``IPCKERN``), saturation flags on the estimated last
 read of each resultant, reference correction, the classical nonlinearity inverted
 (``NLCOEFF``), removal of the per-output common mode and the per-column read noise
@@ -11,7 +11,7 @@ measured from the ramps --
 hands the resulting ramps (the e- cube divided by ``GAIN``, in DN) and that same
 read-noise map (converted with :func:`stcal_read_noise`) to
 ``stcal.ramp_fitting.ramp_fit.ramp_fit_data``, and writes the rates in scenesim's
-own slope-file layout (:func:`scenesim.fit.write_fit`).  Both fitters therefore see
+own slope-file layout (:func:`scenesim.rampfit.fit.write_fit`).  Both fitters therefore see
 identical data and noise model, so ``scenesim compare`` of the two slope files
 isolates the fitter.  ``remove_common_mode`` / ``measure_noise`` switch the two
 data-driven steps off for both alike.  stcal is an optional dependency
@@ -60,7 +60,7 @@ What stcal does with the read noise (from its source, stcal 1.20.0):
   (the adapter always passes a fresh array).  Its read-noise variance of a segment of
   ``N`` groups is the equal-weight least-squares value
   ``12 sigma^2 / (nframes t_group^2 (N^3 - N))``, which equals
-  :func:`scenesim.fit.ols_variance` at rate 0 for a MULTIACCUM readout.
+  :func:`scenesim.rampfit.fit.ols_variance` at rate 0 for a MULTIACCUM readout.
 * ``LIKELY`` divides ``readnoise_2d`` by ``sqrt(2)``: ``sigma / GAIN`` DN per read, the
   read noise of Brandt (2024, PASP 136, 045004, eqs. 28-29) with per-resultant read
   counts taken from ``read_pattern``.
@@ -98,10 +98,10 @@ Algorithms
 
 Output
 ------
-The slope file has every extension of :meth:`scenesim.fit.FitResult.to_hdul`, with
+The slope file has every extension of :meth:`scenesim.rampfit.fit.FitResult.to_hdul`, with
 ``FITTER = 'stcal-OLS_C'`` or ``'stcal-LIKELY'``, ``STCALVER`` (stcal version), the
 conversion cards ``RNSTCAL`` (the median ``readnoise_2d`` value, DN CDS) and
-``RNCONV``, and the pre-processing cards of :func:`scenesim.fitting.prepare_exposure`
+``RNCONV``, and the pre-processing cards of :func:`scenesim.calib.prepare.prepare_exposure`
 (``REFPIX``, ``RNMODEL``, ``RNSOURCE``, ``CMREMOVE``, ...); ``RNOISE`` is the
 median read noise handed to stcal, e- per read.
 ``SLOPE`` is stcal's combined rate times ``GAIN``; ``VAR_READ`` / ``VAR_POIS`` are
@@ -111,8 +111,8 @@ per-integration products.
 
 ``CHI2`` is *not* an stcal output (``OLS_C`` computes none; ``LIKELY``'s is per
 integration around per-integration rates).  To give every fitter the same
-diagnostic, it is computed here exactly as :mod:`scenesim.fit` defines it, with
-:func:`scenesim.fit.model_chi2`: the chi-square of the rate estimates
+diagnostic, it is computed here exactly as :mod:`scenesim.rampfit.fit` defines it, with
+:func:`scenesim.rampfit.fit.model_chi2`: the chi-square of the rate estimates
 ``d_i = (R_{i+1} - R_i)/dt_i`` (in e-, the prepared cube) around stcal's combined
 rate ``f``, under the model covariance of Brandt (2024, eqs. 28-29) at ``max(f, 0)``
 with the read noise ``sigma`` handed to stcal, summed over integrations and divided
@@ -163,8 +163,8 @@ Measured cost (2-core machine, one process), 2048 x 2048 x 20 groups: ``OLS_C`` 
 masks).  scenesim's own GLS on the same file: 9.3 s with jump detection.  Measured
 before the common-mode and read-noise steps were added here.  With them, on the
 2048 x 2048 star field (MEDIUM8 x 10 groups): ``OLS_C`` 7.2 s in all, of which
-:func:`scenesim.fitting.prepare_exposure` 2.4 s (1.3 s without the two data-driven
-steps) and :func:`scenesim.fit.model_chi2` 0.4 s.
+:func:`scenesim.calib.prepare.prepare_exposure` 2.4 s (1.3 s without the two data-driven
+steps) and :func:`scenesim.rampfit.fit.model_chi2` 0.4 s.
 """
 
 import inspect
@@ -172,12 +172,12 @@ import math
 
 import numpy as np
 
-from noise._validate import check_writable
+from noise.validate import check_writable
 from noise.errors import ParameterError
 
-from .fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
+from scenesim.rampfit.fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
                   FitResult, model_chi2, write_fit)
-from .fitting import (REFPIX_SCHEMES, exposure_read_noise, exposure_readout,
+from scenesim.calib.prepare import (REFPIX_SCHEMES, exposure_read_noise, exposure_readout,
                       load_exposure, prepare_exposure)
 
 __all__ = ["STCAL_ALGORITHMS", "fit_exposure_stcal", "stcal_read_noise"]
@@ -313,18 +313,18 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
 
     Parameters
     ----------
-    exposure : str, os.PathLike or scenesim.exposure.Exposure
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
         Exposure written by scenesim (``SCI`` uint16 DN (nints, ngroups, ny, nx) and
         ``READS`` table), or the same contents in memory.
     output : str or os.PathLike
-        Slope file to write (scenesim layout, :func:`scenesim.fit.write_fit`,
+        Slope file to write (scenesim layout, :func:`scenesim.rampfit.fit.write_fit`,
         written atomically).
     algorithm : {'OLS_C', 'LIKELY'}, keyword-only
         stcal ramp-fitting algorithm (case-insensitive); see the module notes.
         ``'OLS_C'`` needs evenly spaced, equal groups; ``'LIKELY'`` >= 4 resultants.
     refpix : {'none', 'median', 'jwst'}, keyword-only
         Reference-pixel correction applied before stcal, as in
-        :func:`scenesim.fitting.fit_exposure_file`.
+        :func:`scenesim.calib.prepare.fit_exposure_file`.
     read_noise : float or None, keyword-only
         Model white read noise of one read, e- (not CDS), > 0; default the header's
         ``RDNOISE``.  With ``measure_noise`` it is rescaled per column from the
@@ -336,14 +336,14 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
         Replace an existing ``output``.
     remove_common_mode, measure_noise : bool, keyword-only
         The data-driven pre-processing steps of
-        :func:`scenesim.fitting.prepare_exposure` (default on, as for
-        :func:`scenesim.fitting.fit_exposure_file`).
+        :func:`scenesim.calib.prepare.prepare_exposure` (default on, as for
+        :func:`scenesim.calib.prepare.fit_exposure_file`).
     threads : int or None, keyword-only
         Worker threads of those steps; stcal itself runs on one core.
 
     Returns
     -------
-    scenesim.fit.FitResult
+    scenesim.rampfit.fit.FitResult
         ``fitter`` = ``'stcal-OLS_C'`` or ``'stcal-LIKELY'``; rates in e-/s,
         variances in (e-/s)^2, ``read_noise`` (median of the map handed to stcal)
         in e- per read.
@@ -375,7 +375,7 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
             f"stcal divides by the read noise: header RDNOISE of {exp.name!r} is "
             f"{rdn!r}; pass read_noise > 0 (e- per read) for a noiseless exposure")
 
-    # ---- pre-processing: the one of scenesim.fitting.fit_exposure_file (in e-)
+    # ---- pre-processing: the one of scenesim.calib.prepare.fit_exposure_file (in e-)
     prep = prepare_exposure(exp, refpix=refpix, read_noise=rdn,
                             remove_common_mode=remove_common_mode,
                             measure_noise=measure_noise, threads=threads)

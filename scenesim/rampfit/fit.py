@@ -75,7 +75,7 @@ chi-square: ``chi2 = (d - f_hat)^T C^-1 (d - f_hat) / dof`` with ``dof = n_diff 
 (usable differences of all integrations minus one).  For GLS its expectation is 1;
 for OLS and CDS it is ``1 + (V/V_opt - 1)/dof`` (slightly above 1).  ``chi2 = 0`` where
 ``dof <= 0``.  :func:`model_chi2` evaluates the same quantity for a rate from
-elsewhere (e.g. another fitter's, as :mod:`scenesim.stcal_adapter` does).
+elsewhere (e.g. another fitter's, as :mod:`scenesim.adapters.stcal` does).
 
 Saturation, jumps and short ramps
 ---------------------------------
@@ -170,7 +170,7 @@ scene (H2RG stripe, 60 RAPID groups) the statistic had variance 1.56 instead of 
 almost all of it an offset per (output, difference) common to the output's pixels,
 and 1-4 % of the clean pixels were flagged.
 
-Two data-driven corrections, used by :func:`scenesim.fitting.fit_exposure_file`:
+Two data-driven corrections, used by :func:`scenesim.calib.prepare.fit_exposure_file`:
 
 * :func:`common_mode` estimates (i): after a first fit of a subsample of rows, the
   median over an output's read-noise dominated pixels of ``d_i - f_hat`` (robust to
@@ -424,7 +424,7 @@ def write_fit(path, result, *, header_cards=(), overwrite=True):
     str
         The path written.
     """
-    from noise._validate import check_writable
+    from noise.validate import check_writable
 
     if not isinstance(result, FitResult):
         raise ParameterError(f"'result' must be a FitResult, got {type(result).__name__}")

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from noise._validate import check_float
+from noise.validate import check_float
 from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["LightCurve"]

@@ -1,31 +1,31 @@
 """Fit an exposure: DN to electrons, reference correction, saturation, slopes.
 
 :func:`prepare_exposure` is the one pre-processing of an exposure before any fitter:
-it takes an exposure file (JWST uncal layout, see :mod:`scenesim.exposure`) or the
-same contents in memory (:class:`scenesim.exposure.Exposure`, e.g. from a run that
+it takes an exposure file (JWST uncal layout, see :mod:`scenesim.io.exposure`) or the
+same contents in memory (:class:`scenesim.io.exposure.Exposure`, e.g. from a run that
 writes no ramp file), converts DN to electrons with the header's ``GAIN``, undoes
 the IPC recorded in the header (see "IPC is undone" below), flags saturated
-resultants, corrects the reference pixels (:mod:`scenesim.refpix`), inverts the
+resultants, corrects the reference pixels (:mod:`scenesim.calib.refpix`), inverts the
 classical nonlinearity recorded in the header,
 removes the per-output common mode that the reference pixels missed and measures
 the effective read noise per column, and returns the result as a
 :class:`PreparedExposure`.  :func:`fit_exposure_file` fits its slopes
-(:mod:`scenesim.fit`) and writes the slope file;
-:func:`scenesim.stcal_adapter.fit_exposure_stcal` hands the very same arrays to
+(:mod:`scenesim.rampfit.fit`) and writes the slope file;
+:func:`scenesim.adapters.stcal.fit_exposure_stcal` hands the very same arrays to
 stcal, so that comparing the two isolates the fitter.
 
-Noise model from the data (see :mod:`scenesim.fit`, "Read noise from the data"): the
+Noise model from the data (see :mod:`scenesim.rampfit.fit`, "Read noise from the data"): the
 header's ``RDNOISE`` is the white noise of one read, but after the reference
 correction the ramps also carry (i) noise common to all pixels of an output, read by
 read, and (ii) residual row banding.  (i) is a slow wander of every ramp of the
 output, which the GLS jump test (a step test) flags as jumps; it is estimated from
 the regular pixels (median over each output of the residuals from each pixel's
-line, :func:`scenesim.fit.common_mode`, on at most 64 rows) and subtracted, except
+line, :func:`scenesim.rampfit.fit.common_mode`, on at most 64 rows) and subtracted, except
 its mean rate, which cannot be told from a uniform background.  (ii) is white in
 each pixel's ramp and depends on the column (the time within the row at which the
 pixel is read): the read noise is rescaled per column so that the median ``chi2``
 of read-noise dominated pixels is that of a right model
-(:func:`scenesim.fit.measure_read_noise`, on at most 256 rows).  The file records
+(:func:`scenesim.rampfit.fit.measure_read_noise`, on at most 256 rows).  The file records
 the model value (``RNMODEL``), the median fitted value (``RNOISE``) and whether the
 corrections ran (``RNSOURCE``, ``CMREMOVE``).  On the cosmic-ray scene (H2RG stripe,
 60 RAPID groups, ``nirspec`` noise) they lower the false-positive jump rate from
@@ -38,7 +38,7 @@ Caveat (measured): the common mode is estimated from a finite number of pixels a
 its removal moves all slopes of an output together by the estimate's error.  On
 128 x 128 white-noise exposures at rate 0 (``refpix='none'``) the mean slope of an
 output moved by up to 0.07 sigma of one pixel's slope for RAPID x 10, and by up to
-0.5 sigma for the uneven 9-resultant Roman-like table: :func:`scenesim.fit.common_mode`
+0.5 sigma for the uneven 9-resultant Roman-like table: :func:`scenesim.rampfit.fit.common_mode`
 keeps the *unweighted* mean of its per-difference offsets, whereas a fit is moved
 by their fit-weighted mean (for that table dominated by the short first
 differences).  Keeping the GLS-weighted mean instead (weights at rate 0) brought the
@@ -93,9 +93,9 @@ sigma.  ``K`` is linear, so ``K^-1`` of a resultant is exactly the mean over its
 reads of ``p(q)``; :func:`linearize_resultants` then inverts ``p`` as before (its
 documented error for multi-read resultants, ``~ c2 var(q within the group)``, is
 unchanged).  When the header records the kernel (``IPCKERN``, written by
-:mod:`scenesim.exposure`), :func:`prepare_exposure` therefore undoes it on every
+:mod:`scenesim.io.exposure`), :func:`prepare_exposure` therefore undoes it on every
 resultant of the whole frame right after DN -> e- (:func:`undo_ipc`, the exact
-inverse of :func:`scenesim.effects.apply_ipc`, edges included: the engine applies
+inverse of :func:`scenesim.detector.effects.apply_ipc`, edges included: the engine applies
 IPC to the reference pixels too, so they get back to their own signal), before the
 saturation flags, the reference correction and the linearisation; the fit
 reports then each pixel's *own* rate (truth ``RATE`` without a flat; ``K^-1`` of
@@ -142,13 +142,13 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.io import fits
 
-from noise.detector import Detector, detector_from_header
+from noise.clock import Detector, detector_from_header
 from noise.errors import FileFormatError, ParameterError
 
-from . import effects as fx
-from .exposure import Exposure
-from .fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
-from .readout import Readout
+from scenesim.detector import effects as fx
+from scenesim.io.exposure import Exposure
+from scenesim.rampfit.fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
+from scenesim.detector.readout import Readout
 
 __all__ = ["PreparedExposure", "prepare_exposure", "load_exposure", "exposure_readout",
            "fit_exposure_file", "exposure_read_noise", "saturation_flags",
@@ -173,9 +173,9 @@ class PreparedExposure:
         The exposure's path, or ``Exposure.name`` for one in memory.
     header : astropy.io.fits.Header
         The exposure's primary header.
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
         From the header.
-    readout : scenesim.readout.Readout
+    readout : scenesim.detector.readout.Readout
         From the ``READS`` table and the header.
     gain : float
         e-/DN (header ``GAIN``).
@@ -190,7 +190,7 @@ class PreparedExposure:
         integration).
     read_times : list of ngroups ndarrays, s from each pixel's reset
         Read times of every resultant: ``(N_i,)`` for a rolling reset, ``(N_i, ny,
-        nx)`` for a global reset (see :meth:`scenesim.readout.Readout.read_times`).
+        nx)`` for a global reset (see :meth:`scenesim.detector.readout.Readout.read_times`).
     read_noise : float or ndarray (ny, nx) float64, e- per read
         White read noise of one read (not CDS) the fitter should use: the measured
         per-column map when ``measure_noise``, else ``read_noise_model``.
@@ -250,7 +250,7 @@ def _check_saturation_args(e, tbar, full_well, adc_ceiling_e, fraction, t_last,
                            n_reads, read_noise, nonlinearity, floor, nsigma, grow,
                            refmask):
     """Validate :func:`saturation_flags`' arguments; return (tbar, t_last, n_reads)."""
-    from .effects import Nonlinearity
+    from scenesim.detector.effects import Nonlinearity
     if not isinstance(e, np.ndarray) or e.ndim != 4 or e.dtype.kind != "f":
         raise ParameterError(
             f"'e' must be a float array of shape (nints, nres, ny, nx), got "
@@ -295,7 +295,7 @@ def _check_saturation_args(e, tbar, full_well, adc_ceiling_e, fraction, t_last,
             f"{type(refmask).__name__} {getattr(refmask, 'shape', '')}")
     if nonlinearity is not None and not isinstance(nonlinearity, Nonlinearity):
         raise ParameterError(
-            f"'nonlinearity' must be None or a scenesim.effects.Nonlinearity, got "
+            f"'nonlinearity' must be None or a scenesim.detector.effects.Nonlinearity, got "
             f"{type(nonlinearity).__name__}")
     if n_reads is None:
         n_reads = np.ones(nres)
@@ -400,7 +400,7 @@ def saturation_flags(e, tbar, full_well, adc_ceiling_e, *, fraction=0.97, t_last
         Reads averaged in each resultant (default 1).
     read_noise : float, e- per read
         White read noise of one read (not CDS), for the flattening test's noise.
-    nonlinearity : scenesim.effects.Nonlinearity or None
+    nonlinearity : scenesim.detector.effects.Nonlinearity or None
         Classical nonlinearity of the signal (header ``NLCOEFF``).
     floor : float
         Flattening test: least level, as a fraction of ``p(full_well)`` above the
@@ -504,7 +504,7 @@ def _flattened(r, zero, high, sat, tbar, n_reads, read_noise, nl, nsigma):
         Resultants already flagged (ADC ceiling, level).
     tbar, n_reads : ndarray, shape (nres,)
     read_noise : float, e- per read
-    nl : scenesim.effects.Nonlinearity or None
+    nl : scenesim.detector.effects.Nonlinearity or None
     nsigma : float
 
     Returns
@@ -601,17 +601,17 @@ def _exposure_card(name):
 
 
 def load_exposure(exposure):
-    """An exposure as an :class:`scenesim.exposure.Exposure`.
+    """An exposure as an :class:`scenesim.io.exposure.Exposure`.
 
     Parameters
     ----------
-    exposure : str, os.PathLike or scenesim.exposure.Exposure
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
         Exposure file (read, ``SCI`` uint16 DN + ``READS`` table), or an exposure
         already in memory (returned as it is).
 
     Returns
     -------
-    scenesim.exposure.Exposure
+    scenesim.io.exposure.Exposure
 
     Raises
     ------
@@ -625,7 +625,7 @@ def load_exposure(exposure):
     if not isinstance(exposure, (str, os.PathLike)):
         raise ParameterError(
             f"'exposure' must be a path (str or os.PathLike) or a "
-            f"scenesim.exposure.Exposure, got {type(exposure).__name__}")
+            f"scenesim.io.exposure.Exposure, got {type(exposure).__name__}")
     return Exposure.read(exposure)
 
 
@@ -634,11 +634,11 @@ def exposure_readout(exposure):
 
     Parameters
     ----------
-    exposure : scenesim.exposure.Exposure
+    exposure : scenesim.io.exposure.Exposure
 
     Returns
     -------
-    scenesim.readout.Readout
+    scenesim.detector.readout.Readout
         From the ``READS`` table, with ``NINTS``, ``RESETMD`` and ``READPATT`` from
         the header.
 
@@ -692,11 +692,11 @@ def _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, t
 
 
 def header_nonlinearity(header):
-    """The :class:`~scenesim.effects.Nonlinearity` recorded in an exposure header
+    """The :class:`~scenesim.detector.effects.Nonlinearity` recorded in an exposure header
     (``NONLIN`` and ``NLCOEFF``), or ``None``."""
     if not header.get("NONLIN", False) or not str(header.get("NLCOEFF", "")).strip():
         return None
-    from .effects import Nonlinearity
+    from scenesim.detector.effects import Nonlinearity
     coeffs = [float(c) for c in str(header["NLCOEFF"]).split(",") if c.strip()]
     nl = Nonlinearity(tuple(coeffs))
     return None if nl.is_linear else nl
@@ -714,7 +714,7 @@ def header_ipc_kernel(header):
     Returns
     -------
     ndarray, shape (3, 3), float64, or None
-        The kernel of :func:`scenesim.effects.apply_ipc` (``IPCKERN``: the nine
+        The kernel of :func:`scenesim.detector.effects.apply_ipc` (``IPCKERN``: the nine
         values row by row, ``kernel[1 + dy, 1 + dx]`` is the fraction a pixel sends
         to its neighbour at ``(y + dy, x + dx)``), renormalised to sum 1 exactly as
         the engine did.  ``None`` when ``IPC`` is false, when ``IPCKERN`` is absent
@@ -729,7 +729,7 @@ def header_ipc_kernel(header):
     if not header.get("IPC", False) or "IPCKERN" not in header:
         return None
     text = str(header["IPCKERN"])
-    from .effects import _check_kernel
+    from scenesim.detector.effects import _check_kernel
     try:
         k = _check_kernel(np.array([float(v) for v in text.split(",")]).reshape(3, 3))
     except (ValueError, TypeError) as exc:   # ParameterError is a ValueError
@@ -743,7 +743,7 @@ def header_ipc_kernel(header):
 
 def _kernel_for_deconvolution(kernel):
     """``kernel`` checked (3x3, finite, >= 0, sum 1, centre > 1/2) and renormalised."""
-    from .effects import _check_kernel
+    from scenesim.detector.effects import _check_kernel
     k = _check_kernel(kernel)
     if not k[1, 1] > 0.5:
         raise ParameterError(
@@ -759,7 +759,7 @@ _DECONV_BLOCK = 1 << 18
 
 
 class _Deconvolver:
-    """Jacobi iteration that undoes :func:`scenesim.effects.apply_ipc` on 2-D frames
+    """Jacobi iteration that undoes :func:`scenesim.detector.effects.apply_ipc` on 2-D frames
     (see :func:`undo_ipc`); holds the per-shape constants.
 
     A frame is done in row blocks of ``h`` rows, each with a halo of ``n`` rows (the
@@ -790,7 +790,7 @@ class _Deconvolver:
         # max |K 1 - 1|, on the border only (0 for a kernel with k[1+d] = k[1-d]; see
         # __call__); K 1 at a pixel depends only on which of its neighbours exist,
         # so a frame of at most 5 x 5 has every value that the full one has
-        from .effects import apply_ipc
+        from scenesim.detector.effects import apply_ipc
         ones = np.ones((min(ny, 5), min(nx, 5)))
         self.delta = float(np.max(np.abs(apply_ipc(ones, k) - 1.0)))
         self.row_fac = {0: fac[0], ny - 1: fac[ny - 1]}
@@ -902,7 +902,7 @@ def _deconvolve_frames(frames, kernel, tolerance, threads=1):
 
 
 def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1):
-    """Undo :func:`scenesim.effects.apply_ipc`: the ``x`` with ``apply_ipc(x, kernel)
+    """Undo :func:`scenesim.detector.effects.apply_ipc`: the ``x`` with ``apply_ipc(x, kernel)
     == image`` on the last two axes, edges included.
 
     Jacobi iteration ``x <- (S - sum_{d != 0} k_d x[. - d]) / keep`` from ``x_0 = S``,
@@ -1024,7 +1024,7 @@ def linearize_resultants(e, nl, tbar):
     Parameters
     ----------
     e : ndarray, shape (nints, nres, ny, nx), float32, e-
-    nl : scenesim.effects.Nonlinearity
+    nl : scenesim.detector.effects.Nonlinearity
     tbar : ndarray, shape (nres,), s
 
     Returns
@@ -1066,15 +1066,15 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
     ``RDNOISE`` and ADC ceiling, grown to the 3 x 3 neighbours when the header says
     ``IPC`` and IPC was not undone; with IPC undone, the ADC ceiling is tested on
     the raw ramps and only its flags are grown); reference-pixel correction
-    (:func:`scenesim.refpix.correct_reference`); inversion of the classical
+    (:func:`scenesim.calib.refpix.correct_reference`); inversion of the classical
     nonlinearity recorded in the header (``NLCOEFF``, :func:`linearize_resultants`);
     removal of the per-output common
-    mode (:func:`scenesim.fit.common_mode`); per-column read noise measured from the
-    ramps (:func:`scenesim.fit.measure_read_noise`).
+    mode (:func:`scenesim.rampfit.fit.common_mode`); per-column read noise measured from the
+    ramps (:func:`scenesim.rampfit.fit.measure_read_noise`).
 
     Parameters
     ----------
-    exposure : str, os.PathLike or scenesim.exposure.Exposure
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
         Exposure file written by scenesim (``SCI`` uint16 DN (nints, ngroups, ny,
         nx) + ``READS`` table), or the same contents in memory.
     refpix : {'none', 'median', 'jwst'}, keyword-only
@@ -1090,7 +1090,7 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
         False: ``read_noise`` (or ``RDNOISE``) as it is.
     threads : int or None, keyword-only
         Worker threads of the common-mode and read-noise fits (see
-        :func:`scenesim.fit.fit_ramps`).
+        :func:`scenesim.rampfit.fit.fit_ramps`).
     linearize : bool, keyword-only
         Invert the nonlinearity recorded in the header (no-op when there is none).
     deconvolve_ipc : bool, keyword-only
@@ -1161,7 +1161,7 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
     if ceiling_flags is not None:
         sat |= ceiling_flags
     if refpix != "none" and refmask.any():
-        from .refpix import correct_reference
+        from scenesim.calib.refpix import correct_reference
         e = np.asarray(correct_reference(e, det, scheme=refpix), dtype=np.float32)
     nl = header_nonlinearity(hdr) if linearize else None
     if nl is not None:
@@ -1210,12 +1210,12 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
 
     Parameters
     ----------
-    exposure : str, os.PathLike or scenesim.exposure.Exposure
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
         Exposure file written by scenesim (``SCI`` uint16 DN + ``READS`` table), or
         the same contents in memory (e.g. ``write_exposure(engine, None)
         ["exposure"]``).
     output : str or os.PathLike
-        Slope file (see :func:`scenesim.fit.write_fit`).
+        Slope file (see :func:`scenesim.rampfit.fit.write_fit`).
     fitter : {'cds', 'ols', 'gls'}
     refpix : {'none', 'median', 'jwst'}
     jump_threshold : float or None
@@ -1224,16 +1224,16 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
         Model white read noise, e- per read (not CDS); default the header's
         ``RDNOISE``.
     threads : int or None
-        Worker threads (see :func:`scenesim.fit.fit_ramps`).
+        Worker threads (see :func:`scenesim.rampfit.fit.fit_ramps`).
     overwrite : bool
         Replace an existing ``output``.
     remove_common_mode : bool
         Subtract, per output and read, the noise common to the output's pixels that
-        the reference correction left (:func:`scenesim.fit.common_mode`; see the
+        the reference correction left (:func:`scenesim.rampfit.fit.common_mode`; see the
         module notes).
     measure_noise : bool
         Rescale the read noise per column to the scatter measured in the ramps
-        (:func:`scenesim.fit.measure_read_noise`; see the module notes).  False:
+        (:func:`scenesim.rampfit.fit.measure_read_noise`; see the module notes).  False:
         use ``read_noise`` as it is.
     linearize : bool
         Invert the classical nonlinearity recorded in the header (``NLCOEFF``).
@@ -1244,7 +1244,7 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
 
     Returns
     -------
-    scenesim.fit.FitResult
+    scenesim.rampfit.fit.FitResult
 
     Raises
     ------
@@ -1264,7 +1264,7 @@ def fit_exposure_file(exposure, output, *, fitter="gls", refpix="jwst",
             f"got {jump_threshold!r}")
     _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, threads,
                         deconvolve_ipc)
-    from noise._validate import check_writable
+    from noise.validate import check_writable
     check_writable("output", output, overwrite=overwrite)
     prep = prepare_exposure(exposure, refpix=refpix, read_noise=read_noise,
                             remove_common_mode=remove_common_mode,

@@ -8,7 +8,7 @@ validated, before any work starts, into frozen (hashable, picklable) dataclasses
 =========================  ==================================================
 TOML table                 dataclass
 =========================  ==================================================
-``[detector]``             :class:`noise.detector.Detector` (with ``Subarray``)
+``[detector]``             :class:`noise.clock.Detector` (with ``Subarray``)
 ``[noise]``                :class:`noise.params.NoiseParams`
 ``[readout]``              :class:`ReadoutConfig` (``build()`` -> ``Readout``)
 ``[sources]``              :class:`SourcesConfig`, :class:`PSFConfig`,
@@ -95,11 +95,11 @@ except ModuleNotFoundError:  # Python 3.10
 
 import numpy as np
 
-from noise.detector import Detector, Subarray, preset as detector_preset
+from noise.clock import Detector, Subarray, preset as detector_preset
 from noise.errors import FileFormatError, ParameterError
 from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
 
-from .effects import Nonlinearity, ipc_kernel as _ipc_kernel
+from scenesim.detector.effects import Nonlinearity, ipc_kernel as _ipc_kernel
 
 __all__ = [
     "PSFConfig",
@@ -290,7 +290,7 @@ def load_map(value, detector, *, name, allow_zero=True):
         A scalar, or the path of a FITS file whose first 2-D image holds either the full
         array ``(naxis2, naxis1)`` (the read-out window is cut from it) or the read-out
         shape ``detector.shape``.
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
     name : str, keyword-only
         Parameter name for error messages (e.g. ``'dark_current'``).
     allow_zero : bool, keyword-only
@@ -393,7 +393,7 @@ class PSFConfig:
     normalize : bool
         ``kind='image'``: the image must sum to 1 within 1e-3 and is rescaled to
         exactly 1; if false it is used as given and the shortfall from 1 is flux
-        outside the image (:class:`scenesim.psf.ImagePSF`).
+        outside the image (:class:`scenesim.sky.psf.ImagePSF`).
     min_rate : float
         PSF pixels with a rate below this are skipped, e-/s per pixel (>= 0).
     """
@@ -425,8 +425,8 @@ class PSFConfig:
                 f"'file' is only used by a PSF of kind 'image', got kind {self.kind!r}")
 
     def build(self):
-        """The :mod:`scenesim.psf` model: ``GaussianPSF``, ``AiryPSF`` or ``ImagePSF``."""
-        from . import psf
+        """The :mod:`scenesim.sky.psf` model: ``GaussianPSF``, ``AiryPSF`` or ``ImagePSF``."""
+        from scenesim.sky import psf
 
         if self.kind == "gaussian":
             return psf.GaussianPSF(self.fwhm)
@@ -869,15 +869,15 @@ class ReadoutConfig:
         return next(f for f in _READOUT_FORMS if getattr(self, f) is not None)
 
     def build(self):
-        """The :class:`scenesim.readout.Readout` this configuration describes.
+        """The :class:`scenesim.detector.readout.Readout` this configuration describes.
 
         Raises
         ------
         ParameterError
             Unknown pattern name, reads not strictly increasing, ... (raised by
-            :mod:`scenesim.readout`).
+            :mod:`scenesim.detector.readout`).
         """
-        from .readout import Readout
+        from scenesim.detector.readout import Readout
 
         kw = {"nints": self.nints, "reset_mode": self.reset}
         form = self.form
@@ -975,7 +975,7 @@ class EffectsConfig:
                 raise ParameterError(
                     "give either 'ipc_alpha' (and 'ipc_alpha_diag') or 'ipc_kernel', "
                     "not both")
-            from .effects import _check_kernel
+            from scenesim.detector.effects import _check_kernel
 
             try:
                 k = _check_kernel(self.ipc_kernel)
@@ -1083,7 +1083,7 @@ class Scene:
 
     Parameters
     ----------
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
     noise : noise.params.NoiseParams
     readout : ReadoutConfig
     sources : SourcesConfig
@@ -1396,7 +1396,7 @@ def parse_scene(mapping, *, base_dir="."):
     ------
     ParameterError
         Unknown key (with the nearest valid name), bad type or value, inconsistent
-        settings, or a readout that :mod:`scenesim.readout` rejects.
+        settings, or a readout that :mod:`scenesim.detector.readout` rejects.
     FileFormatError
         A file named by the scene is missing or has the wrong layout.
     """

@@ -78,8 +78,8 @@ def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3, sampler="nump
     sampler : {'numpy', 'scenesim'}, keyword-only
         Samplers: numpy's ``Generator.standard_normal`` and ``Generator.poisson``
         (DESIGN.md section 7, the reported floor), or the faster exact samplers the
-        simulator uses, :func:`noise.normal.standard_normal` and
-        :func:`scenesim.poisson.poisson` (a floor that credits the simulator with nothing
+        simulator uses, :func:`noise.fast.normal.standard_normal` and
+        :func:`noise.fast.poisson.poisson` (a floor that credits the simulator with nothing
         it does not do).
 
     Returns
@@ -97,8 +97,8 @@ def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3, sampler="nump
         raise ParameterError(f"'threads' must be >= 1, got {threads!r}")
     if sampler not in ("numpy", "scenesim"):
         raise ParameterError(f"'sampler' must be 'numpy' or 'scenesim', got {sampler!r}")
-    from noise.normal import standard_normal
-    from .poisson import poisson
+    from noise.fast.normal import standard_normal
+    from noise.fast.poisson import poisson
     gens = [np.random.Generator(np.random.PCG64(s))
             for s in np.random.SeedSequence(12345).spawn(threads)]
     slab = min(_SLAB, max(n_normal, n_poisson, 1))
@@ -196,7 +196,7 @@ def floor_counts(det, params, n_reads, nints=1, charged=0, n_intervals=0):
 # --------------------------------------------------------------------- workloads
 def _cpu_seconds():
     """CPU seconds of this process and of its reaped children (the forked helper of
-    small frames, :mod:`noise.producer`)."""
+    small frames, :mod:`noise.fast.producer`)."""
     own = time.process_time()
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     return own + kids.ru_utime + kids.ru_stime
@@ -232,8 +232,8 @@ def bench_noise(frames, threads):
 def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
                 on_resultant=None):
     """Run a ChargeEngine (to a temp FITS file unless ``on_resultant`` is given)."""
-    from .engine import ChargeEngine, EngineOptions
-    from .exposure import write_exposure
+    from scenesim.engine import ChargeEngine, EngineOptions
+    from scenesim.io.exposure import write_exposure
     opts = options if options is not None else EngineOptions(threads=threads)
     eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
                        options=opts)
@@ -259,14 +259,14 @@ def _star_rates(shape, n, rng, log_flux):
     ny, nx = shape
     x, y = rng.uniform(0, nx - 1, n), rng.uniform(0, ny - 1, n)
     flux = 10 ** rng.uniform(*log_flux, n)
-    from .psf import GaussianPSF, render_point_sources
+    from scenesim.sky.psf import GaussianPSF, render_point_sources
     return render_point_sources(shape, x, y, flux, GaussianPSF(2.0))[0]
 
 
 def bench_jwst(size, threads):
     """H2RG star field: 1000 stars over 4 decades, RAPID, full noise."""
     import noise
-    from .readout import Readout
+    from scenesim.detector.readout import Readout
     quick = not size.startswith("full")
     engine_only = size.endswith("engine")
     det = noise.preset("H2RG", naxis1=512, naxis2=512) if quick else noise.preset("H2RG")
@@ -286,7 +286,7 @@ def bench_jwst(size, threads):
 def bench_roman(size, threads):
     """H4RG-10 with a 9-resultant / 44-read MA table, 0.5 % bright pixels, full noise."""
     import noise
-    from .readout import ROMAN_LIKE_TABLE, Readout
+    from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout
     quick = size != "full"
     det = noise.preset("H4RG-10", naxis1=1024, naxis2=1024) if quick \
         else noise.preset("H4RG-10")
@@ -305,10 +305,10 @@ def bench_roman(size, threads):
 def bench_timeseries(nints, threads):
     """64x64 window, ``nints`` integrations of RAPID x 5, one star, full noise."""
     import noise
-    from .readout import Readout
+    from scenesim.detector.readout import Readout
     det = noise.preset("H2RG").window(992, 992, 64, 64, name="BENCH64")
     ro = Readout.named("RAPID", 5, nints=nints)
-    from .psf import GaussianPSF, render_point_sources
+    from scenesim.sky.psf import GaussianPSF, render_point_sources
     rate = 0.51 + render_point_sources(det.shape, 31.5, 31.5, 1e4, GaussianPSF(2.0))[0]
     params = noise.NoiseParams()
     timing, _ = _run_engine(det, ro, rate, threads, params)
@@ -320,7 +320,7 @@ def bench_timeseries(nints, threads):
 def bench_fit(spec, threads):
     """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter."""
     import noise
-    from .fit import fit_ramps
+    from scenesim.rampfit.fit import fit_ramps
     size, fitter = spec
     ngroups, rate, rn = 20, 10.0, 10.0
     tf = noise.preset("H2RG").frame_time
@@ -348,7 +348,7 @@ OPTION_CASES = ("exact", "gauss_above=1000", "gauss_above=100", "arrivals=2d")
 
 
 def _engine_options(case, threads):
-    from .engine import EngineOptions
+    from scenesim.engine import EngineOptions
     if case == "exact":
         return EngineOptions(threads=threads)
     key, value = case.split("=")
@@ -360,7 +360,7 @@ def _engine_options(case, threads):
 def _options_scene(size):
     """Detector, readout, rate map and white-noise params of the options workload."""
     import noise
-    from .readout import Readout
+    from scenesim.detector.readout import Readout
     det = noise.preset("H2RG", naxis1=size, naxis2=size)
     ro = Readout.named("RAPID", 10)
     # 0.1 .. 1e3 e-/s: up to ~2.8e4 e- over 10 reads at 1024^2, below the 16-bit ADC
@@ -382,7 +382,7 @@ def bench_options(case, threads):
     the largest per-pixel slope difference from the exact path (same seed) in units
     of the optimal sigma.
     """
-    from .fit import fit_ramps, optimal_variance
+    from scenesim.rampfit.fit import fit_ramps, optimal_variance
     size = 1024 if case[1] == "full" else 256
     det, ro, rate, params = _options_scene(size)
     out = {}
@@ -460,7 +460,7 @@ def bench_skips(case, threads):
     engine streaming to an exposure file vs keeping only the in-memory resultants.
     """
     import noise
-    from .readout import Readout
+    from scenesim.detector.readout import Readout
     what, defeated = case
     det = noise.preset("H2RG")
     ro = Readout.named("RAPID", 5)
@@ -525,9 +525,12 @@ def run_case(name, case, threads):
 
 def _child(name, case, threads, queue):
     import noise  # noqa: F401  (imports count in base_rss, not in the case's peak)
-    from noise.memory import keep_freed_memory
-    from . import engine, exposure, fit, readout  # noqa: F401
-    keep_freed_memory()            # as the scenesim command does (noise.memory)
+    from noise.fast.memory import keep_freed_memory
+    from scenesim import engine  # noqa: F401
+    from scenesim.detector import readout  # noqa: F401
+    from scenesim.io import exposure  # noqa: F401
+    from scenesim.rampfit import fit  # noqa: F401
+    keep_freed_memory()            # as the scenesim command does (noise.fast.memory)
     try:
         queue.put(("ok", run_case(name, case, threads)))
     except BaseException as exc:  # report any failure to the parent, then exit

@@ -115,7 +115,7 @@ import numbers
 
 import numpy as np
 
-from noise.detector import Detector
+from noise.clock import Detector
 from noise.errors import ParameterError
 from noise.generator import NoiseGenerator, root_seed
 from noise.params import NIRSPEC_DEFAULTS, NoiseParams
@@ -142,7 +142,7 @@ def reference_layout(detector):
 
     Parameters
     ----------
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
 
     Returns
     -------
@@ -172,7 +172,7 @@ def _check_options(detector, scheme, side_window, sigma):
         raise ParameterError(f"'scheme' must be one of {list(SCHEMES)}, got {scheme!r}")
     if not isinstance(detector, Detector):
         raise ParameterError(
-            f"'detector' must be a noise.detector.Detector, got {type(detector).__name__}")
+            f"'detector' must be a noise.clock.Detector, got {type(detector).__name__}")
     if isinstance(side_window, bool) or not isinstance(side_window, numbers.Integral) \
             or side_window < 1 or side_window % 2 == 0:
         raise ParameterError(
@@ -202,7 +202,7 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
     cube : ndarray, shape (..., ny, nx), e- (or DN; the correction is linear)
         Frames or resultants read out with ``detector``; ``(ny, nx)`` must equal
         ``detector.shape``.
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
         Geometry: outputs, reference border, subarray position.
     scheme : {'jwst', 'median', 'none'}
         See the module notes.
@@ -228,7 +228,7 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
         raise ParameterError(f"'scheme' must be one of {list(SCHEMES)}, got {scheme!r}")
     if not isinstance(detector, Detector):
         raise ParameterError(
-            f"'detector' must be a noise.detector.Detector, got {type(detector).__name__}")
+            f"'detector' must be a noise.clock.Detector, got {type(detector).__name__}")
     cube = np.asarray(cube)
     if cube.dtype.kind not in "iuf":
         raise ParameterError(f"'cube' must be a real numeric array, got dtype {cube.dtype}")
@@ -342,7 +342,7 @@ def white_noise_added(detector, params=NIRSPEC_DEFAULTS, *, scheme="jwst", side_
 
     Parameters
     ----------
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
     params : noise.params.NoiseParams
         Only ``rd_noise`` (per read, e-, scalar or per output) and ``ref_ratio`` are
         used: white noise alone, no kTC or bias in the reference pixels (see the
@@ -484,7 +484,7 @@ def measure_reference_correction(detector, params=NIRSPEC_DEFAULTS, *, scheme="j
 
     Parameters
     ----------
-    detector : noise.detector.Detector
+    detector : noise.clock.Detector
     params : noise.params.NoiseParams
         Amplitudes (e-); default the paper's NIRSpec values.
     scheme : {'jwst', 'median', 'none'}

@@ -5,7 +5,7 @@ import numbers
 import os
 
 
-from .errors import ParameterError
+from noise.errors import ParameterError
 
 __all__ = []
 

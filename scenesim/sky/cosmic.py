@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
-from noise._validate import check_float, check_shape
+from noise.validate import check_float, check_shape
 from noise.errors import ParameterError
 
 __all__ = ["CosmicRayModel", "draw_cosmic_rays"]

@@ -10,7 +10,7 @@ Catalogues
 :func:`read_catalogue` reads a point-source list (ECSV or FITS table, or an astropy
 :class:`~astropy.table.Table`) with the columns ``x``, ``y`` (pixels of the read-out
 image) and ``flux`` (e-/s), matched case-insensitively, and the optional ``id`` and
-``light_curve`` (path of a light-curve file, see :mod:`scenesim.lightcurve`; relative
+``light_curve`` (path of a light-curve file, see :mod:`scenesim.sky.lightcurve`; relative
 paths are taken relative to the catalogue file).  A ``flux`` column with an astropy
 unit is converted to e-/s; ``x``/``y`` with a unit must be in pixels.
 
@@ -38,7 +38,7 @@ import os
 
 import numpy as np
 
-from noise._validate import check_shape
+from noise.validate import check_shape
 from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["read_catalogue", "uniform_or_map", "draw_hot_pixels"]
@@ -197,7 +197,7 @@ def uniform_or_map(value_or_path, shape, name, *, detector=None):
         ``(ny, nx)`` of the read-out image.
     name : str
         Name of the setting, used in error messages (e.g. ``'dark_current'``).
-    detector : noise.detector.Detector or None
+    detector : noise.clock.Detector or None
         When given, a map of the full-array shape ``(naxis2, naxis1)`` is cut to the
         detector's subarray (``[y0:y0+ny, x0:x0+nx]``).
 

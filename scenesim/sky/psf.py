@@ -112,7 +112,7 @@ from scipy.special import erf, j0, j1
 
 from noise.errors import FileFormatError, ParameterError
 
-from .readout import _check_int
+from scenesim.detector.readout import _check_int
 
 __all__ = [
     "GaussianPSF",

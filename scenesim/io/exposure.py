@@ -9,10 +9,10 @@ calibration library's ramp fitting without changing its layout:
   detector and noise parameter, and the charge effects: FULLWELL (e-), NONLIN and
   NLCOEFF (``c2,c3,...`` of ``m = q + c2 q^2 + c3 q^3``, e-), IPC (T/F) and, when
   IPC is on, IPCKERN: the nine values of the 3x3 kernel of
-  :func:`scenesim.effects.apply_ipc`, row by row (``k[1+dy, 1+dx]`` is the fraction
+  :func:`scenesim.detector.effects.apply_ipc`, row by row (``k[1+dy, 1+dx]`` is the fraction
   of a pixel's signal seen by its neighbour at ``(y+dy, x+dx)``; ``%.10g``; the
   engine's kernel as given, which ``apply_ipc`` renormalises to sum 1), so that a
-  fit can undo it (:func:`scenesim.fitting.header_ipc_kernel`);
+  fit can undo it (:func:`scenesim.calib.prepare.header_ipc_kernel`);
 * ``SCI``: uint16 DN, shape (nints, ngroups, ny, nx), streamed resultant by resultant;
 * ``READS``: one row per resultant with its read indices, read times and mean time (the
   per-resultant read times that uneven patterns need).
@@ -30,7 +30,7 @@ In memory: :class:`Exposure` holds what an exposure file holds (``SCI``, the pri
 header and the ``READS`` table, exactly as :func:`read_exposure` returns them from a
 file).  ``write_exposure(engine, None)`` returns one, so a run that wants slopes but
 no ramp file fits the resultants straight from memory
-(:func:`scenesim.fitting.prepare_exposure` takes a path or an :class:`Exposure`); its
+(:func:`scenesim.calib.prepare.prepare_exposure` takes a path or an :class:`Exposure`); its
 header and table go through the same FITS serialisation as the file's, so the fit
 sees the same values to the last bit.
 
@@ -47,7 +47,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from noise._validate import check_writable
+from noise.validate import check_writable
 from noise.fitsio import StreamingFITS, atomic_path
 
 __all__ = ["Exposure", "write_exposure", "truth_path_for", "read_exposure",
@@ -69,7 +69,7 @@ class Exposure:
         Primary header (``GAIN`` e-/DN, ``RDNOISE`` e- per read, ``TFRAME`` s, ...).
     reads : astropy.table.Table
         The ``READS`` table (one row per resultant, see
-        :meth:`scenesim.readout.Readout.read_table`).
+        :meth:`scenesim.detector.readout.Readout.read_table`).
     name : str
         Label recorded in the header of a fit of it (the file path, or
         ``'(in memory)'``).

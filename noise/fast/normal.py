@@ -38,7 +38,7 @@ state, never on threads, so callers keep their spawned-stream layout unchanged.
 
 import numpy as np
 
-from .errors import ParameterError
+from noise.errors import ParameterError
 
 __all__ = ["standard_normal", "standard_normal_rows", "TAIL_V"]
 

@@ -1,0 +1,3 @@
+"""Adapters that run other libraries (stcal) on scenesim's files."""
+
+__all__ = []

@@ -1,0 +1,3 @@
+"""Grading fits against the injected truth: statistics, photometry and plots."""
+
+__all__ = []
