@@ -4,6 +4,7 @@ import math
 import numbers
 import os
 
+import numpy as np
 
 from noise.errors import ParameterError
 
@@ -64,3 +65,47 @@ def check_shape(name, shape):
     if ny < 1 or nx < 1:
         raise ParameterError(f"{name!r} must be positive, got {shape!r}")
     return ny, nx
+
+
+def check_map(name, value, shape, *, allow_zero):
+    """Validate a scalar or a (ny, nx) map against ``shape`` (the image's last two axes).
+
+    Returns a float or a float64 ndarray; values must be finite and >= 0 (``allow_zero``)
+    or > 0.
+    """
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value.item()
+    rule = ">= 0" if allow_zero else "> 0"
+    if np.ndim(value) == 0:
+        if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.number)):
+            raise ParameterError(
+                f"{name!r} must be a real number or a map, got {value!r}")
+        v = float(value)
+        if not math.isfinite(v) or (v < 0 if allow_zero else v <= 0):
+            raise ParameterError(f"{name!r} must be finite and {rule}, got {value!r}")
+        return v
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != tuple(shape[-2:]):
+        raise ParameterError(
+            f"{name!r} map must be a scalar or have the image shape {tuple(shape[-2:])} "
+            f"(ny, nx), got shape {arr.shape}")
+    bad = ~np.isfinite(arr) | ((arr < 0) if allow_zero else (arr <= 0))
+    if bad.any():
+        y, x = np.argwhere(bad)[0]
+        raise ParameterError(
+            f"{name!r} map must be finite and {rule} everywhere; {int(bad.sum())} pixels "
+            f"are not, e.g. [{y}, {x}] = {float(arr[y, x])!r}")
+    return arr
+
+
+def check_image(name, image):
+    arr = np.asarray(image)
+    if arr.ndim < 2:
+        raise ParameterError(
+            f"{name!r} must have at least 2 dimensions (..., ny, nx), "
+            f"got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.integer)
+            or np.issubdtype(arr.dtype, np.floating)):
+        raise ParameterError(
+            f"{name!r} must be an integer or float array, got {arr.dtype}")
+    return arr

@@ -14,7 +14,8 @@ The noise model lives in the sibling package :mod:`noise`.
 """
 
 from scenesim.validate.compare import Report, compare, compare_files
-from scenesim.detector.effects import Nonlinearity, apply_ipc, ipc_kernel
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.ipc import apply_ipc, ipc_kernel
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
 from scenesim.io.exposure import read_exposure, read_truth, write_exposure
 from scenesim.io.exposure import Exposure

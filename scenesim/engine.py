@@ -65,8 +65,8 @@ from noise.validate import check_float
 from noise.errors import ParameterError
 from noise.generator import NoiseGenerator, root_seed
 
-from scenesim.detector import effects as fx
 from noise.fast.poisson import poisson
+from scenesim.detector.ipc import apply_ipc
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
            "ARRIVALS"]
@@ -175,7 +175,7 @@ class ChargeEngine:
     cosmic_rays : CosmicRayHits or None
     full_well : float, ndarray (ny, nx) or None
         Saturation level, e-.
-    nonlinearity : scenesim.detector.effects.Nonlinearity or None
+    nonlinearity : scenesim.detector.nonlinearity.Nonlinearity or None
     ipc_kernel : ndarray (3, 3) or None
     flat : float, ndarray (ny, nx) or None
     gain : float
@@ -476,7 +476,7 @@ class ChargeEngine:
         """Effects (3) and (4) when IPC is on (IPC couples rows: done on the whole frame)."""
         if self.ipc_kernel is None:
             return q
-        q = fx.apply_ipc(q, self.ipc_kernel).astype(np.float32, copy=False)
+        q = apply_ipc(q, self.ipc_kernel).astype(np.float32, copy=False)
         if self.flat is not None:
             q *= self.flat.astype(np.float32) if self.flat.ndim else np.float32(self.flat)
         return q
@@ -651,7 +651,7 @@ class ChargeEngine:
         """``rate`` after IPC and flat (what a linear fit should recover), e-/s."""
         out = np.asarray(rate, dtype=np.float64)
         if self.ipc_kernel is not None:
-            out = fx.apply_ipc(out, self.ipc_kernel)
+            out = apply_ipc(out, self.ipc_kernel)
         if self.flat is not None:
             out = out * self.flat
         return out

@@ -8,8 +8,11 @@ import pytest
 from scipy.signal import convolve2d
 
 from noise.errors import ParameterError
-from scenesim.detector.effects import (Nonlinearity, apply_flat, apply_ipc, apply_saturation,
-                              from_dn, ipc_kernel, to_dn)
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.flat import apply_flat
+from scenesim.detector.ipc import apply_ipc, ipc_kernel
+from scenesim.detector.saturation import apply_saturation
+from noise.adc import from_dn, to_dn
 
 
 # ------------------------------------------------------------------------ saturation

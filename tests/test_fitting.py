@@ -221,8 +221,9 @@ def test_linearize_resultants_inverts_the_recorded_nonlinearity():
     round-off of values ~5e4 e-, i.e. < 0.01 e-), and the header round-trips."""
     from astropy.io import fits
 
-    from scenesim.detector.effects import Nonlinearity
-    from scenesim.calib.prepare import header_nonlinearity, linearize_resultants
+    from scenesim.detector.nonlinearity import Nonlinearity
+    from scenesim.calib.prepare import header_nonlinearity
+    from scenesim.detector.nonlinearity import linearize_resultants
     nl = Nonlinearity((-8e-7, -2e-12))
     t = (np.arange(6) + 1) * 10.0                       # s
     f = np.array([[10.0, 300.0], [1000.0, 800.0]])      # e-/s, up to 6e4 e-

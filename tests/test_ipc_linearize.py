@@ -26,13 +26,14 @@ from astropy.io import fits
 import noise
 from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
-from scenesim.detector.effects import Nonlinearity, ipc_kernel
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.ipc import ipc_kernel
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import read_exposure, write_exposure
 from scenesim.rampfit.fit import SATURATED, fit_ramps
-from scenesim.calib.prepare import (fit_exposure_file, header_ipc_kernel, ipc_noise_gain,
-                              linearize_resultants, prepare_exposure,
-                              saturation_flags, undo_ipc)
+from scenesim.calib.prepare import fit_exposure_file, header_ipc_kernel, prepare_exposure, saturation_flags
+from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
+from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
 
 C2, C3 = -8e-7, -2e-12          # nonlinearity of the bright-star scene (e-^-1, e-^-2)
@@ -117,13 +118,13 @@ def test_undo_ipc_is_the_inverse_of_the_dense_operator(kernel):
 def test_row_blocks_give_the_same_result_as_one_block(monkeypatch):
     # A 300-row frame is done in row blocks with halos; forcing 8-pixel blocks (one
     # row per block, shorter than the halo) must give the same bits as one block.
-    import scenesim.calib.prepare as fitting
+    import scenesim.detector.ipc as ipc_module
     rng = np.random.default_rng(5)
     s = rng.normal(1e4, 2e3, (2, 300, 8)).astype(np.float32)
     s[0, 150, 4] += 7e4
     one = undo_ipc(s, GENERAL, tolerance=1e-3)
     identity = np.array([[0, 0, 0], [0, 1.0, 0], [0, 0, 0]])
-    monkeypatch.setattr(fitting, "_DECONV_BLOCK", 8)
+    monkeypatch.setattr(ipc_module, "_DECONV_BLOCK", 8)
     np.testing.assert_array_equal(undo_ipc(s, GENERAL, tolerance=1e-3), one)
     np.testing.assert_array_equal(undo_ipc(s, GENERAL, tolerance=1e-3, threads=2), one)
     np.testing.assert_array_equal(undo_ipc(s, identity), s)

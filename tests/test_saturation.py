@@ -25,9 +25,11 @@ from scipy.signal import convolve2d
 
 from noise.clock import preset
 from noise.errors import ParameterError
-from scenesim.detector.effects import Nonlinearity, ipc_kernel
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.ipc import ipc_kernel
 from scenesim.rampfit.fit import BAD_VARIANCE, DO_NOT_USE, SATURATED, fit_ramps
-from scenesim.calib.prepare import linearize_resultants, prepare_exposure, saturation_flags
+from scenesim.detector.nonlinearity import linearize_resultants
+from scenesim.calib.prepare import prepare_exposure, saturation_flags
 
 FW = 8e4                      # e-, full well
 C2, C3 = -8e-7, -2e-12        # nonlinearity: p(FW) = 0.923 FW

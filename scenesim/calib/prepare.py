@@ -95,7 +95,7 @@ documented error for multi-read resultants, ``~ c2 var(q within the group)``, is
 unchanged).  When the header records the kernel (``IPCKERN``, written by
 :mod:`scenesim.io.exposure`), :func:`prepare_exposure` therefore undoes it on every
 resultant of the whole frame right after DN -> e- (:func:`undo_ipc`, the exact
-inverse of :func:`scenesim.detector.effects.apply_ipc`, edges included: the engine applies
+inverse of :func:`scenesim.detector.ipc.apply_ipc`, edges included: the engine applies
 IPC to the reference pixels too, so they get back to their own signal), before the
 saturation flags, the reference correction and the linearisation; the fit
 reports then each pixel's *own* rate (truth ``RATE`` without a flat; ``K^-1`` of
@@ -145,15 +145,15 @@ from astropy.io import fits
 from noise.clock import Detector, detector_from_header
 from noise.errors import FileFormatError, ParameterError
 
-from scenesim.detector import effects as fx
+from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
+from scenesim.detector.nonlinearity import linearize_resultants
+from scenesim.detector.readout import Readout
 from scenesim.io.exposure import Exposure
 from scenesim.rampfit.fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
-from scenesim.detector.readout import Readout
 
 __all__ = ["PreparedExposure", "prepare_exposure", "load_exposure", "exposure_readout",
            "fit_exposure_file", "exposure_read_noise", "saturation_flags",
-           "header_nonlinearity", "linearize_resultants", "header_ipc_kernel",
-           "undo_ipc", "ipc_noise_gain", "REFPIX_SCHEMES"]
+           "header_nonlinearity", "header_ipc_kernel", "REFPIX_SCHEMES"]
 
 REFPIX_SCHEMES = ("none", "median", "jwst")
 
@@ -250,7 +250,7 @@ def _check_saturation_args(e, tbar, full_well, adc_ceiling_e, fraction, t_last,
                            n_reads, read_noise, nonlinearity, floor, nsigma, grow,
                            refmask):
     """Validate :func:`saturation_flags`' arguments; return (tbar, t_last, n_reads)."""
-    from scenesim.detector.effects import Nonlinearity
+    from scenesim.detector.nonlinearity import Nonlinearity
     if not isinstance(e, np.ndarray) or e.ndim != 4 or e.dtype.kind != "f":
         raise ParameterError(
             f"'e' must be a float array of shape (nints, nres, ny, nx), got "
@@ -295,7 +295,7 @@ def _check_saturation_args(e, tbar, full_well, adc_ceiling_e, fraction, t_last,
             f"{type(refmask).__name__} {getattr(refmask, 'shape', '')}")
     if nonlinearity is not None and not isinstance(nonlinearity, Nonlinearity):
         raise ParameterError(
-            f"'nonlinearity' must be None or a scenesim.detector.effects.Nonlinearity, got "
+            f"'nonlinearity' must be None or a scenesim.detector.nonlinearity.Nonlinearity, got "
             f"{type(nonlinearity).__name__}")
     if n_reads is None:
         n_reads = np.ones(nres)
@@ -400,7 +400,7 @@ def saturation_flags(e, tbar, full_well, adc_ceiling_e, *, fraction=0.97, t_last
         Reads averaged in each resultant (default 1).
     read_noise : float, e- per read
         White read noise of one read (not CDS), for the flattening test's noise.
-    nonlinearity : scenesim.detector.effects.Nonlinearity or None
+    nonlinearity : scenesim.detector.nonlinearity.Nonlinearity or None
         Classical nonlinearity of the signal (header ``NLCOEFF``).
     floor : float
         Flattening test: least level, as a fraction of ``p(full_well)`` above the
@@ -504,7 +504,7 @@ def _flattened(r, zero, high, sat, tbar, n_reads, read_noise, nl, nsigma):
         Resultants already flagged (ADC ceiling, level).
     tbar, n_reads : ndarray, shape (nres,)
     read_noise : float, e- per read
-    nl : scenesim.detector.effects.Nonlinearity or None
+    nl : scenesim.detector.nonlinearity.Nonlinearity or None
     nsigma : float
 
     Returns
@@ -692,11 +692,11 @@ def _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, t
 
 
 def header_nonlinearity(header):
-    """The :class:`~scenesim.detector.effects.Nonlinearity` recorded in an exposure header
+    """The :class:`~scenesim.detector.nonlinearity.Nonlinearity` recorded in an exposure header
     (``NONLIN`` and ``NLCOEFF``), or ``None``."""
     if not header.get("NONLIN", False) or not str(header.get("NLCOEFF", "")).strip():
         return None
-    from scenesim.detector.effects import Nonlinearity
+    from scenesim.detector.nonlinearity import Nonlinearity
     coeffs = [float(c) for c in str(header["NLCOEFF"]).split(",") if c.strip()]
     nl = Nonlinearity(tuple(coeffs))
     return None if nl.is_linear else nl
@@ -714,7 +714,7 @@ def header_ipc_kernel(header):
     Returns
     -------
     ndarray, shape (3, 3), float64, or None
-        The kernel of :func:`scenesim.detector.effects.apply_ipc` (``IPCKERN``: the nine
+        The kernel of :func:`scenesim.detector.ipc.apply_ipc` (``IPCKERN``: the nine
         values row by row, ``kernel[1 + dy, 1 + dx]`` is the fraction a pixel sends
         to its neighbour at ``(y + dy, x + dx)``), renormalised to sum 1 exactly as
         the engine did.  ``None`` when ``IPC`` is false, when ``IPCKERN`` is absent
@@ -729,9 +729,9 @@ def header_ipc_kernel(header):
     if not header.get("IPC", False) or "IPCKERN" not in header:
         return None
     text = str(header["IPCKERN"])
-    from scenesim.detector.effects import _check_kernel
+    from scenesim.detector.ipc import check_kernel
     try:
-        k = _check_kernel(np.array([float(v) for v in text.split(",")]).reshape(3, 3))
+        k = check_kernel(np.array([float(v) for v in text.split(",")]).reshape(3, 3))
     except (ValueError, TypeError) as exc:   # ParameterError is a ValueError
         raise FileFormatError(
             f"header keyword 'IPCKERN' must be the 9 comma-separated values of a 3x3 "
@@ -739,318 +739,6 @@ def header_ipc_kernel(header):
     if k[1, 1] == 1.0:
         return None
     return k
-
-
-def _kernel_for_deconvolution(kernel):
-    """``kernel`` checked (3x3, finite, >= 0, sum 1, centre > 1/2) and renormalised."""
-    from scenesim.detector.effects import _check_kernel
-    k = _check_kernel(kernel)
-    if not k[1, 1] > 0.5:
-        raise ParameterError(
-            f"'kernel' must keep more than half of the charge in its centre (the "
-            f"iteration contracts by (1 - centre) / centre < 1), got centre "
-            f"{k[1, 1]!r}; allowed: 4 alpha + 4 alpha_diag < 0.5")
-    return k
-
-
-#: Pixels per row block of the IPC deconvolution (the block and its halo stay in the
-#: cache through the iterations: 128 rows of a 2048-wide frame).
-_DECONV_BLOCK = 1 << 18
-
-
-class _Deconvolver:
-    """Jacobi iteration that undoes :func:`scenesim.detector.effects.apply_ipc` on 2-D frames
-    (see :func:`undo_ipc`); holds the per-shape constants.
-
-    A frame is done in row blocks of ``h`` rows, each with a halo of ``n`` rows (the
-    iteration count) on either side: a step moves information by one row, so after
-    ``n`` steps the block's own rows equal those of ``n`` steps on the whole frame,
-    and the block's buffers stay in the cache.  The frame is overwritten block after
-    block; the ``n`` original rows above the next block are kept aside first.
-    """
-
-    def __init__(self, k, ny, nx, dtype):
-        self.k, self.ny, self.nx = k, ny, nx
-        self.dtype = np.dtype(dtype)
-        self.rho = (1.0 - k[1, 1]) / k[1, 1]
-        # neighbours grouped by weight: out[p] += w * x[p - d]; in a zero-padded
-        # buffer x[p - d] is xp[1 + y - dy, 1 + x - dx] (sources off the array: 0)
-        groups = {}
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                w = float(k[1 + dy, 1 + dx])
-                if (dy, dx) != (0, 0) and w != 0.0:
-                    groups.setdefault(w, []).append((1 - dy, 1 - dx))
-        self.groups = [(self.dtype.type(-w / k[1, 1]), offs)
-                       for w, offs in groups.items()]
-        self.inv_centre = self.dtype.type(1.0 / k[1, 1])
-        # border: x = (S - sum) / keep = (S / c - sum / c) * (c / keep)
-        keep = fx.ipc_keep(k, ny, nx)
-        fac = (k[1, 1] / keep).astype(self.dtype)
-        # max |K 1 - 1|, on the border only (0 for a kernel with k[1+d] = k[1-d]; see
-        # __call__); K 1 at a pixel depends only on which of its neighbours exist,
-        # so a frame of at most 5 x 5 has every value that the full one has
-        from scenesim.detector.effects import apply_ipc
-        ones = np.ones((min(ny, 5), min(nx, 5)))
-        self.delta = float(np.max(np.abs(apply_ipc(ones, k) - 1.0)))
-        self.row_fac = {0: fac[0], ny - 1: fac[ny - 1]}
-        self.row_fac = {y: f for y, f in self.row_fac.items() if np.any(f != 1)}
-        self.col_fac = [(x, fac[:, x]) for x in sorted({0, nx - 1})
-                        if np.any(fac[1:ny - 1, x] != 1)]
-
-    def _step(self, src, dst, scaled, s, m, lo):
-        """One step on rows ``lo .. lo + m`` of the frame, from the padded block
-        ``src`` into the interior of ``dst``; ``scaled`` is ``S / c``."""
-        nx = self.nx
-        out = dst[1:m + 1, 1:nx + 1]
-        if not self.groups:                      # the identity kernel
-            np.copyto(out, scaled[:m])
-            return
-        for i, (coef, offs) in enumerate(self.groups):
-            tgt = out if i == 0 else s[:m]
-            views = [src[r:r + m, c:c + nx] for r, c in offs]
-            if len(views) > 1:
-                np.add(views[0], views[1], out=tgt)
-            else:
-                np.copyto(tgt, views[0])
-            for v in views[2:]:
-                tgt += v
-            tgt *= coef
-            if i:
-                out += tgt
-        out += scaled[:m]
-        for y, f in self.row_fac.items():
-            if lo <= y < lo + m:
-                out[y - lo] *= f
-        for x, f in self.col_fac:
-            a, b = max(lo, 1), min(lo + m, self.ny - 1)
-            if b > a:
-                out[a - lo:b - lo, x] *= f[a:b]
-
-    def __call__(self, frame, tolerance):
-        """Deconvolve ``frame`` (ny, nx) in place; return the iterations made."""
-        ny, nx = self.ny, self.nx
-        # first change |x_1 - x_0| = |S - K S| / keep, keep >= c; S - K S =
-        # sum_d k_d (S(p) - S(p - d)) + (1 - (K 1)(p)) S(p), the sum over the
-        # neighbours on the array (weights <= 1 - c), so that
-        # |x_1 - x_0| <= rho (max S - min S) + |1 - K 1| max|S| / c
-        hi, lo = float(np.max(frame)), float(np.min(frame))
-        first = self.rho * (hi - lo) + self.delta * max(hi, -lo) / self.k[1, 1]
-        n = _iterations(self.rho, first, tolerance)
-        h = min(ny, max(n, _DECONV_BLOCK // max(nx, 1), 1))
-        rows = min(ny, h + 2 * n)
-        a = np.zeros((rows + 2, nx + 2), self.dtype)
-        b = np.zeros_like(a)
-        s = np.empty((rows, nx), self.dtype)
-        scaled = np.empty((rows, nx), self.dtype)
-        carry = np.empty((min(n, ny), nx), self.dtype)
-        for y0 in range(0, ny, h):
-            y1 = min(ny, y0 + h)
-            lo, hi = max(0, y0 - n), min(ny, y1 + n)
-            m = hi - lo
-            above = y0 - lo                      # rows above y0: kept aside before
-            x0 = a[1:m + 1, 1:nx + 1]
-            if above:
-                x0[:above] = carry[carry.shape[0] - above:]
-            x0[above:] = frame[y0:hi]
-            a[m + 1:] = 0
-            b[m + 1:] = 0
-            np.multiply(x0, self.inv_centre, out=scaled[:m])
-            src, dst = a, b
-            for _ in range(n):
-                self._step(src, dst, scaled, s, m, lo)
-                src, dst = dst, src
-            if y1 < ny:                          # original rows above the next block
-                keep = min(n, y1)
-                carry[carry.shape[0] - keep:] = frame[y1 - keep:y1]
-            frame[y0:y1] = src[1 + above:1 + above + (y1 - y0), 1:nx + 1]
-        return n
-
-
-def _iterations(rho, first_change, tolerance):
-    """Jacobi iterations n for an error below ``tolerance``: the map contracts by
-    ``rho`` in the max norm, so ``|x_n - x*| <= rho^n / (1 - rho) |x_1 - x_0|``."""
-    if first_change <= 0 or rho == 0:
-        return 1
-    n = math.log(tolerance * (1 - rho) / first_change) / math.log(rho)
-    return max(1, math.ceil(n))
-
-
-def _deconvolve_frames(frames, kernel, tolerance, threads=1):
-    """Undo IPC on every 2-D frame of ``frames`` (..., ny, nx), float, in place.
-
-    ``kernel`` must already be checked (:func:`_kernel_for_deconvolution`).  Frames
-    are independent: with ``threads > 1`` they are shared among worker threads (numpy
-    releases the GIL in the array passes).  Returns the largest number of iterations
-    made.
-    """
-    ny, nx = frames.shape[-2:]
-    flat = frames.reshape((-1, ny, nx))
-    if flat.shape[0] == 0 or ny == 0 or nx == 0:
-        return 0
-    dec = _Deconvolver(kernel, ny, nx, frames.dtype)
-    threads = max(1, min(int(threads), flat.shape[0]))
-    if threads == 1:
-        n = max(dec(f, tolerance) for f in flat)
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(threads) as pool:
-            n = max(pool.map(lambda f: dec(f, tolerance), flat))
-    if not np.shares_memory(flat, frames):          # reshape had to copy
-        frames[...] = flat.reshape(frames.shape)
-    return n
-
-
-def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1):
-    """Undo :func:`scenesim.detector.effects.apply_ipc`: the ``x`` with ``apply_ipc(x, kernel)
-    == image`` on the last two axes, edges included.
-
-    Jacobi iteration ``x <- (S - sum_{d != 0} k_d x[. - d]) / keep`` from ``x_0 = S``,
-    ``keep`` the fraction a pixel keeps (the centre, plus on the array's border the
-    weights whose targets are off the array, which :func:`apply_ipc` leaves in the
-    pixel).  The map contracts by ``rho = (1 - centre) / centre`` in the max norm
-    (``4 (alpha + alpha_diag) / (1 - 4 alpha - 4 alpha_diag)``: 0.064 for ``alpha =
-    1.5 %``), so after ``n`` steps the error is at most ``rho^n / (1 - rho)`` times
-    the largest change of the first step (Banach); ``n`` is the least that puts this
-    bound below ``tolerance``, for each frame.  The first change, ``|(I - K) S| /
-    keep``, is bounded a priori (no extra pass) by ``rho (max S - min S)`` plus, for
-    a kernel that is not point-symmetric, ``|1 - K 1| max|S| / centre`` on the
-    border: for a frame spanning 7.4e4 e- and a tolerance of 5e-3 e- (1e-3 of a 5
-    e- read noise), ``n`` = 6 at ``alpha = 1.5 %`` (each step divides the error by
-    15.7).  float32 input is iterated in float32 (round-off ~1e-7 of the values,
-    not amplified: the map contracts).  A frame is done in row blocks that stay in
-    the cache, each with an ``n``-row halo, which gives the same result as whole
-    frames.
-
-    Parameters
-    ----------
-    image : ndarray, shape (..., ny, nx), float, e- (or any unit)
-        Signal after IPC; leading axes (integrations, resultants) are independent
-        frames.
-    kernel : array_like, shape (3, 3)
-        The kernel of :func:`apply_ipc` (finite, >= 0, summing to 1 within 1e-9,
-        then renormalised), keeping more than half in its centre (``4 alpha + 4
-        alpha_diag < 0.5``; real detectors: a few %).
-    tolerance : float, keyword-only
-        Largest error allowed (unit of ``image``), > 0.
-    threads : int, keyword-only
-        Worker threads over the frames, >= 1.
-
-    Returns
-    -------
-    ndarray, shape of ``image``
-        float32 for float32 input, float64 otherwise (a new array).
-
-    Raises
-    ------
-    noise.errors.ParameterError
-        Bad kernel (including a centre <= 1/2, for which the iteration does not
-        converge), tolerance or threads, or ``image`` not at least 2-D.
-
-    Notes
-    -----
-    Linear, so undoing IPC on a resultant (a mean of reads) gives the mean of the
-    reads before IPC.  White noise added after IPC (read noise) comes out amplified by
-    ``sqrt(sum_j (K^-1)_j^2)`` (1.065 for ``alpha = 1.5 %``; see
-    :func:`ipc_noise_gain`) and anticorrelated between neighbours.  Cost on this
-    machine (one thread): 13 ms per step for a 2048 x 2048 float32 frame with a
-    nearest-neighbour kernel, 16 ms with diagonal terms, 21 ms for 8 distinct
-    weights; two threads over the frames: ~0.6 of that.
-    """
-    img = np.asarray(image)
-    if img.ndim < 2 or img.dtype.kind not in "fiu" or not np.all(np.isfinite(img)):
-        raise ParameterError(
-            f"'image' must be a finite real array with at least 2 dimensions (..., ny, "
-            f"nx), got {img.dtype} shape {img.shape}")
-    k = _kernel_for_deconvolution(kernel)
-    if isinstance(tolerance, bool) or not isinstance(tolerance, numbers.Real) \
-            or not math.isfinite(tolerance) or tolerance <= 0:
-        raise ParameterError(
-            f"'tolerance' must be a finite number > 0, got {tolerance!r}")
-    if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) \
-            or threads < 1:
-        raise ParameterError(f"'threads' must be an integer >= 1, got {threads!r}")
-    out = img.astype(np.float32 if img.dtype == np.float32 else np.float64, copy=True)
-    _deconvolve_frames(out, k, float(tolerance), int(threads))
-    return out
-
-
-def ipc_noise_gain(kernel):
-    """Factor by which undoing IPC amplifies white noise added after it.
-
-    ``sqrt(sum_j (K^-1)_j^2)``, the norm of the inverse kernel, far from the array's
-    edges (computed by deconvolving a unit impulse on a 41 x 41 grid: the inverse
-    kernel decays by ``rho`` per pixel, so the truncation is ``< rho^20``).  The read
-    noise of one read after :func:`undo_ipc` is this times the read noise.
-
-    Parameters
-    ----------
-    kernel : array_like, shape (3, 3)
-        As for :func:`undo_ipc`.
-
-    Returns
-    -------
-    float
-        >= 1; 1.0655 for ``ipc_kernel(0.015)``.
-    """
-    k = _kernel_for_deconvolution(kernel)
-    delta = np.zeros((41, 41))
-    delta[20, 20] = 1.0
-    _deconvolve_frames(delta, k, 1e-15)
-    return float(np.sqrt(np.sum(delta ** 2)))
-
-
-def linearize_resultants(e, nl, tbar):
-    """Invert the classical nonlinearity of resultants, like a pipeline's linearity step.
-
-    The engine applies ``m = p(q)`` to the charge ``q`` accumulated since reset, before
-    the bias, kTC and read noise are added.  The zero level of each pixel and
-    integration is estimated as the first resultant extrapolated back to the reset on
-    the linearised scale, ``z = L_0 - tbar_0 (L_1 - L_0) / (tbar_1 - tbar_0)`` with
-    ``L = z + p^-1(R - z)`` iterated (``R_0`` for one-resultant ramps), and every
-    resultant becomes ``z + p^-1(R - z)`` (values outside the
-    invertible range are clipped to it; those are saturated anyway).  One
-    approximation, far below the noise for H2RG-like coefficients: a resultant that
-    averages several reads is treated as one read at its mean charge (error ``~ c2
-    var(q within the group)``).  ``e`` must be free of IPC, which the engine applies
-    after the nonlinearity: :func:`prepare_exposure` undoes it first
-    (:func:`undo_ipc`) when the header records the kernel.  On IPC-mixed signals
-    ``sum_j k_j p(q_j)`` the inversion returns ``sum_j k_j q_j + c2 sum_j k_j (q_j -
-    Q)^2`` to first order (``Q = sum_j k_j q_j``): the kernel-weighted variance of
-    the neighbours' charges, ``~ c2 alpha sum_n (q_n - q)^2``, times ``c2`` (-0.3
-    sigma in the bright-star scene's bright bins, down to -0.8 sigma next to its
-    bright pixels).
-
-    Parameters
-    ----------
-    e : ndarray, shape (nints, nres, ny, nx), float32, e-
-    nl : scenesim.detector.effects.Nonlinearity
-    tbar : ndarray, shape (nres,), s
-
-    Returns
-    -------
-    ndarray, same shape, float32, e-
-    """
-    e = np.asarray(e, dtype=np.float32)
-    lo, hi = nl.measured_range
-    lo, hi = np.nextafter(lo, np.inf), np.nextafter(hi, -np.inf)   # strictly inside
-    r0 = e[:, 0].astype(np.float64)
-    zero = r0
-    if e.shape[1] >= 2:
-        # extrapolate on the linearised scale: the raw ramp is curved, so a straight
-        # line through R_0, R_1 misplaces z by ~ -2 c2 q_0^2; each pass shrinks the
-        # error by a factor ~ c2 q (three passes: < 1e-6 e- for H2RG-like c2)
-        r1 = e[:, 1].astype(np.float64)
-        w = tbar[0] / (tbar[1] - tbar[0])
-        for _ in range(4):
-            l0 = nl.invert(np.clip(r0 - zero, lo, hi))
-            l1 = nl.invert(np.clip(r1 - zero, lo, hi))
-            zero = zero + l0 - np.maximum(l1 - l0, 0.0) * w
-    out = np.empty_like(e)
-    for r in range(e.shape[1]):
-        m = np.clip(e[:, r] - zero, lo, hi)
-        out[:, r] = nl.invert(m) + zero
-    return out
 
 
 def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
@@ -1133,20 +821,19 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
     rn_gain = 1.0
     ceiling_flags = None
     if decon:
-        try:
-            kernel = _kernel_for_deconvolution(kernel)
-        except ParameterError as exc:
-            raise ParameterError(
-                f"exposure {exp.name!r}: its IPC kernel (IPCKERN) cannot be "
-                f"deconvolved ({exc}); pass deconvolve_ipc=False") from exc
         # the ADC clip is not linear: judged on the raw ramps, and grown to the 3 x 3
         # box (undoing IPC spreads a clipped pixel's error into its neighbours)
         if np.any(t_last > tbar) or float(e.max()) >= ceiling:
             ceiling_flags = saturation_flags(e, tbar, 0.0, ceiling, t_last=t_last,
                                              n_reads=n_reads, grow=1)
         tolerance = _IPC_TOLERANCE * math.hypot(rdn, gain / math.sqrt(12))
-        _deconvolve_frames(e, kernel, tolerance,
-                           min(os.cpu_count() or 1, 8) if threads is None else threads)
+        try:
+            undo_ipc(e, kernel, tolerance=tolerance, out=e,
+                     threads=min(os.cpu_count() or 1, 8) if threads is None else threads)
+        except ParameterError as exc:
+            raise ParameterError(
+                f"exposure {exp.name!r}: its IPC kernel (IPCKERN) cannot be "
+                f"deconvolved ({exc}); pass deconvolve_ipc=False") from exc
         rn_gain = ipc_noise_gain(kernel)
     rdn_model = rdn * rn_gain
     # growth hides the bend that a saturating pixel puts in its neighbours through

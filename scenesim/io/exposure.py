@@ -9,7 +9,7 @@ calibration library's ramp fitting without changing its layout:
   detector and noise parameter, and the charge effects: FULLWELL (e-), NONLIN and
   NLCOEFF (``c2,c3,...`` of ``m = q + c2 q^2 + c3 q^3``, e-), IPC (T/F) and, when
   IPC is on, IPCKERN: the nine values of the 3x3 kernel of
-  :func:`scenesim.detector.effects.apply_ipc`, row by row (``k[1+dy, 1+dx]`` is the fraction
+  :func:`scenesim.detector.ipc.apply_ipc`, row by row (``k[1+dy, 1+dx]`` is the fraction
   of a pixel's signal seen by its neighbour at ``(y+dy, x+dx)``; ``%.10g``; the
   engine's kernel as given, which ``apply_ipc`` renormalises to sum 1), so that a
   fit can undo it (:func:`scenesim.calib.prepare.header_ipc_kernel`);

@@ -99,7 +99,8 @@ from noise.clock import Detector, Subarray, preset as detector_preset
 from noise.errors import FileFormatError, ParameterError
 from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
 
-from scenesim.detector.effects import Nonlinearity, ipc_kernel as _ipc_kernel
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.ipc import ipc_kernel as _ipc_kernel
 
 __all__ = [
     "PSFConfig",
@@ -975,10 +976,10 @@ class EffectsConfig:
                 raise ParameterError(
                     "give either 'ipc_alpha' (and 'ipc_alpha_diag') or 'ipc_kernel', "
                     "not both")
-            from scenesim.detector.effects import _check_kernel
+            from scenesim.detector.ipc import check_kernel
 
             try:
-                k = _check_kernel(self.ipc_kernel)
+                k = check_kernel(self.ipc_kernel)
             except (TypeError, ValueError) as exc:
                 if isinstance(exc, ParameterError):
                     raise

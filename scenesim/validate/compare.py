@@ -593,7 +593,8 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         raise FileFormatError("truth has neither 'RATE_IPC' nor 'RATE'")
     kernel = None
     if ipc_deconvolved and "RATE_IPC" in truth:
-        from scenesim.calib.prepare import header_ipc_kernel, undo_ipc
+        from scenesim.calib.prepare import header_ipc_kernel
+        from scenesim.detector.ipc import undo_ipc
         kernel = header_ipc_kernel(truth["header"])
         if kernel is not None:
             # what a fit of IPC-deconvolved ramps recovers: RATE_IPC with IPC undone
@@ -629,7 +630,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
                                  "(RDNOISE) nor the fit has it")
     read_noise = float(read_noise)
     if kernel is not None:        # undoing IPC amplified the white read noise
-        from scenesim.calib.prepare import ipc_noise_gain
+        from scenesim.detector.ipc import ipc_noise_gain
         read_noise *= ipc_noise_gain(kernel)
     if read_times is None:
         if "TFRAME" not in hdr:
