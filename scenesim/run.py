@@ -34,6 +34,7 @@ from noise.errors import ParameterError
 
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
 from scenesim.io.exposure import write_exposure
+from scenesim.io.header import psf_cards
 
 __all__ = ["build_engine", "run_scene", "RunResult", "build_light_curve"]
 
@@ -245,11 +246,7 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
         from noise.validate import check_writable
         stem, ext = os.path.splitext(out_cfg.path)
         fit_path = check_writable("fit path", f"{stem}_{out_cfg.fit}{ext or '.fits'}")
-    cards = list(scene.to_header_cards())
-    if scene.sources.psf.kind == "gaussian":
-        cards.append(("PSFFWHM", scene.sources.psf.fwhm, "[pix] Gaussian PSF FWHM"))
-    elif scene.sources.psf.kind == "airy":
-        cards.append(("PSFAIRY", scene.sources.psf.radius, "[pix] Airy first dark ring"))
+    cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf)
     nreads = ro.nints * len(ro.needed_reads)
     bar = None
     cb = None

@@ -143,24 +143,21 @@ import numpy as np
 from astropy.io import fits
 
 from noise.clock import Detector, detector_from_header
-from noise.errors import FileFormatError, ParameterError
+from noise.errors import ParameterError
 
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
 from scenesim.io.exposure import Exposure
+from scenesim.io.header import (COPIED_KEYS, card, exposure_card, exposure_read_noise,
+                                exposure_readout, header_ipc_kernel,
+                                header_nonlinearity)
 from scenesim.rampfit.fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
 
-__all__ = ["PreparedExposure", "prepare_exposure", "load_exposure", "exposure_readout",
-           "fit_exposure_file", "exposure_read_noise", "saturation_flags",
-           "header_nonlinearity", "header_ipc_kernel", "REFPIX_SCHEMES"]
+__all__ = ["PreparedExposure", "prepare_exposure", "load_exposure", "fit_exposure_file",
+           "saturation_flags", "REFPIX_SCHEMES"]
 
 REFPIX_SCHEMES = ("none", "median", "jwst")
-
-#: Exposure header keywords copied into the header of a fit.
-_COPIED_KEYS = ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
-                "SEED", "SCENE", "IPC", "IPCKERN")
-_CARD = 80                       # characters in a FITS header card
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,15 +218,6 @@ class PreparedExposure:
     read_noise_model: float
     refmask: np.ndarray
     cards: tuple
-
-
-def exposure_read_noise(header):
-    """White read noise per read (e-) from an exposure header: a scalar or per-output."""
-    value = header.get("RDNOISE", 0.0)
-    if isinstance(value, str):
-        vals = [float(v) for v in value.split(",") if v.strip()]
-        return float(np.sqrt(np.mean(np.square(vals)))) if vals else 0.0
-    return float(value)
 
 
 #: Truncation error of the IPC deconvolution in :func:`prepare_exposure`, as a
@@ -558,48 +546,6 @@ def _flattened(r, zero, high, sat, tbar, n_reads, read_noise, nl, nsigma):
     return np.arange(nres)[None, :] >= first[:, None]
 
 
-def _printable(text):
-    """``text`` with every character outside printable ASCII replaced by ``?``."""
-    return "".join(c if " " <= c <= "~" else "?" for c in str(text))
-
-
-def _tail(text, width):
-    """The end of ``text``, prefixed by ``...``, in at most ``width`` card characters
-    (a quote counts twice in a FITS string)."""
-    if len(text) + text.count("'") <= width:
-        return text
-    out = []
-    used = 3
-    for c in reversed(text):
-        used += 2 if c == "'" else 1
-        if used > width:
-            break
-        out.append(c)
-    return "..." + "".join(reversed(out))
-
-
-def _card(key, value, comment):
-    """``(key, value, comment)`` that astropy writes as one card without a warning.
-
-    Strings are made printable ASCII; the comment is cut to the room the value
-    leaves (a string value longer than one card becomes CONTINUE cards, no comment).
-    """
-    if isinstance(value, str):
-        value = _printable(value)
-    image = fits.Card(key, value).image
-    if len(image) > _CARD:
-        return key, value, ""
-    room = _CARD - 10 - max(len(image[10:].rstrip()), 20) - 3
-    return key, value, _printable(comment)[:max(room, 0)]
-
-
-def _exposure_card(name):
-    """``EXPOSURE`` card: the end of the exposure's path, fitting one card."""
-    comment = "fitted exposure"
-    width = _CARD - 10 - 2 - 3 - len(comment)        # KEY=_ + quotes + _/_ + comment
-    return _card("EXPOSURE", _tail(_printable(name), width), comment)
-
-
 def load_exposure(exposure):
     """An exposure as an :class:`scenesim.io.exposure.Exposure`.
 
@@ -629,45 +575,6 @@ def load_exposure(exposure):
     return Exposure.read(exposure)
 
 
-def exposure_readout(exposure):
-    """The readout of an exposure, checked against its header and ``SCI`` shape.
-
-    Parameters
-    ----------
-    exposure : scenesim.io.exposure.Exposure
-
-    Returns
-    -------
-    scenesim.detector.readout.Readout
-        From the ``READS`` table, with ``NINTS``, ``RESETMD`` and ``READPATT`` from
-        the header.
-
-    Raises
-    ------
-    noise.errors.FileFormatError
-        The header lacks ``GAIN``, ``TFRAME`` or ``NINTS``, or ``SCI`` does not have
-        the shape (NINTS, resultants, ny, nx) that the header and table describe.
-    """
-    hdr = exposure.header
-    missing = [k for k in ("GAIN", "TFRAME", "NINTS") if k not in hdr]
-    if missing:
-        raise FileFormatError(
-            f"exposure {exposure.name!r} lacks header keyword {missing[0]!r}")
-    det = detector_from_header(hdr)
-    nints = int(hdr["NINTS"])
-    ro = Readout.from_read_table(exposure.reads, nints=nints,
-                                 reset_mode=str(hdr.get("RESETMD", "rolling")),
-                                 name=str(hdr.get("READPATT", "CUSTOM")))
-    sci = exposure.sci
-    if (sci.ndim != 4 or sci.shape[:2] != (nints, ro.ngroups)
-            or sci.shape[2:] != det.shape):
-        raise FileFormatError(
-            f"exposure {exposure.name!r}: SCI shape {sci.shape} does not match "
-            f"NINTS={nints}, {ro.ngroups} resultants and the {det.shape} detector in "
-            f"its header")
-    return ro
-
-
 def _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, threads,
                         deconvolve_ipc=True):
     if refpix not in REFPIX_SCHEMES:
@@ -689,56 +596,6 @@ def _check_prepare_args(refpix, read_noise, remove_common_mode, measure_noise, t
                                 or threads < 1):
         raise ParameterError(
             f"'threads' must be an integer >= 1 or None, got {threads!r}")
-
-
-def header_nonlinearity(header):
-    """The :class:`~scenesim.detector.nonlinearity.Nonlinearity` recorded in an exposure header
-    (``NONLIN`` and ``NLCOEFF``), or ``None``."""
-    if not header.get("NONLIN", False) or not str(header.get("NLCOEFF", "")).strip():
-        return None
-    from scenesim.detector.nonlinearity import Nonlinearity
-    coeffs = [float(c) for c in str(header["NLCOEFF"]).split(",") if c.strip()]
-    nl = Nonlinearity(tuple(coeffs))
-    return None if nl.is_linear else nl
-
-
-def header_ipc_kernel(header):
-    """The IPC kernel recorded in an exposure header (``IPC`` and ``IPCKERN``), or
-    ``None``.
-
-    Parameters
-    ----------
-    header : astropy.io.fits.Header
-        Exposure primary header.
-
-    Returns
-    -------
-    ndarray, shape (3, 3), float64, or None
-        The kernel of :func:`scenesim.detector.ipc.apply_ipc` (``IPCKERN``: the nine
-        values row by row, ``kernel[1 + dy, 1 + dx]`` is the fraction a pixel sends
-        to its neighbour at ``(y + dy, x + dx)``), renormalised to sum 1 exactly as
-        the engine did.  ``None`` when ``IPC`` is false, when ``IPCKERN`` is absent
-        (files from before the card existed: the kernel is unknown), or when the
-        kernel is the identity (nothing to undo).
-
-    Raises
-    ------
-    noise.errors.FileFormatError
-        ``IPCKERN`` is not nine numbers forming a valid kernel (finite, >= 0, sum 1).
-    """
-    if not header.get("IPC", False) or "IPCKERN" not in header:
-        return None
-    text = str(header["IPCKERN"])
-    from scenesim.detector.ipc import check_kernel
-    try:
-        k = check_kernel(np.array([float(v) for v in text.split(",")]).reshape(3, 3))
-    except (ValueError, TypeError) as exc:   # ParameterError is a ValueError
-        raise FileFormatError(
-            f"header keyword 'IPCKERN' must be the 9 comma-separated values of a 3x3 "
-            f"IPC kernel (finite, >= 0, summing to 1), got {text!r}") from exc
-    if k[1, 1] == 1.0:
-        return None
-    return k
 
 
 def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
@@ -869,7 +726,7 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
         columns = np.broadcast_to(np.arange(det.nx), det.shape)
         rn_fit = measure_read_noise(e, times, read_noise=rdn_model, groups=columns,
                                     saturated=sat, refmask=refmask, threads=threads)
-    cards = [_exposure_card(exp.name),
+    cards = [exposure_card(exp.name),
              ("REFPIX", refpix, "reference-pixel correction"),
              ("RNCONV", "per read", "read noise convention: per read, not CDS"),
              ("RNMODEL", float(rdn_model), "[e-] model white read noise per read"),
@@ -879,9 +736,9 @@ def prepare_exposure(exposure, *, refpix="jwst", read_noise=None,
              ("IPCDECON", bool(decon), "IPC kernel (IPCKERN) deconvolved"),
              ("IPCRNFAC", float(rn_gain), "read noise x this by the IPC deconvolution"),
              ("LINCORR", nl is not None, "classical nonlinearity inverted (NLCOEFF)")]
-    for key in _COPIED_KEYS:
+    for key in COPIED_KEYS:
         if key in hdr:
-            cards.append(_card(key, hdr[key], hdr.comments[key]))
+            cards.append(card(key, hdr[key], hdr.comments[key]))
     return PreparedExposure(
         name=exp.name, header=hdr, detector=det, readout=ro, gain=gain,
         t_frame=t_frame, electrons=e, saturated=sat, read_times=times,

@@ -50,6 +50,8 @@ from astropy.table import Table
 from noise.validate import check_writable
 from noise.fitsio import StreamingFITS, atomic_path
 
+from scenesim.io.header import exposure_cards
+
 __all__ = ["Exposure", "write_exposure", "truth_path_for", "read_exposure",
            "read_truth"]
 
@@ -168,7 +170,7 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
         check_writable("truth path", truth_path, overwrite=overwrite)
     shape = (ro.nints, ro.ngroups) + det.shape
     t_frame = det.frame_time
-    header = _header_cards(engine, cards)
+    header = exposure_cards(engine, cards)
     stack = contextlib.ExitStack()
     raws = {}
     with stack:
@@ -237,46 +239,6 @@ def _read_back_table(table, name):
     buf.seek(0)
     with fits.open(buf) as hdul:
         return Table(hdul[name].data)
-
-
-def _header_cards(engine, cards):
-    det, ro = engine.detector, engine.readout
-    t_frame = det.frame_time
-    out = [("TELESCOP", "scenesim", "simulated HxRG exposure"),
-           ("ORIGIN", "scenesim", "")]
-    seen = set()
-    for key, value, comment in list(det.to_header_cards()) + list(
-            ro.to_header_cards(t_frame)):
-        if key not in seen:
-            out.append((key, value, comment))
-            seen.add(key)
-    out.append(("GAIN", engine.gain, "[e-/DN] conversion gain"))
-    out.append(("ADCBITS", engine.adc_bits, "ADC bits"))
-    if engine.noise is not None:
-        for key, value, comment in engine.noise.params.to_header_cards():
-            out.append((key, value, comment))
-    else:
-        out.append(("RDNOISE", 0.0, "[e-] white read noise per read (not CDS)"))
-    out.append(("SEEDENT", str(engine.entropy), "root SeedSequence entropy"))
-    out.append(("FULLWELL", float(np.max(engine.full_well)) if engine.full_well is not None
-                else 0.0, "[e-] full well (max over pixels; 0 = none)"))
-    out.append(("IPC", engine.ipc_kernel is not None, "IPC applied"))
-    if engine.ipc_kernel is not None:
-        kern = np.asarray(engine.ipc_kernel, dtype=np.float64).ravel()
-        out.append(("IPCKERN", ",".join(f"{v:.10g}" for v in kern),
-                    "3x3 IPC kernel row by row, k[1+dy,1+dx]"))
-    out.append(("NONLIN", engine.nonlinearity is not None, "nonlinearity applied"))
-    if engine.nonlinearity is not None:
-        out.append(("NLCOEFF", ",".join(f"{c:.10g}" for c in engine.nonlinearity.coeffs),
-                    "c2,c3,...: m = q + c2 q^2 + c3 q^3 (e-)"))
-    out.append(("GAUSSAB", engine.options.gauss_above or 0.0,
-                "[e-] Gaussian above this mean (0 = exact Poisson)"))
-    out.append(("ARRIVALS", engine.options.arrivals,
-                "charge arrivals: time (exact) or 2d (shortcut)"))
-    for key, value, comment in cards:
-        out = [c for c in out if c[0] != key]
-        out.append((key, value, comment))
-    return out
 
 
 def _write_truth(engine, path, header, out, raws, sources, overwrite):

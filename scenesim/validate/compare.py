@@ -42,7 +42,8 @@ Photometry (photutils): circular apertures of radius ``radius`` (default 4 px) a
 ``SOURCES`` positions on the slope image, minus the median of an annulus
 (``2 radius`` to ``3 radius``) times the aperture area, divided by the encircled
 energy ``scenesim.sky.psf.encircled_energy(psf, radius)`` when the PSF is known (argument
-``psf``, else ``GaussianPSF(PSFFWHM)`` from the truth header, else no correction and
+``psf``, else the PSF the truth header records (``PSFFWHM``: Gaussian, ``PSFAIRY``:
+Airy; :func:`scenesim.io.header.header_psf`), else no correction and
 a note).  The ratio measured / injected ``flux`` is reported per source, for sources
 whose annulus lies fully on the array and whose flux exceeds 10 times the aperture
 noise ``sqrt(sum V_rep)``.  The median ratio's standard error is
@@ -71,11 +72,12 @@ from astropy.table import Table
 from noise.errors import FileFormatError, ParameterError
 from noise.fitsio import atomic_path
 
-from scenesim.rampfit.fit import (DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, FitResult, ols_variance,
-                  optimal_variance, read_fit)
+from scenesim.io.header import (exposure_read_noise, header_psf, readout_from_header,
+                                readout_from_table)
+from scenesim.rampfit.fit import (DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, FitResult,
+                                  ols_variance, optimal_variance, read_fit)
 
-__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "read_slopes",
-           "readout_from_header"]
+__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "read_slopes"]
 
 #: Default flux-bin edges, e-/s (true rate ``RATE_IPC``).
 DEFAULT_EDGES = (0.0, 0.01, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4, np.inf)
@@ -160,17 +162,6 @@ class Report:
         if self.notes:
             lines += ["", "Notes:"] + [f"- {n}" for n in self.notes]
         return "\n".join(lines)
-
-
-# ---------------------------------------------------------------------- inputs
-def _read_noise_from_header(hdr):
-    value = hdr.get("RDNOISE", None)
-    if value is None:
-        return None
-    if isinstance(value, str):
-        vals = [float(v) for v in value.split(",") if v.strip()]
-        return float(np.sqrt(np.mean(np.square(vals)))) if vals else None
-    return float(value)
 
 
 def read_slopes(path, *, gain=None):
@@ -267,36 +258,7 @@ def _fit_dict(fit):
         f"'fit' must be a FitResult or a dict of arrays, got {type(fit).__name__}")
 
 
-def readout_from_header(header):
-    """Rebuild a MULTIACCUM :class:`scenesim.detector.readout.Readout` from header cards.
-
-    Parameters
-    ----------
-    header : astropy.io.fits.Header or dict
-        Needs ``NGROUPS``; uses ``NFRAMES`` (1), ``GROUPGAP`` (0), ``DROPFRM1`` (0),
-        ``NINTS`` (1), ``RESETMD`` ('rolling'), ``READPATT``.
-
-    Returns
-    -------
-    scenesim.detector.readout.Readout
-    """
-    from scenesim.detector.readout import Readout
-    if "NGROUPS" not in header:
-        raise FileFormatError(
-            "truth header lacks 'NGROUPS'; pass the exposure file to get the read times")
-    try:
-        return Readout.multiaccum(int(header.get("NFRAMES", 1)), int(header["NGROUPS"]),
-                                  groupgap=int(header.get("GROUPGAP", 0)),
-                                  nskip=int(header.get("DROPFRM1", 0)),
-                                  nints=int(header.get("NINTS", 1)),
-                                  reset_mode=str(header.get("RESETMD", "rolling")),
-                                  name=str(header.get("READPATT", "CUSTOM")))
-    except ParameterError as exc:
-        raise FileFormatError(f"truth header describes an invalid readout: {exc}") from exc
-
-
 def _readout_from_exposure(path):
-    from scenesim.detector.readout import Readout
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileFormatError(f"'exposure': file {path!r} does not exist")
@@ -306,10 +268,7 @@ def _readout_from_exposure(path):
             raise FileFormatError(
                 f"exposure {path!r} has no 'READS' extension (found {names})")
         hdr = hdul[0].header
-        reads = Table.read(hdul["READS"])
-        return Readout.from_read_table(reads, nints=int(hdr.get("NINTS", 1)),
-                                       reset_mode=str(hdr.get("RESETMD", "rolling")),
-                                       name=str(hdr.get("READPATT", "CUSTOM"))), hdr
+        return readout_from_table(hdr, Table.read(hdul["READS"])), hdr
 
 
 # ---------------------------------------------------------------------- analysis
@@ -447,8 +406,8 @@ def _photometry(slope, var, bad, sources, psf, radius, notes):
         out["aperture_correction"] = ee
     else:
         ee = 1.0
-        notes.append("photometry: PSF unknown (no 'psf' argument, no PSFFWHM in the truth "
-                     "header): no aperture correction applied")
+        notes.append("photometry: PSF unknown (no 'psf' argument, no PSFFWHM or PSFAIRY "
+                     "in the truth header): no aperture correction applied")
     if not inside.any():
         notes.append("photometry: no source fully on the array")
         return out
@@ -558,8 +517,8 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     read_noise : float, keyword-only
         e- per read (not CDS); default truth header ``RDNOISE``, else the fit's.
     psf : GaussianPSF, AiryPSF or ImagePSF, keyword-only
-        For the aperture correction; default ``GaussianPSF(PSFFWHM)`` when the truth
-        header has ``PSFFWHM``.
+        For the aperture correction; default the PSF recorded in the truth header
+        (:func:`scenesim.io.header.header_psf`: ``PSFFWHM`` or ``PSFAIRY``).
     radius : float, keyword-only
         Aperture radius, pixels (> 0).
     edges : sequence of float, keyword-only
@@ -622,7 +581,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
                                  f"got {type(readout).__name__}")
     hdr = truth["header"]
     if read_noise is None:
-        read_noise = _read_noise_from_header(hdr)
+        read_noise = exposure_read_noise(hdr, default=None)
         if read_noise is None:
             read_noise = f["read_noise"]
         if read_noise is None:
@@ -643,9 +602,8 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         read_times = readout.read_times(float(hdr["TFRAME"]))
     if nints is None:
         nints = int(hdr.get("NINTS", 1))
-    if psf is None and "PSFFWHM" in hdr:
-        from scenesim.sky.psf import GaussianPSF
-        psf = GaussianPSF(float(hdr["PSFFWHM"]))
+    if psf is None:
+        psf = header_psf(hdr)
 
     dq = f["dq"]
     regular = (dq & np.uint32(REFERENCE_PIXEL)) == 0

@@ -1,0 +1,308 @@
+"""The header contract: every card scenesim writes to its files, and how it is read back.
+
+One module knows the keywords.  The writers (:mod:`scenesim.io.exposure` for the
+exposure and truth files, :mod:`scenesim.calib.prepare` and the fit files) take
+their cards from here, and every reader (the fit's preparation, ``compare``, the
+stcal adapter) rebuilds what it needs through the functions below, never by hand.
+
+Exposure and truth primary header (:func:`exposure_cards`):
+
+* detector and clock: the cards of :meth:`noise.clock.Detector.to_header_cards`
+  (``DETECTOR``, ``NAXIS1D``/``NAXIS2D``, ``NOUTPUTS``, ``NROH``, ``NFOH``,
+  ``PIXDWELL``, ``REFBORD``, ``REVSCAN``, ``SUBARRAY``/``SUBSTRT``/``SUBSIZE``,
+  ``TFRAME``), read back by :func:`noise.clock.detector_from_header`;
+* readout: :meth:`scenesim.detector.readout.Readout.to_header_cards` (``NINTS``,
+  ``NGROUPS``, ``NFRAMES``, ``GROUPGAP``, ``DROPFRM1``, ``READPATT``, ``TGROUP``,
+  ``RESETMD``, ...) plus the exposure's ``READS`` table, read back by
+  :func:`exposure_readout` (table) or :func:`readout_from_header` (cards only,
+  exact for MULTIACCUM patterns);
+* ``GAIN`` (e-/DN) and ``ADCBITS``; the noise amplitudes of
+  :meth:`noise.NoiseParams.to_header_cards` (``RDNOISE``: e- per read, not CDS;
+  :func:`exposure_read_noise`);
+* charge effects: ``FULLWELL`` (e-), ``NONLIN`` + ``NLCOEFF`` (``c2,c3,...``,
+  :func:`header_nonlinearity`), ``IPC`` + ``IPCKERN`` (the nine kernel values row by
+  row, ``k[1+dy, 1+dx]``, :func:`header_ipc_kernel`);
+* the engine options (``GAUSSAB``, ``ARRIVALS``), ``SEEDENT``, and the scene's own
+  cards (``SEED``, ``SCENE``, ...), then the PSF (:func:`psf_cards`: ``PSFFWHM`` for a
+  Gaussian, ``PSFAIRY`` for an Airy disk; :func:`header_psf`).
+
+Fit files copy :data:`COPIED_KEYS` from the exposure; every card is made to fit
+one 80-character card (:func:`card`).
+"""
+
+import numpy as np
+from astropy.io import fits
+
+from noise.clock import detector_from_header
+from noise.errors import FileFormatError, ParameterError
+
+from scenesim.detector.ipc import check_kernel
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.readout import Readout
+from scenesim.sky.psf import AiryPSF, GaussianPSF
+
+__all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
+           "printable", "exposure_card", "exposure_read_noise", "exposure_readout",
+           "readout_from_header", "readout_from_table", "header_nonlinearity", "header_ipc_kernel",
+           "header_psf"]
+
+
+#: Exposure header keywords copied into the header of a fit.
+COPIED_KEYS = ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
+                "SEED", "SCENE", "IPC", "IPCKERN")
+
+
+CARD_LENGTH = 80                       # characters in a FITS header card
+
+
+def exposure_read_noise(header, default=0.0):
+    """White read noise per read (e-, not CDS) recorded in a header (``RDNOISE``).
+
+    ``RDNOISE`` is a number, or comma-separated per-output values (their rms is
+    returned); ``default`` when the card is absent or empty.
+    """
+    value = header.get("RDNOISE", None)
+    if value is None:
+        return default
+    if isinstance(value, str):
+        vals = [float(v) for v in value.split(",") if v.strip()]
+        return float(np.sqrt(np.mean(np.square(vals)))) if vals else default
+    return float(value)
+
+
+def printable(text):
+    """``text`` with every character outside printable ASCII replaced by ``?``."""
+    return "".join(c if " " <= c <= "~" else "?" for c in str(text))
+
+
+def _tail(text, width):
+    """The end of ``text``, prefixed by ``...``, in at most ``width`` card characters
+    (a quote counts twice in a FITS string)."""
+    if len(text) + text.count("'") <= width:
+        return text
+    out = []
+    used = 3
+    for c in reversed(text):
+        used += 2 if c == "'" else 1
+        if used > width:
+            break
+        out.append(c)
+    return "..." + "".join(reversed(out))
+
+
+def card(key, value, comment):
+    """``(key, value, comment)`` that astropy writes as one card without a warning.
+
+    Strings are made printable ASCII; the comment is cut to the room the value
+    leaves (a string value longer than one card becomes CONTINUE cards, no comment).
+    """
+    if isinstance(value, str):
+        value = printable(value)
+    image = fits.Card(key, value).image
+    if len(image) > CARD_LENGTH:
+        return key, value, ""
+    room = CARD_LENGTH - 10 - max(len(image[10:].rstrip()), 20) - 3
+    return key, value, printable(comment)[:max(room, 0)]
+
+
+def exposure_card(name):
+    """``EXPOSURE`` card: the end of the exposure's path, fitting one card."""
+    comment = "fitted exposure"
+    width = CARD_LENGTH - 10 - 2 - 3 - len(comment)        # KEY=_ + quotes + _/_ + comment
+    return card("EXPOSURE", _tail(printable(name), width), comment)
+
+
+def exposure_readout(exposure):
+    """The readout of an exposure, checked against its header and ``SCI`` shape.
+
+    Parameters
+    ----------
+    exposure : scenesim.io.exposure.Exposure
+
+    Returns
+    -------
+    scenesim.detector.readout.Readout
+        From the ``READS`` table, with ``NINTS``, ``RESETMD`` and ``READPATT`` from
+        the header.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        The header lacks ``GAIN``, ``TFRAME`` or ``NINTS``, or ``SCI`` does not have
+        the shape (NINTS, resultants, ny, nx) that the header and table describe.
+    """
+    hdr = exposure.header
+    missing = [k for k in ("GAIN", "TFRAME", "NINTS") if k not in hdr]
+    if missing:
+        raise FileFormatError(
+            f"exposure {exposure.name!r} lacks header keyword {missing[0]!r}")
+    det = detector_from_header(hdr)
+    nints = int(hdr["NINTS"])
+    ro = readout_from_table(hdr, exposure.reads)
+    sci = exposure.sci
+    if (sci.ndim != 4 or sci.shape[:2] != (nints, ro.ngroups)
+            or sci.shape[2:] != det.shape):
+        raise FileFormatError(
+            f"exposure {exposure.name!r}: SCI shape {sci.shape} does not match "
+            f"NINTS={nints}, {ro.ngroups} resultants and the {det.shape} detector in "
+            f"its header")
+    return ro
+
+
+def readout_from_table(header, reads):
+    """The readout of a ``READS`` table (:meth:`Readout.read_table`), with ``NINTS``
+    (default 1), ``RESETMD`` ('rolling') and ``READPATT`` from ``header``; exact for
+    any readout.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        The table describes no valid readout.
+    """
+    return Readout.from_read_table(reads, nints=int(header.get("NINTS", 1)),
+                                   reset_mode=str(header.get("RESETMD", "rolling")),
+                                   name=str(header.get("READPATT", "CUSTOM")))
+
+
+def header_nonlinearity(header):
+    """The :class:`~scenesim.detector.nonlinearity.Nonlinearity` recorded in an exposure header
+    (``NONLIN`` and ``NLCOEFF``), or ``None``."""
+    if not header.get("NONLIN", False) or not str(header.get("NLCOEFF", "")).strip():
+        return None
+    coeffs = [float(c) for c in str(header["NLCOEFF"]).split(",") if c.strip()]
+    nl = Nonlinearity(tuple(coeffs))
+    return None if nl.is_linear else nl
+
+
+def header_ipc_kernel(header):
+    """The IPC kernel recorded in an exposure header (``IPC`` and ``IPCKERN``), or
+    ``None``.
+
+    Parameters
+    ----------
+    header : astropy.io.fits.Header
+        Exposure primary header.
+
+    Returns
+    -------
+    ndarray, shape (3, 3), float64, or None
+        The kernel of :func:`scenesim.detector.ipc.apply_ipc` (``IPCKERN``: the nine
+        values row by row, ``kernel[1 + dy, 1 + dx]`` is the fraction a pixel sends
+        to its neighbour at ``(y + dy, x + dx)``), renormalised to sum 1 exactly as
+        the engine did.  ``None`` when ``IPC`` is false, when ``IPCKERN`` is absent
+        (files from before the card existed: the kernel is unknown), or when the
+        kernel is the identity (nothing to undo).
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        ``IPCKERN`` is not nine numbers forming a valid kernel (finite, >= 0, sum 1).
+    """
+    if not header.get("IPC", False) or "IPCKERN" not in header:
+        return None
+    text = str(header["IPCKERN"])
+    try:
+        k = check_kernel(np.array([float(v) for v in text.split(",")]).reshape(3, 3))
+    except (ValueError, TypeError) as exc:   # ParameterError is a ValueError
+        raise FileFormatError(
+            f"header keyword 'IPCKERN' must be the 9 comma-separated values of a 3x3 "
+            f"IPC kernel (finite, >= 0, summing to 1), got {text!r}") from exc
+    if k[1, 1] == 1.0:
+        return None
+    return k
+
+
+def exposure_cards(engine, cards):
+    det, ro = engine.detector, engine.readout
+    t_frame = det.frame_time
+    out = [("TELESCOP", "scenesim", "simulated HxRG exposure"),
+           ("ORIGIN", "scenesim", "")]
+    seen = set()
+    for key, value, comment in list(det.to_header_cards()) + list(
+            ro.to_header_cards(t_frame)):
+        if key not in seen:
+            out.append((key, value, comment))
+            seen.add(key)
+    out.append(("GAIN", engine.gain, "[e-/DN] conversion gain"))
+    out.append(("ADCBITS", engine.adc_bits, "ADC bits"))
+    if engine.noise is not None:
+        for key, value, comment in engine.noise.params.to_header_cards():
+            out.append((key, value, comment))
+    else:
+        out.append(("RDNOISE", 0.0, "[e-] white read noise per read (not CDS)"))
+    out.append(("SEEDENT", str(engine.entropy), "root SeedSequence entropy"))
+    out.append(("FULLWELL", float(np.max(engine.full_well)) if engine.full_well is not None
+                else 0.0, "[e-] full well (max over pixels; 0 = none)"))
+    out.append(("IPC", engine.ipc_kernel is not None, "IPC applied"))
+    if engine.ipc_kernel is not None:
+        kern = np.asarray(engine.ipc_kernel, dtype=np.float64).ravel()
+        out.append(("IPCKERN", ",".join(f"{v:.10g}" for v in kern),
+                    "3x3 IPC kernel row by row, k[1+dy,1+dx]"))
+    out.append(("NONLIN", engine.nonlinearity is not None, "nonlinearity applied"))
+    if engine.nonlinearity is not None:
+        out.append(("NLCOEFF", ",".join(f"{c:.10g}" for c in engine.nonlinearity.coeffs),
+                    "c2,c3,...: m = q + c2 q^2 + c3 q^3 (e-)"))
+    out.append(("GAUSSAB", engine.options.gauss_above or 0.0,
+                "[e-] Gaussian above this mean (0 = exact Poisson)"))
+    out.append(("ARRIVALS", engine.options.arrivals,
+                "charge arrivals: time (exact) or 2d (shortcut)"))
+    for key, value, comment in cards:
+        out = [c for c in out if c[0] != key]
+        out.append((key, value, comment))
+    return out
+
+
+# ---------------------------------------------------------------------- inputs
+def readout_from_header(header):
+    """Rebuild a MULTIACCUM :class:`scenesim.detector.readout.Readout` from header cards.
+
+    Parameters
+    ----------
+    header : astropy.io.fits.Header or dict
+        Needs ``NGROUPS``; uses ``NFRAMES`` (1), ``GROUPGAP`` (0), ``DROPFRM1`` (0),
+        ``NINTS`` (1), ``RESETMD`` ('rolling'), ``READPATT``.
+
+    Returns
+    -------
+    scenesim.detector.readout.Readout
+    """
+    if "NGROUPS" not in header:
+        raise FileFormatError(
+            "truth header lacks 'NGROUPS'; pass the exposure file to get the read times")
+    try:
+        return Readout.multiaccum(int(header.get("NFRAMES", 1)), int(header["NGROUPS"]),
+                                  groupgap=int(header.get("GROUPGAP", 0)),
+                                  nskip=int(header.get("DROPFRM1", 0)),
+                                  nints=int(header.get("NINTS", 1)),
+                                  reset_mode=str(header.get("RESETMD", "rolling")),
+                                  name=str(header.get("READPATT", "CUSTOM")))
+    except ParameterError as exc:
+        raise FileFormatError(f"truth header describes an invalid readout: {exc}") from exc
+
+
+def psf_cards(psf):
+    """Cards recording a scene's PSF (a ``PSFConfig``) for ``compare``'s aperture
+    correction: ``PSFFWHM`` (pix) for a Gaussian, ``PSFAIRY`` (pix, radius of the
+    first dark ring) for an Airy disk, none for an image PSF."""
+    if psf.kind == "gaussian":
+        return [("PSFFWHM", psf.fwhm, "[pix] Gaussian PSF FWHM")]
+    if psf.kind == "airy":
+        return [("PSFAIRY", psf.radius, "[pix] Airy first dark ring")]
+    return []
+
+
+def header_psf(header):
+    """The PSF recorded by :func:`psf_cards`, or ``None`` when there is none.
+
+    Returns
+    -------
+    scenesim.sky.psf.GaussianPSF, scenesim.sky.psf.AiryPSF or None
+    """
+    try:
+        if "PSFFWHM" in header:
+            return GaussianPSF(float(header["PSFFWHM"]))
+        if "PSFAIRY" in header:
+            return AiryPSF(float(header["PSFAIRY"]))
+    except (TypeError, ValueError) as exc:      # ParameterError is a ValueError
+        raise FileFormatError(f"header PSF card is invalid: {exc}") from exc
+    return None
