@@ -16,7 +16,7 @@ __all__ = ['to_dn', 'from_dn']
 
 # -------------------------------------------------------------------------------- ADC
 def _check_gain(gain, shape):
-    return check_map("gain", gain, shape, allow_zero=False)
+    return check_map("gain", gain, shape, strict_min=True)
 
 
 def _check_bits(bits):

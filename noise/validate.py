@@ -1,19 +1,60 @@
-"""Small validators that raise :class:`~noise.errors.ParameterError` with a clear message."""
+"""The project's one family of validators, shared by :mod:`noise` and :mod:`scenesim`.
 
+Every check returns the value converted to its canonical type, or raises
+:class:`~noise.errors.ParameterError` (:class:`~noise.errors.FileFormatError` for
+files) with a one-line message that names the parameter, quotes the bad value and
+says what is allowed, e.g. ``'gain' must be > 0, got -1.0``.  Callers pass the name a
+user knows (a scene key, an argument or option name); a scene section prefixes its
+table (``[effects] 'gain' must be ...``).
+"""
+
+import difflib
 import math
 import numbers
 import os
 
 import numpy as np
 
-from noise.errors import ParameterError
+from noise.errors import FileFormatError, ParameterError
 
-__all__ = []
+__all__ = ["suggest", "is_sequence", "is_real", "check_int", "check_float",
+           "check_bool", "check_str", "check_choice", "check_shape", "check_map",
+           "check_image", "check_writable", "check_existing_file"]
+
+
+def _num(v):
+    """A bound as written in messages: ``0`` rather than ``0.0``."""
+    return f"{v:g}" if isinstance(v, float) else f"{v}"
+
+
+def suggest(word, candidates):
+    """``"; did you mean 'x'?"`` for the closest of ``candidates``, else ``""``."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in candidates], n=1,
+                                      cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def is_sequence(value):
+    """True for sized iterables other than strings and bytes."""
+    if isinstance(value, (str, bytes)):
+        return False
+    try:
+        len(value)
+        iter(value)
+    except TypeError:
+        return False
+    return True
+
+
+def is_real(value):
+    """True for real numbers (numpy scalars included), False for bools."""
+    return isinstance(value, (numbers.Real, np.number)) and not isinstance(
+        value, (bool, np.bool_)) and not isinstance(value, np.complexfloating)
 
 
 def check_int(name, value, *, minimum=None, maximum=None):
-    """Return ``value`` as int, or raise if it is not an integer in [minimum, maximum]."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+    """``value`` as int, or raise if it is not an integer in ``[minimum, maximum]``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise ParameterError(f"{name!r} must be an integer, got {value!r}")
     value = int(value)
     if minimum is not None and value < minimum:
@@ -24,24 +65,126 @@ def check_int(name, value, *, minimum=None, maximum=None):
 
 
 def check_float(name, value, *, minimum=None, maximum=None, strict_min=False):
-    """Return ``value`` as a finite float in range, or raise naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+    """``value`` as a finite float in range (``> minimum`` with ``strict_min``)."""
+    if not is_real(value):
         raise ParameterError(f"{name!r} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
+    v = float(value)
+    if not math.isfinite(v):
         raise ParameterError(f"{name!r} must be finite, got {value!r}")
     if minimum is not None:
-        if strict_min and value <= minimum:
-            raise ParameterError(f"{name!r} must be > {minimum}, got {value!r}")
-        if not strict_min and value < minimum:
-            raise ParameterError(f"{name!r} must be >= {minimum}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise ParameterError(f"{name!r} must be <= {maximum}, got {value!r}")
+        if strict_min and v <= minimum:
+            raise ParameterError(f"{name!r} must be > {_num(minimum)}, got {value!r}")
+        if not strict_min and v < minimum:
+            raise ParameterError(f"{name!r} must be >= {_num(minimum)}, got {value!r}")
+    if maximum is not None and v > maximum:
+        raise ParameterError(f"{name!r} must be <= {_num(maximum)}, got {value!r}")
+    return v
+
+
+def check_bool(name, value):
+    """``value`` as bool; only ``True``/``False`` (numpy's too) are accepted."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ParameterError(f"{name!r} must be true or false, got {value!r}")
+    return bool(value)
+
+
+def check_str(name, value, *, nonempty=False):
+    """``value`` if it is a string (non-empty with ``nonempty``)."""
+    if not isinstance(value, str) or (nonempty and not value):
+        what = "a non-empty string" if nonempty else "a string"
+        raise ParameterError(f"{name!r} must be {what}, got {value!r}")
     return value
 
 
+def check_choice(name, value, allowed, *, ignore_case=False):
+    """``value`` if it is one of ``allowed`` (strings), suggesting the nearest one.
+
+    With ``ignore_case`` the matching entry of ``allowed`` is returned.
+    """
+    if isinstance(value, str):
+        if value in allowed:
+            return value
+        if ignore_case:
+            for a in allowed:
+                if a.lower() == value.lower():
+                    return a
+    raise ParameterError(
+        f"{name!r} must be one of {', '.join(repr(a) for a in allowed)}, got "
+        f"{value!r}{suggest(value, allowed) if isinstance(value, str) else ''}")
+
+
+def check_shape(name, shape):
+    """``(ny, nx)`` as ints >= 1."""
+    try:
+        ny, nx = (int(v) for v in shape)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name!r} must be (ny, nx), got {shape!r}") from exc
+    if ny < 1 or nx < 1:
+        raise ParameterError(f"{name!r} must be positive, got {shape!r}")
+    return ny, nx
+
+
+def check_map(name, value, shape, *, minimum=0.0, strict_min=False):
+    """A scalar or a per-pixel map for images of ``shape`` (its last two axes).
+
+    Returns a float, or a float64 ndarray of shape ``shape[-2:]``; every value must be
+    finite and ``>= minimum`` (``> minimum`` with ``strict_min``; no bound for
+    ``minimum=None``).
+    """
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value.item()
+    rule = "" if minimum is None else f" and {'>' if strict_min else '>='} {_num(minimum)}"
+
+    def bad_values(v):
+        out = ~np.isfinite(v)
+        if minimum is not None:
+            out |= (v <= minimum) if strict_min else (v < minimum)
+        return out
+
+    if np.ndim(value) == 0:
+        if not is_real(value):
+            raise ParameterError(
+                f"{name!r} must be a real number or a map, got {value!r}")
+        v = float(value)
+        if bad_values(np.float64(v)):
+            raise ParameterError(f"{name!r} must be finite{rule}, got {value!r}")
+        return v
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"{name!r} must be a real number or a map of shape {tuple(shape[-2:])}, "
+            f"got {type(value).__name__}") from exc
+    if arr.shape != tuple(shape[-2:]):
+        raise ParameterError(
+            f"{name!r} map must be a scalar or have the image shape {tuple(shape[-2:])} "
+            f"(ny, nx), got shape {arr.shape}")
+    bad = bad_values(arr)
+    if bad.any():
+        y, x = np.argwhere(bad)[0]
+        raise ParameterError(
+            f"{name!r} map must be finite{rule} everywhere; {int(bad.sum())} pixels "
+            f"are not, e.g. [{y}, {x}] = {float(arr[y, x])!r}")
+    return arr
+
+
+def check_image(name, image):
+    """``image`` as an integer or float array with at least two axes ``(..., ny, nx)``."""
+    arr = np.asarray(image)
+    if arr.ndim < 2:
+        raise ParameterError(
+            f"{name!r} must have at least 2 dimensions (..., ny, nx), "
+            f"got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.integer)
+            or np.issubdtype(arr.dtype, np.floating)):
+        raise ParameterError(
+            f"{name!r} must be an integer or float array, got {arr.dtype}")
+    return arr
+
+
 def check_writable(name, path, *, overwrite=True):
-    """Raise if ``path`` cannot be written (missing directory, no permission, exists)."""
+    """``path`` if it can be written: its directory exists and is writable, it is not a
+    directory, and it does not exist unless ``overwrite``."""
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(directory):
@@ -56,56 +199,13 @@ def check_writable(name, path, *, overwrite=True):
     return path
 
 
-def check_shape(name, shape):
-    """Return ``(ny, nx)`` as ints >= 1, or raise naming ``name``."""
-    try:
-        ny, nx = (int(v) for v in shape)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"{name!r} must be (ny, nx), got {shape!r}") from exc
-    if ny < 1 or nx < 1:
-        raise ParameterError(f"{name!r} must be positive, got {shape!r}")
-    return ny, nx
-
-
-def check_map(name, value, shape, *, allow_zero):
-    """Validate a scalar or a (ny, nx) map against ``shape`` (the image's last two axes).
-
-    Returns a float or a float64 ndarray; values must be finite and >= 0 (``allow_zero``)
-    or > 0.
-    """
-    if isinstance(value, np.ndarray) and value.ndim == 0:
-        value = value.item()
-    rule = ">= 0" if allow_zero else "> 0"
-    if np.ndim(value) == 0:
-        if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.number)):
-            raise ParameterError(
-                f"{name!r} must be a real number or a map, got {value!r}")
-        v = float(value)
-        if not math.isfinite(v) or (v < 0 if allow_zero else v <= 0):
-            raise ParameterError(f"{name!r} must be finite and {rule}, got {value!r}")
-        return v
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.shape != tuple(shape[-2:]):
-        raise ParameterError(
-            f"{name!r} map must be a scalar or have the image shape {tuple(shape[-2:])} "
-            f"(ny, nx), got shape {arr.shape}")
-    bad = ~np.isfinite(arr) | ((arr < 0) if allow_zero else (arr <= 0))
-    if bad.any():
-        y, x = np.argwhere(bad)[0]
-        raise ParameterError(
-            f"{name!r} map must be finite and {rule} everywhere; {int(bad.sum())} pixels "
-            f"are not, e.g. [{y}, {x}] = {float(arr[y, x])!r}")
-    return arr
-
-
-def check_image(name, image):
-    arr = np.asarray(image)
-    if arr.ndim < 2:
-        raise ParameterError(
-            f"{name!r} must have at least 2 dimensions (..., ny, nx), "
-            f"got shape {arr.shape}")
-    if not (np.issubdtype(arr.dtype, np.integer)
-            or np.issubdtype(arr.dtype, np.floating)):
-        raise ParameterError(
-            f"{name!r} must be an integer or float array, got {arr.dtype}")
-    return arr
+def check_existing_file(name, path, extensions=None):
+    """Absolute path of an existing file (with one of ``extensions``, if given)."""
+    path = os.path.abspath(os.path.expanduser(check_str(name, path)))
+    if extensions is not None and not path.lower().endswith(tuple(extensions)):
+        raise FileFormatError(
+            f"{name!r} file {path!r} must have one of the extensions "
+            f"{', '.join(extensions)}")
+    if not os.path.isfile(path):
+        raise FileFormatError(f"{name!r} file {path!r} does not exist")
+    return path

@@ -38,5 +38,5 @@ def apply_flat(charge, flat):
         If ``flat`` is negative or not finite, or a map has the wrong shape.
     """
     q = check_image("charge", charge)
-    f = check_map("flat", flat, q.shape, allow_zero=True)
+    f = check_map("flat", flat, q.shape)
     return q * f

@@ -42,7 +42,7 @@ def apply_saturation(charge, full_well):
         If ``full_well`` is not finite and > 0, or a map has the wrong shape.
     """
     q = check_image("charge", charge)
-    fw = check_map("full_well", full_well, q.shape, allow_zero=False)
+    fw = check_map("full_well", full_well, q.shape, strict_min=True)
     if np.issubdtype(q.dtype, np.integer):
         info = np.iinfo(q.dtype)
         fw = np.minimum(np.floor(fw), info.max).astype(q.dtype)
