@@ -18,9 +18,10 @@ effects read by read (:mod:`scenesim.engine`, :mod:`scenesim.detector.effects`),
 (:mod:`noise`), files (:mod:`scenesim.io.exposure`), then optionally fitting
 (:mod:`scenesim.rampfit.fit`) and the comparison with truth (:mod:`scenesim.validate.compare`).
 
-Random streams: the scene seed is the root ``SeedSequence``; spawn keys ``(0,)`` the
-engine (noise ``(0, 1)``, Poisson ``(0, 2, ...)``), ``(3,)`` cosmic rays, ``(4,)`` hot
-pixels.  Changing one part of a scene does not shift the draws of the others.
+Random streams: the scene seed is the root ``SeedSequence``; every part draws from
+its own stream of the registry :mod:`noise.streams` (engine, noise, Poisson, cosmic
+rays, hot pixels), so changing one part of a scene does not shift the draws of the
+others.
 """
 
 import os
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import vstack
 
+from noise import streams
 from noise.errors import ParameterError
 
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
@@ -69,10 +71,6 @@ def _progress_bar(total, unit, desc):
         tqdm.monitor_interval = interval
 
 
-def _stream(seed, *key):
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=key)))
-
-
 def build_light_curve(cfg):
     """A :class:`scenesim.sky.lightcurve.LightCurve` from a ``LightCurveConfig``."""
     from scenesim.sky.lightcurve import LightCurve
@@ -101,7 +99,8 @@ def _rates(scene, seed):
     rate = rate + load_map(src.background, det, name="background")
     if src.hot_pixel_fraction > 0:
         rate = rate + draw_hot_pixels(det.shape, src.hot_pixel_fraction,
-                                      rate=src.hot_pixel_rate, rng=_stream(seed, 4),
+                                      rate=src.hot_pixel_rate,
+                                      rng=streams.generator(seed, streams.HOT_PIXELS),
                                       refmask=refmask)
     stars = src.star_table()
     variable = []
@@ -147,7 +146,8 @@ def _cosmic_rays(scene, seed, t_total):
     model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_mean=mean,
                            charge_sigma=mean * np.sqrt(np.expm1(sigma_ln ** 2)))
     table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
-                             rng=_stream(seed, 3), refmask=det.reference_mask())
+                             rng=streams.generator(seed, streams.COSMIC_RAYS),
+                             refmask=det.reference_mask())
     index = np.asarray(table["Y"], dtype=np.int64) * det.nx + np.asarray(table["X"],
                                                                           dtype=np.int64)
     return CosmicRayHits(np.asarray(table["TIME"], dtype=float), index,
@@ -186,7 +186,7 @@ def build_engine(scene, *, options=EngineOptions()):
         det, readout, noise_params=scene.noise, rate=rate, variable_sources=variable,
         cosmic_rays=crs, full_well=full_well, nonlinearity=nl, ipc_kernel=eff.ipc(),
         flat=flat, gain=eff.gain, adc_bits=eff.adc_bits,
-        rng=np.random.SeedSequence(seed, spawn_key=(0,)), options=options)
+        rng=np.random.SeedSequence(seed, spawn_key=streams.ENGINE), options=options)
     return engine, rendered
 
 
