@@ -14,8 +14,10 @@ write_noise_fits
 
 from noise.clock import PRESETS, Detector, Subarray, preset
 from noise.errors import FileFormatError, ParameterError, ScenesimError
-from noise.fitsio import atomic_path, package_version, to_uint16_dn, write_noise_fits
-from noise.generator import COMPONENTS, NoiseGenerator, root_seed
+from noise.adc import ADC, from_dn, to_dn
+from noise.fitsio import atomic_path, package_version, write_noise_fits
+from noise.generator import NoiseGenerator
+from noise.streams import NOISE_COMPONENTS, root_seed
 from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
 from noise.pink import (PinkSeries, measure_psd_error, pink_psd_shape, realised_psd,
                    unit_frame_variance)
@@ -24,8 +26,8 @@ from noise.template import synthetic_template, template_for
 __all__ = [
     "Detector", "Subarray", "PRESETS", "preset",
     "NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE",
-    "NoiseGenerator", "COMPONENTS", "root_seed",
-    "write_noise_fits", "atomic_path", "package_version", "to_uint16_dn",
+    "NoiseGenerator", "NOISE_COMPONENTS", "root_seed",
+    "write_noise_fits", "atomic_path", "package_version", "ADC", "to_dn", "from_dn",
     "PinkSeries", "pink_psd_shape", "realised_psd", "unit_frame_variance",
     "measure_psd_error",
     "synthetic_template", "template_for",

@@ -1,22 +1,26 @@
 """The ADC: electrons to DN and back, the one conversion every path uses.
 
-``DN = rint(e / gain)`` (round half to even), clipped to ``[0, 2**bits - 1]``.
-Quantisation adds a variance of ``1/12`` DN**2 for signals spanning many DN.
+``DN = rint(e / gain)`` (round half to even) of the signal in electrons, clipped to
+``[0, 2**bits - 1]``: the charge engine's reads, noise-only ramps written in DN
+(:func:`noise.write_noise_fits`, ``NoiseGenerator.frames(dn_gain=...)``) and
+:func:`to_dn` all go through :meth:`ADC.codes`.  Quantisation adds a variance of
+``1/12`` DN**2 for signals spanning many DN.
+
+The quotient is the float64 one, ``rint(float64(e) / gain)``.  When ``gain`` is a
+power of two it is computed in float32 in place instead: scaling by ``2**-k`` only
+changes the exponent, so the float32 quotient of a float32 value is exact and rounds
+the same (two passes fewer and no float64 scratch, which the hot paths measure).
 """
 
+import math
 import numbers
 
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import check_image, check_map
+from noise.validate import check_map
 
-__all__ = ['to_dn', 'from_dn']
-
-
-# -------------------------------------------------------------------------------- ADC
-def _check_gain(gain, shape):
-    return check_map("gain", gain, shape, strict_min=True)
+__all__ = ["ADC", "to_dn", "from_dn"]
 
 
 def _check_bits(bits):
@@ -26,40 +30,118 @@ def _check_bits(bits):
     return int(bits)
 
 
+class ADC:
+    """An analogue-to-digital converter: gain (e-/DN) and resolution (bits).
+
+    Parameters
+    ----------
+    gain : float or ndarray of shape (ny, nx), e-/DN
+        Conversion gain, finite and > 0 (validated once, here).
+    bits : int
+        Resolution, 1 to 32; codes run from 0 to ``2**bits - 1``.
+    shape : tuple, optional
+        Image shape a gain map must match (its last two axes).
+
+    Attributes
+    ----------
+    top : float
+        The highest code, ``2**bits - 1``.
+    dtype : numpy.dtype
+        ``uint16`` for ``bits <= 16``, else ``uint32``.
+    """
+
+    def __init__(self, gain, bits=16, *, shape=None):
+        self.bits = _check_bits(bits)
+        if shape is None and np.ndim(gain):
+            shape = np.shape(gain)
+        self.gain = check_map("gain", gain, shape or (1, 1), minimum=0.0,
+                              strict_min=True)
+        self.top = float(2 ** self.bits - 1)
+        self.dtype = np.dtype(np.uint16 if self.bits <= 16 else np.uint32)
+        # a scalar power-of-two gain: the float32 quotient is exact
+        self._exact32 = np.ndim(self.gain) == 0 and math.frexp(self.gain)[0] == 0.5
+
+    def codes(self, e, *, scratch=None):
+        """The ADC codes of ``e`` as floats: ``clip(rint(e / gain), 0, top)``.
+
+        Parameters
+        ----------
+        e : ndarray, float32 or float64, e-
+            Overwritten with the codes when the gain is a power of two or ``e`` is
+            float64; otherwise left as it is.  ``+inf`` gives the top code, ``-inf``
+            0; NaN is not checked here (see :func:`to_dn`).
+        scratch : ndarray, float64, shape of ``e``, optional
+            Where float32 input with any other gain is divided (allocated if absent).
+
+        Returns
+        -------
+        ndarray
+            ``e`` or ``scratch``, holding the codes (integral values in ``[0, top]``).
+        """
+        if e.dtype == np.float64 or (self._exact32 and e.dtype == np.float32):
+            q = e
+            if np.ndim(self.gain) or self.gain != 1.0:
+                if self._exact32:
+                    np.multiply(q, q.dtype.type(1.0 / self.gain), out=q)
+                else:
+                    np.divide(q, self.gain, out=q)
+        else:
+            q = scratch if scratch is not None else np.empty(e.shape, dtype=np.float64)
+            np.divide(e, self.gain, out=q, dtype=np.float64)
+        np.rint(q, out=q)
+        np.clip(q, 0.0, self.top, out=q)
+        return q
+
+    def to_dn(self, e, *, out=None, scratch=None):
+        """Digitise ``e`` (e-) into ``out`` (a new array of :attr:`dtype` if None).
+
+        ``e`` may be overwritten (see :meth:`codes`).  Returns ``out``.
+        """
+        q = self.codes(e, scratch=scratch)
+        if out is None:
+            out = np.empty(q.shape, dtype=self.dtype)
+        np.copyto(out, q, casting="unsafe")
+        return out
+
+
 def to_dn(electrons, gain, *, bits=16):
     """Digitise: ``rint(electrons / gain)`` clipped to ``[0, 2**bits - 1]``.
 
     Parameters
     ----------
-    electrons : ndarray, shape (..., ny, nx), e-
+    electrons : array_like, e-
         Signal including bias and noise.  ``+inf`` clips to the top code, ``-inf`` to 0.
     gain : float or ndarray of shape (ny, nx), e-/DN
-        Conversion gain, finite and > 0.
+        Conversion gain, finite and > 0 (a map needs ``electrons`` of shape
+        ``(..., ny, nx)``).
     bits : int, keyword-only
         ADC resolution, 1 to 32.
 
     Returns
     -------
-    ndarray, shape (..., ny, nx), uint16 (``bits <= 16``) or uint32, DN
+    ndarray, shape of ``electrons``, uint16 (``bits <= 16``) or uint32, DN
         Rounded half to even (``np.rint``).
 
     Raises
     ------
     ParameterError
         If ``gain`` is not finite and > 0, ``bits`` is out of range, or ``electrons``
-        contains NaN.
+        is not real or contains NaN.
     """
-    e = check_image("electrons", electrons)
-    g = _check_gain(gain, e.shape)
-    nbits = _check_bits(bits)
-    top = float(2 ** nbits - 1)
-    with np.errstate(invalid="ignore"):
-        dn = np.divide(e, g, dtype=np.float64)
-    np.rint(dn, out=dn)
-    if np.isnan(dn).any():
+    try:
+        e = np.array(electrons, dtype=np.float64)   # a copy: codes() works in place
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"'electrons' must be an array of real numbers (e-), got "
+            f"{type(electrons).__name__}") from exc
+    if np.ndim(gain) and e.ndim < 2:
+        raise ParameterError(
+            f"'electrons' must have at least 2 dimensions (..., ny, nx) for a gain map, "
+            f"got shape {e.shape}")
+    adc = ADC(gain, bits, shape=e.shape if e.ndim >= 2 else None)
+    if np.isnan(e).any():
         raise ParameterError("'electrons' contains NaN; cannot digitise")
-    np.clip(dn, 0.0, top, out=dn)
-    return dn.astype(np.uint16 if nbits <= 16 else np.uint32)
+    return adc.to_dn(e)
 
 
 def from_dn(dn, gain):
@@ -67,14 +149,15 @@ def from_dn(dn, gain):
 
     Parameters
     ----------
-    dn : ndarray, shape (..., ny, nx), DN
+    dn : array_like, DN
     gain : float or ndarray of shape (ny, nx), e-/DN
         Finite and > 0.
 
     Returns
     -------
-    ndarray, shape (..., ny, nx), float64, e-
+    ndarray, shape of ``dn``, float64, e-
     """
-    d = check_image("dn", dn)
-    g = _check_gain(gain, d.shape)
+    d = np.asarray(dn)
+    g = check_map("gain", gain, d.shape if d.ndim >= 2 else (1, 1), minimum=0.0,
+                  strict_min=True)
     return np.multiply(d, g, dtype=np.float64)

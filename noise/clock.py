@@ -21,6 +21,20 @@ has collected.  For a full-frame H2RG with 4 outputs, ``nroh = 12`` and ``nfoh =
 
 Unlike the original NG program, ``dt`` is used everywhere (frequencies, times).
 
+The exposure time line
+----------------------
+Frames follow each other without gaps.  Each integration is one reset frame slot
+followed by its ``nreads`` read slots (reads counted from 0 after the reset), so read
+``k`` of integration ``i`` sits in absolute frame slot::
+
+    s = i * (1 + nreads) + 1 + k                       (frame_slot)
+
+and slot ``s`` starts at ``s * t_frame``: pixel ``(y, x)`` of it is read at
+``s * t_frame + t(y, x)``.  An exposure of ``nints`` integrations spans
+``nints * (1 + nreads)`` slots (:func:`exposure_slots`).  The noise time lines run
+through every slot (resets and unused reads included); the charge engine reads the
+clock at the same slots.  These two functions are the only place the formula lives.
+
 Subarrays
 ---------
 ``window``: a box of ``nx * ny`` pixels read through a single output, so a frame is
@@ -38,7 +52,23 @@ import numpy as np
 from noise.validate import check_float, check_int
 from noise.errors import ParameterError
 
-__all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header"]
+__all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header",
+           "frame_slot", "exposure_slots"]
+
+
+def frame_slot(integration, read, nreads):
+    """Absolute frame slot of read ``read`` (0-based, from reset) of ``integration``.
+
+    ``integration * (1 + nreads) + 1 + read``: each integration is a reset slot and
+    ``nreads`` read slots.  Works elementwise on integer arrays.
+    """
+    return integration * (1 + nreads) + 1 + read
+
+
+def exposure_slots(nints, nreads):
+    """Frame slots spanned by ``nints`` integrations of ``nreads`` reads (resets
+    included): ``nints * (1 + nreads)``."""
+    return nints * (1 + nreads)
 
 
 @dataclass(frozen=True)

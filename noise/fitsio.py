@@ -21,7 +21,7 @@ from astropy.io import fits
 from noise.validate import check_float, check_writable
 from noise.errors import ParameterError
 
-__all__ = ["atomic_path", "StreamingFITS", "package_version", "to_uint16_dn",
+__all__ = ["atomic_path", "StreamingFITS", "package_version",
            "write_noise_fits"]
 
 _BLOCK = 2880
@@ -184,12 +184,6 @@ def _hdu_bytes(hdu):
     return raw[hdr_len:]
 
 
-def to_uint16_dn(electrons, gain, *, bits=16):
-    """Electrons to DN: divide by ``gain`` (e-/DN), round, clip to ``[0, 2**bits - 1]``."""
-    dn = np.rint(np.asarray(electrons, dtype=np.float64) / gain)
-    return np.clip(dn, 0, 2 ** bits - 1).astype(np.uint16)
-
-
 def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
                      overwrite=True, progress=None, extra_cards=()):
     """Stream a noise-only ramp to a FITS file, atomically.
@@ -240,7 +234,7 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
             out = StreamingFITS(f)
             out.begin_image(shape, dtype, cards)
             # DN frames are converted in the generator's worker threads (bit-identical
-            # to to_uint16_dn)
+            # to noise.adc.to_dn)
             # frame k is written by a writer thread while frame k + 1 is generated
             # (two frame buffers in turn; writes stay in order, one pending at most)
             frames = generator.frames(nframes, nints=nints,

@@ -97,23 +97,22 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from noise.validate import check_float, check_int
-from noise.clock import Detector
+from noise.adc import ADC
+from noise.clock import Detector, frame_slot
 from noise.errors import ParameterError
 from noise.params import NoiseParams
 from noise.pink import PinkSeries
 from noise.fast.producer import ForkedProducer, available as producer_available
 from noise.fast.seedhash import spawned_generators
+from noise.streams import NOISE_COMPONENTS, generator, root_seed
 from noise.fast.normal import standard_normal, standard_normal_rows
 from noise.template import template_for
 
-__all__ = ["NoiseGenerator", "COMPONENTS", "root_seed"]
+__all__ = ["NoiseGenerator"]
 
 #: Frames with fewer pixels than this are generated without the thread pool.
 _POOL_MIN_PIXELS = 1 << 16
 
-#: Component names and their stream identifiers.
-COMPONENTS = {"white": 1, "c_pink": 2, "u_pink": 3, "acn": 4, "pca0": 5, "pedestal": 6,
-              "ktc": 7, "rtn": 8}
 _WHITE_ROWS = 64      # rows per white-noise / reset-level stream (fixed: chunk-independent)
 _SUB_ROWS = 64        # rows processed at once (one stream chunk; fits in L2 cache;
                       # _small_batch relies on _SUB_ROWS == _WHITE_ROWS)
@@ -124,50 +123,6 @@ _BATCH_FRAMES = 64        # ... and at most this many frames per batch
 _PED_BLOCK = 1024          # pedestal: slots per stream
 _AHEAD = 2                # small frames: batches whose 1/f lines are made ahead
 _FORK_MIN_BATCHES = 4     # ... by a forked process, if at least this many batches
-
-
-def _to_dn(e, gain, out, d64):
-    """``out[:] =`` uint16 DN of float32 electrons ``e``, exactly as
-    :func:`noise.to_uint16_dn` (``rint(float64(e) / gain)`` clipped to [0, 65535]).
-
-    When ``gain`` is a power of two the quotient is exact in float32 as well (scaling
-    by 2**-k only changes the exponent), so the rounding is done in float32 in place in
-    ``e`` (two passes fewer, no float64 scratch); otherwise in the float64 scratch
-    ``d64`` (same shape).  Returns ``out``.
-    """
-    mant, _ = math.frexp(gain)
-    if mant == 0.5:                                   # gain = 2**k: exact in float32
-        if gain != 1.0:
-            np.multiply(e, np.float32(1.0 / gain), out=e)
-        np.rint(e, out=e)
-        np.clip(e, 0, 65535, out=e)
-        np.copyto(out, e, casting="unsafe")
-        return out
-    np.divide(e, gain, out=d64, dtype=np.float64)
-    np.rint(d64, out=d64)
-    np.clip(d64, 0, 65535, out=d64)
-    np.copyto(out, d64, casting="unsafe")
-    return out
-
-
-def root_seed(rng):
-    """Return ``(entropy, spawn_key)`` of the root ``SeedSequence`` for ``rng``.
-
-    ``rng`` may be an int, a ``SeedSequence``, a ``Generator`` (its seed sequence is
-    used) or ``None`` (fresh OS entropy, recorded so the run can be repeated).
-    """
-    if isinstance(rng, np.random.Generator):
-        ss = rng.bit_generator.seed_seq
-    elif isinstance(rng, np.random.SeedSequence):
-        ss = rng
-    elif rng is None or isinstance(rng, (int, np.integer)):
-        if rng is not None and rng < 0:
-            raise ParameterError(f"'rng' seed must be >= 0, got {rng!r}")
-        ss = np.random.SeedSequence(None if rng is None else int(rng))
-    else:
-        raise ParameterError(
-            f"'rng' must be an int, SeedSequence, Generator or None, got {rng!r}")
-    return ss.entropy, tuple(ss.spawn_key)
 
 
 def _call(task):
@@ -257,8 +212,7 @@ class NoiseGenerator:
                     f"{det.ncols_out} + {det.nroh}; make 'nroh' even or set 'acn' to 0")
 
     def _stream(self, *key):
-        ss = np.random.SeedSequence(self.entropy, spawn_key=self.key + key)
-        return np.random.Generator(np.random.PCG64(ss))
+        return generator(self.entropy, self.key + key)
 
     def _setup(self):
         det, p = self.detector, self.params
@@ -277,14 +231,14 @@ class NoiseGenerator:
         if p.c_pink > 0:
             amp = math.hypot(p.c_pink, u_amps[0]) if self._merged else p.c_pink
             self._common = PinkSeries(1 / det.dt, L, [amp],
-                                      seed_keys=[self.key + (COMPONENTS["c_pink"],)], **kw)
+                                      seed_keys=[self.key + (NOISE_COMPONENTS["c_pink"],)], **kw)
         self._u_pink = [None] * nout
         if p.enabled("u_pink") and not self._merged:
             for o, amp in enumerate(u_amps):
                 if amp > 0:
                     self._u_pink[o] = PinkSeries(
                         1 / det.dt, L, [amp],
-                        seed_keys=[self.key + (COMPONENTS["u_pink"], o)], **kw)
+                        seed_keys=[self.key + (NOISE_COMPONENTS["u_pink"], o)], **kw)
         # ACN: two half-rate series (even, odd samples) per output
         self._acn = [None] * nout
         if p.enabled("acn"):
@@ -292,15 +246,15 @@ class NoiseGenerator:
                 if amp > 0:
                     self._acn[o] = PinkSeries(
                         0.5 / det.dt, L // 2, [amp, amp],
-                        seed_keys=[self.key + (COMPONENTS["acn"], o, 0),
-                                   self.key + (COMPONENTS["acn"], o, 1)], **kw)
+                        seed_keys=[self.key + (NOISE_COMPONENTS["acn"], o, 0),
+                                   self.key + (NOISE_COMPONENTS["acn"], o, 1)], **kw)
         self._pf = None
         self._template = None
         if p.pca0 > 0 or p.bias_amp > 0:
             self._template = template_for(det, p.pca0_file)
         if p.pca0 > 0:
             self._pf = PinkSeries(1 / det.row_time, det.ny + det.nfoh, [p.pca0],
-                                  seed_keys=[self.key + (COMPONENTS["pca0"],)], **kw)
+                                  seed_keys=[self.key + (NOISE_COMPONENTS["pca0"],)], **kw)
         # white-noise sigma (e-) per output and reference ratio, stored as runs of rows
         # sharing one sigma row vector (a handful of runs instead of a full map)
         self._sig_runs = []
@@ -322,7 +276,7 @@ class NoiseGenerator:
         self._rtn_idx = None
         if p.rtn_fraction > 0 and p.rtn_amp > 0:
             regular = ~det.reference_mask()
-            pick = self._stream(COMPONENTS["rtn"], 0).random(det.shape) < p.rtn_fraction
+            pick = self._stream(NOISE_COMPONENTS["rtn"], 0).random(det.shape) < p.rtn_fraction
             self._rtn_idx = np.flatnonzero(pick & regular)
             if not self._rtn_idx.size:
                 self._rtn_idx = None
@@ -380,7 +334,7 @@ class NoiseGenerator:
         p = self.params
         blk = lvl[c0:c1]
         if p.ktc > 0:
-            standard_normal(self._stream(COMPONENTS["ktc"], integration, c0 // _WHITE_ROWS),
+            standard_normal(self._stream(NOISE_COMPONENTS["ktc"], integration, c0 // _WHITE_ROWS),
                             blk)
             blk *= np.float32(p.ktc)
         else:
@@ -413,7 +367,7 @@ class NoiseGenerator:
             return 0.0
         b = slot // _PED_BLOCK
         if self._ped_block is None or self._ped_block[0] != b:
-            z = self._stream(COMPONENTS["pedestal"], b).standard_normal(_PED_BLOCK)
+            z = self._stream(NOISE_COMPONENTS["pedestal"], b).standard_normal(_PED_BLOCK)
             self._ped_block = (b, self.params.pedestal * z)
         return float(self._ped_block[1][slot % _PED_BLOCK])
 
@@ -459,7 +413,7 @@ class NoiseGenerator:
     def _advance_rtn(self, slot):
         p, det = self.params, self.detector
         n = self._rtn_idx.size
-        z = self._stream(COMPONENTS["rtn"], 2, slot).random(n)
+        z = self._stream(NOISE_COMPONENTS["rtn"], 2, slot).random(n)
         p_high = p.rtn_tau_high / (p.rtn_tau_low + p.rtn_tau_high)
         if self._rtn_state is None:
             self._rtn_state = z < p_high
@@ -485,28 +439,28 @@ class NoiseGenerator:
         else:
             list(pool.map(_call, tasks))
 
-    def _rows_task(self, out, slot, c0, c1, scalar, pf, views, r_base, dn_gain):
+    def _rows_task(self, out, slot, c0, c1, scalar, pf, views, r_base, adc):
         """Rows ``c0:c1`` of a frame: white noise, reset level, offsets, time lines, RTN.
 
         ``views`` place the 1/f lines of the band starting at row ``r_base``.  ``out``
-        is the float32 frame (e-), or, with ``dn_gain``, the uint16 DN frame (the
-        float32 rows are then made in a scratch buffer and converted as
-        :func:`noise.to_uint16_dn` does).
+        is the float32 frame (e-), or, with an ``adc`` (:class:`noise.adc.ADC`), the
+        uint16 DN frame (the float32 rows are then made in a scratch buffer and
+        digitised by it).
         """
         det, p = self.detector, self.params
         ncol, nx = det.ncols_out, det.nx
-        rng = self._stream(COMPONENTS["white"], slot, c0 // _WHITE_ROWS) \
+        rng = self._stream(NOISE_COMPONENTS["white"], slot, c0 // _WHITE_ROWS) \
             if self._sig_runs else None
         level = self._reset_level if self._level_map else None
         tmp_buf = np.empty((_SUB_ROWS, ncol), dtype=np.float32)
         if pf is not None:
             pf_buf = np.empty((_SUB_ROWS, nx), dtype=np.float32)
-        if dn_gain is not None:
+        if adc is not None:
             scratch = np.empty((_SUB_ROWS, nx), dtype=np.float32)
             dn = np.empty((_SUB_ROWS, nx), dtype=np.float64)
         for a in range(c0, c1, _SUB_ROWS):
             b = min(a + _SUB_ROWS, c1)
-            blk = out[a:b] if dn_gain is None else scratch[:b - a]
+            blk = out[a:b] if adc is None else scratch[:b - a]
             if rng is not None:
                 standard_normal(rng, blk)
                 for r0, r1, vec in self._sig_runs:
@@ -540,8 +494,8 @@ class NoiseGenerator:
                 if lo < hi:
                     blk.ravel()[self._rtn_idx[lo:hi] - a * nx] += \
                         np.float32(p.rtn_amp) * self._rtn_state[lo:hi]
-            if dn_gain is not None:
-                _to_dn(blk, dn_gain, out[a:b], dn[:b - a])
+            if adc is not None:
+                adc.to_dn(blk, out=out[a:b], scratch=dn[:b - a])
 
     def frame(self, slot, integration, pool=None, *, dn_gain=None, out=None):
         """Noise frame of absolute frame slot ``slot`` in ``integration``.
@@ -559,8 +513,8 @@ class NoiseGenerator:
         pool : concurrent.futures.Executor, optional
             Worker threads; the frame does not depend on it.
         dn_gain : float, optional, keyword-only
-            If given (e-/DN, > 0), return the frame in DN as :func:`noise.to_uint16_dn`
-            would convert it, computed in the worker threads.
+            If given (e-/DN, > 0), return the frame in uint16 DN, digitised by
+            :class:`noise.adc.ADC` (16 bits) in the worker threads.
         out : ndarray, optional, keyword-only
             C-contiguous array of shape (ny, nx) and the returned dtype to write the
             frame into (saves allocating, and the kernel zeroing, a fresh frame).
@@ -601,12 +555,13 @@ class NoiseGenerator:
                                  f"array of shape {det.shape}, got {out.dtype} "
                                  f"{out.shape}")
         img = np.empty(det.shape, dtype=dtype) if out is None else out
+        adc = None if dn_gain is None else ADC(dn_gain)
 
         def rows(k):
             ra, rb = bands[k]
             return [functools.partial(self._rows_task, img, slot, c0,
                                       min(c0 + _WHITE_ROWS, rb), scalar, pf,
-                                      sets[k % _NSETS][1], ra, dn_gain)
+                                      sets[k % _NSETS][1], ra, adc)
                     for c0 in range(ra, rb, _WHITE_ROWS)]
 
         # the rows of band k are assembled while the lines of band k + 1 are made (the
@@ -637,7 +592,7 @@ class NoiseGenerator:
             Subset of integrations to produce, each in ``[0, nints - 1]`` (default all).
         dn_gain : float, optional
             Gain in e-/DN (> 0).  If given, frames are uint16 DN, exactly
-            ``noise.to_uint16_dn(frame, dn_gain)`` of the float32 e- frames, but
+            ``noise.adc.to_dn(frame, dn_gain)`` of the float32 e- frames, but
             converted in the worker threads while the rows are in cache.
         reuse : int or bool, keyword-only
             If ``n >= 1`` (True: 1), frames are written into ``n`` arrays in turn, so a
@@ -678,7 +633,7 @@ class NoiseGenerator:
         try:
             for i in ints:
                 for k in reads:
-                    slot = i * (1 + nreads) + 1 + k
+                    slot = frame_slot(i, k, nreads)
                     buf = bufs[n % nbuf] if nbuf and len(bufs) == nbuf else None
                     img = self.frame(slot, i, pool, dn_gain=dn_gain, out=buf)
                     if nbuf and buf is None:
@@ -710,12 +665,13 @@ class NoiseGenerator:
         depend on the path.
         """
         det = self.detector
-        order = [(i, k, i * (1 + nreads) + 1 + k) for i in ints for k in reads]
+        order = [(i, k, frame_slot(i, k, nreads)) for i in ints for k in reads]
         K = max(1, min(_BATCH_FRAMES, _BATCH_PIXELS // (det.ny * det.nx), len(order)))
         batches = [order[j0:j0 + K] for j0 in range(0, len(order), K)]
         work = np.empty((K,) + det.shape, dtype=np.float32)
         scratch = np.empty_like(work)
         if dn_gain is not None:
+            adc = ADC(dn_gain)
             dn = np.empty(work.shape, dtype=np.uint16)
             d64 = np.empty(work.shape, dtype=np.float64)
         dtype = np.float32 if dn_gain is None else np.uint16
@@ -758,7 +714,7 @@ class NoiseGenerator:
                                         (groups[j], lines) if jobs else None,
                                         dict(zip(levels[j], lvl)))
                 if dn_gain is not None:
-                    img = _to_dn(img, dn_gain, dn[:m], d64[:m])
+                    img = adc.to_dn(img, out=dn[:m], scratch=d64[:m])
                 for (i, k, _), src in zip(batch, img):
                     if nbuf:
                         if len(bufs) < nbuf:
@@ -787,10 +743,10 @@ class NoiseGenerator:
         m, nx = len(slots), self.detector.nx
         for c0, c1 in self._chunks:
             if isinstance(self.entropy, (int, list, tuple)):    # hashed together
-                gens = spawned_generators(self.entropy, self.key + (COMPONENTS["white"],),
+                gens = spawned_generators(self.entropy, self.key + (NOISE_COMPONENTS["white"],),
                                           [(slot, c0 // _WHITE_ROWS) for slot in slots])
             else:
-                gens = [self._stream(COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
+                gens = [self._stream(NOISE_COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
                         for slot in slots]
             if len(self._chunks) == 1:
                 standard_normal_rows(gens, out.reshape(m, -1))

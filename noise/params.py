@@ -46,6 +46,10 @@ __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE"]
 
 _PER_OUTPUT = ("rd_noise", "u_pink", "acn")
 _SCALAR_AMPS = ("c_pink", "pca0", "pedestal", "ktc", "bias_amp", "rtn_amp")
+#: Fields that shape a component but add nothing by themselves; every other field is
+#: an amplitude (e-), so a new component's amplitude is known to :meth:`is_silent`.
+_OPTIONS = ("ref_ratio", "rtn_fraction", "rtn_tau_low", "rtn_tau_high", "f_min",
+            "pink_spectrum", "pca0_file")
 
 
 def _freeze(value):
@@ -164,6 +168,17 @@ class NoiseParams:
         if isinstance(value, tuple):
             return any(v > 0 for v in value)
         return value > 0
+
+    def is_silent(self):
+        """True if no component adds anything to a frame (every amplitude is 0; RTN
+        counts only with ``rtn_fraction > 0``), so a generator can be skipped."""
+        for f in dataclasses.fields(self):
+            if f.name in _OPTIONS or (f.name == "rtn_amp" and self.rtn_fraction == 0):
+                continue
+            value = getattr(self, f.name)
+            if any(v != 0 for v in (value if isinstance(value, tuple) else (value,))):
+                return False
+        return True
 
     def replace(self, **changes):
         """Return a copy with ``changes`` applied (validated)."""

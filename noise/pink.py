@@ -79,6 +79,7 @@ import scipy.fft as sfft
 
 from noise.errors import ParameterError
 from noise.fast.normal import standard_normal
+from noise.streams import generator, root_seed
 
 __all__ = ["PinkSeries", "pink_psd_shape", "realised_psd",
            "unit_frame_variance", "set_fft_workers", "measure_psd_error"]
@@ -328,8 +329,7 @@ class _Level:
         """Draw white-noise group ``g`` of every series (releases the GIL)."""
         arr = self._white[g]
         for s in range(self.nseries):
-            ss = np.random.SeedSequence(self.entropy, spawn_key=self.keys[s] + (g + 1,))
-            bitgen = np.random.PCG64(ss)
+            bitgen = generator(self.entropy, self.keys[s] + (g + 1,)).bit_generator
             if g < 0:                    # the head of group 0: w[0, _OV)
                 self._draw(bitgen, arr[s, 0, self.B:])
                 continue
@@ -579,14 +579,9 @@ def measure_psd_error(*, rate=1e5, frame_samples=1073676, f_min=1e-4,
     fi = np.geomspace(f_min * 1e-5, rate / 2, 400001)
     c_theory = 1.0 / np.trapezoid((1.0 - _fejer(fi, frame_samples, rate))
                                   / np.maximum(fi, f_min), fi)
-    if isinstance(rng, np.random.Generator):
-        ss = rng.bit_generator.seed_seq
-    elif isinstance(rng, np.random.SeedSequence):
-        ss = rng
-    else:
-        ss = np.random.SeedSequence(rng)
-    series = PinkSeries(rate, frame_samples, [1.0], f_min=f_min, entropy=ss.entropy,
-                        seed_keys=[tuple(ss.spawn_key) + (0,)])
+    entropy, key = root_seed(rng)
+    series = PinkSeries(rate, frame_samples, [1.0], f_min=f_min, entropy=entropy,
+                        seed_keys=[key + (0,)])
     t0 = time.perf_counter()
     y = series.get(0, nseg * nperseg)[0]
     seconds = time.perf_counter() - t0

@@ -17,7 +17,7 @@ from scenesim.validate.compare import Report, compare, compare_files
 from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.ipc import apply_ipc, ipc_kernel
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.io.exposure import read_exposure, read_truth, write_exposure
+from scenesim.io.exposure import read_exposure, read_truth
 from scenesim.io.exposure import Exposure
 from scenesim.rampfit.fit import FitResult, fit_ramps, model_chi2, optimal_variance, read_fit, write_fit
 from scenesim.calib.prepare import PreparedExposure, fit_exposure_file, prepare_exposure
@@ -25,7 +25,7 @@ from scenesim.sky.lightcurve import LightCurve
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources
 from scenesim.detector.readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
 from scenesim.calib.refpix import correct_reference, measure_reference_correction, white_noise_added
-from scenesim.run import build_engine, run_scene
+from scenesim.run import build_engine, run_scene, write_exposure
 from scenesim.scene.config import Scene, load_scene, parse_scene
 
 __all__ = [

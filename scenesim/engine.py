@@ -63,10 +63,15 @@ import numpy as np
 
 from noise.validate import check_float
 from noise.errors import ParameterError
-from noise.generator import NoiseGenerator, root_seed
+from noise import streams
+from noise.adc import ADC
+from noise.clock import exposure_slots, frame_slot
+from noise.generator import NoiseGenerator
+from noise.streams import root_seed
 
 from noise.fast.poisson import poisson
-from scenesim.detector.ipc import apply_ipc
+from scenesim.detector.ipc import apply_ipc, check_kernel
+from scenesim.detector.saturation import FullWell
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
            "ARRIVALS"]
@@ -159,6 +164,83 @@ class _Resultant:
     count: int = 0
 
 
+@dataclass(frozen=True, eq=False)
+class Resultant:
+    """One finished resultant of a run.
+
+    Attributes
+    ----------
+    integration, index : int
+        Integration and resultant (0-based).
+    dn : ndarray (ny, nx), uint16, DN
+        The resultant as read out (the rounded mean of its digitised reads).
+    charge, noise : ndarray (ny, nx), float32, e-, or None
+        Noise-free charge and noise-only part, when the run was asked for them.
+    """
+
+    integration: int
+    index: int
+    dn: np.ndarray
+    charge: np.ndarray | None = None
+    noise: np.ndarray | None = None
+
+
+class EngineRun:
+    """A run of a :class:`ChargeEngine` (:meth:`ChargeEngine.simulate`): an iterator
+    of :class:`Resultant` in time order.
+
+    Attributes
+    ----------
+    sat_read : ndarray (nints, ny, nx), int16
+        First saturated read index (-1: never); complete when the run is exhausted.
+    cr_seen : ndarray of bool
+        Per cosmic-ray deposit, True if any read saw it; complete at the end.
+    """
+
+    def __init__(self, engine, *, save_charge, save_noise, progress):
+        shape = engine.detector.shape
+        self.sat_read = np.full((engine.readout.nints,) + shape, -1, dtype=np.int16)
+        self.cr_seen = np.zeros(engine.cosmic_rays.time.size, dtype=bool)
+        self.pool = ThreadPoolExecutor(engine.threads) if engine.threads > 1 else None
+        self.blocks = engine._blocks()
+        self.finalizers = []
+        self._gen = engine._reads(self, save_charge, save_noise, progress)
+
+    def each(self, fn):
+        """``fn(rows)`` for every row block (on the pool when there are several)."""
+        if self.pool is not None and len(self.blocks) > 1:
+            list(self.pool.map(fn, self.blocks))
+        else:
+            for b in self.blocks:
+                fn(b)
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        try:
+            return next(self._gen)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self):
+        """Stop the run (if not finished) and release its threads and noise stream."""
+        self._gen.close()
+        while self.finalizers:
+            self.finalizers.pop()()
+        if self.pool is not None:
+            self.pool.shutdown()
+            self.pool = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
 class ChargeEngine:
     """Simulate the resultants of one exposure, streaming them to callbacks.
 
@@ -213,14 +295,14 @@ class ChargeEngine:
             raise ParameterError(f"'adc_bits' must be an integer in [1, 16] (the "
                                  f"resultants are uint16), got {adc_bits!r}")
         self.adc_bits = int(adc_bits)
-        if full_well is not None:
-            full_well = _per_pixel("full_well", full_well, shape)
-            if not np.all(np.isfinite(full_well)) or np.any(full_well <= 0):
-                raise ParameterError("'full_well' must be finite and > 0 e-")
-        self.full_well = full_well
+        self.adc = ADC(self.gain, self.adc_bits)
+        self.full_well = None if full_well is None else FullWell(full_well, shape)
         self.nonlinearity = nonlinearity if (nonlinearity is not None
                                              and not nonlinearity.is_linear) else None
-        self.ipc_kernel = None if ipc_kernel is None else np.asarray(ipc_kernel, float)
+        self.ipc_kernel = None
+        if ipc_kernel is not None:
+            check_kernel(ipc_kernel)                 # refused here, before any work
+            self.ipc_kernel = np.asarray(ipc_kernel, dtype=float)
         if flat is not None:
             flat = _per_pixel("flat", flat, shape)
             if not np.all(np.isfinite(flat)) or np.any(flat < 0):
@@ -233,10 +315,10 @@ class ChargeEngine:
         threads = options.threads if options.threads is not None else (os.cpu_count() or 1)
         self.threads = max(1, int(threads))
         self.noise = None
-        if noise_params is not None and _any_noise(noise_params):
+        if noise_params is not None and not noise_params.is_silent():
             self.noise = NoiseGenerator(
                 detector, noise_params, threads=self.threads,
-                rng=np.random.SeedSequence(self.entropy, spawn_key=self.key + (1,)))
+                rng=np.random.SeedSequence(self.entropy, spawn_key=self.key + streams.NOISE))
         # Poisson stream chunks: row ranges fixed by the detector; a chunk draws every
         # pixel (lambda = 0 where there is no charge) when most of it has charge, else
         # only its pixels with charge (idx: flat indices within the chunk)
@@ -287,7 +369,7 @@ class ChargeEngine:
         return VariableSource(idx[keep], w[keep], v.light_curve)
 
     def _max_charge(self):
-        t_total = (self.readout.nreads + 1) * self.detector.frame_time
+        t_total = exposure_slots(1, self.readout.nreads) * self.detector.frame_time
         peak = float(self.rate.max()) if self.rate.size else 0.0
         for v in self.variable:
             if v.weight.size:
@@ -297,7 +379,7 @@ class ChargeEngine:
     # ------------------------------------------------------------------ times
     def read_slot(self, integration, read):
         """Absolute frame slot of ``read`` of ``integration``."""
-        return integration * (1 + self.readout.nreads) + 1 + read
+        return frame_slot(integration, read, self.readout.nreads)
 
     def _times(self, integration, prev_read, read, tpix):
         """Interval ``(t_prev, t_now]`` (absolute s) of pixels with clock offsets ``tpix``."""
@@ -367,9 +449,8 @@ class ChargeEngine:
 
     def _chunk_generator(self, component, integration, c):
         """The generator of chunk ``c``: spawn key ``(component, integration, chunk)``."""
-        return np.random.Generator(np.random.PCG64(np.random.SeedSequence(
-            self.entropy, spawn_key=self.key + (component, integration,
-                                                self._chunks[c][0] // self._chunk_rows))))
+        return streams.generator(self.entropy, self.key + component + (
+            integration, self._chunks[c][0] // self._chunk_rows))
 
     def _shot_2d(self, integration, needed, pool):
         """'2d' shortcut: per-pixel N / lambda_total for one integration (flat, float64)."""
@@ -383,7 +464,7 @@ class ChargeEngine:
         def task(c):
             c0, c1, idx = self._chunks[c]
             tot = sum(self._lam(c, p, k, e) for p, k, e in extras)
-            n = poisson(self._chunk_generator(5, integration, c), tot)
+            n = poisson(self._chunk_generator(streams.POISSON_2D, integration, c), tot)
             s = np.divide(n, tot, out=np.zeros_like(tot), where=tot > 0)
             tgt = scale[c0 * nx:c1 * nx]
             if idx is None:
@@ -460,13 +541,12 @@ class ChargeEngine:
     def _pointwise(self, acc, q, sat_read, integration, read, rows):
         """Effects (1), (2) and (4) on ``rows``: charge ``acc`` -> float32 ``q`` (e-)."""
         qr = q[rows]
-        np.copyto(qr, acc[rows], casting="unsafe")
         if self.full_well is not None:
-            fw = self.full_well if self.full_well.ndim == 0 else self.full_well[rows]
-            sat = qr >= fw
+            _, sat = self.full_well.apply(acc[rows], rows=rows, out=qr)
             sr = sat_read[integration, rows]
             sr[sat & (sr < 0)] = read
-            np.minimum(qr, fw, out=qr, casting="unsafe")
+        else:
+            np.copyto(qr, acc[rows], casting="unsafe")
         if self.nonlinearity is not None:
             qr[...] = self.nonlinearity.apply(qr)
         if self.flat is not None and self.ipc_kernel is None:
@@ -490,23 +570,24 @@ class ChargeEngine:
         return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
     # ------------------------------------------------------------------- run
-    def run(self, *, on_resultant, save_charge=False, save_noise=False, progress=None):
-        """Simulate every resultant of every integration, in time order.
+    def simulate(self, *, save_charge=False, save_noise=False, progress=None):
+        """Start a run: the resultants of every integration, in time order.
 
         Parameters
         ----------
-        on_resultant : callable
-            ``on_resultant(integration, resultant, dn, charge, noise)`` with ``dn`` the
-            uint16 resultant (ny, nx), and ``charge``/``noise`` the noise-free charge and
-            noise-only resultants (float32 e-) when requested, else ``None``.
+        save_charge, save_noise : bool
+            Also give the noise-free charge and the noise-only part of each
+            resultant (float32 e-).
         progress : callable, optional
             Called with the number of reads done after each read.
 
         Returns
         -------
-        dict
-            ``sat_read``: (nints, ny, nx) int16 first saturated read index (-1: never);
-            ``cr_seen``: bool per cosmic-ray deposit, True if any read saw it.
+        EngineRun
+            An iterator of :class:`Resultant`; its ``sat_read`` and ``cr_seen`` are
+            complete once it is exhausted.  Close it (or use it as a context
+            manager) to stop early: the thread pool and the noise generator are
+            released.
 
         Notes
         -----
@@ -515,123 +596,119 @@ class ChargeEngine:
         sum per open resultant; everything per pixel is done in row blocks on the
         thread pool (elementwise, so the blocks do not change the result).
         """
-        det, ro = self.detector, self.readout
-        shape = det.shape
-        nints = ro.nints
-        needed = list(ro.needed_reads)
-        read_to_res = {}
-        for r, reads in enumerate(ro.resultants):
-            for k in reads:
-                read_to_res[k] = r
-        sat_read = np.full((nints,) + shape, -1, dtype=np.int16)
-        cr_seen = np.zeros(self.cosmic_rays.time.size, dtype=bool)
-        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
-        blocks = self._blocks()
+        return EngineRun(self, save_charge=save_charge, save_noise=save_noise,
+                         progress=progress)
 
-        def each(fn):
-            if pool is not None and len(blocks) > 1:
-                list(pool.map(fn, blocks))
+    def _start_integration(self, i, needed, pool):
+        """Per-integration state: the charge ``acc`` and the Poisson streams."""
+        if not self._has_charge:
+            return None
+        acc = np.zeros(self.detector.shape, dtype=self._dtype)
+        if self._chunks and self.options.shot_noise:
+            if self.options.arrivals == "2d":
+                self._scale = self._shot_2d(i, needed, pool)
             else:
-                for b in blocks:
-                    fn(b)
+                self._gens = [self._chunk_generator(streams.POISSON, i, c)
+                              for c in range(len(self._chunks))]
+                self._drawn = [None] * len(self._chunks)
+        return acc
 
+    def _charge_of_read(self, run, acc, q, i, needed, pos, prev):
+        """Collect the charge of read ``needed[pos]`` into ``acc``; the float32 charge
+        frame after the effects (``q``, or a new frame with IPC), or ``None`` when
+        the effects are applied later, per row block (no IPC)."""
+        k = needed[pos]
+        if self._chunks:
+            self._poisson(acc, i, needed, pos, run.pool)
+        hit = self._add_cosmic_rays(acc, i, prev, k)
+        if hit is not None:
+            run.cr_seen |= hit
+        if self.ipc_kernel is None:
+            return None
+        run.each(lambda b: self._pointwise(acc, q, run.sat_read, i, k, b))
+        return self._ipc_flat(q)
+
+    def _digitise(self, b, rr, first, charge, nframe, save_charge, save_noise):
+        """Rows ``b`` of one read: charge + noise, through the ADC, into the DN sum
+        of its resultant ``rr`` (copied for its first read, added after)."""
+        if charge is not None and nframe is not None:
+            f = np.add(charge[b], nframe[b])
+        elif charge is not None:
+            f = charge[b].copy()
+        elif nframe is not None:
+            f = nframe[b].copy()
+        else:
+            f = np.zeros(rr.dn_sum[b].shape, dtype=np.float32)
+        codes = self.adc.codes(f)
+        if first:
+            np.copyto(rr.dn_sum[b], codes, casting="unsafe")
+        else:
+            np.add(rr.dn_sum[b], codes, out=rr.dn_sum[b], casting="unsafe")
+        if save_charge and charge is not None:
+            rr.charge_sum[b] += charge[b]
+        if save_noise and nframe is not None:
+            rr.noise_sum[b] += nframe[b]
+
+    def _finish(self, run, i, r_index, rr, save_charge, save_noise):
+        """The :class:`Resultant` of a complete DN sum: the rounded mean."""
+        if rr.dn_sum.dtype == np.uint16:
+            out_dn = rr.dn_sum
+        else:
+            out_dn = np.empty(self.detector.shape, dtype=np.uint16)
+            run.each(lambda b: _mean_dn(rr.dn_sum[b], rr.count, self.adc.top, out_dn[b]))
+        ch = (rr.charge_sum / rr.count).astype(np.float32) if save_charge else None
+        nz = (rr.noise_sum / rr.count).astype(np.float32) if save_noise else None
+        return Resultant(i, r_index, out_dn, ch, nz)
+
+    def _reads(self, run, save_charge, save_noise, progress):
+        """Generator behind :class:`EngineRun`: one :class:`Resultant` at a time."""
+        shape, ro = self.detector.shape, self.readout
+        needed = list(ro.needed_reads)
+        read_to_res = {k: r for r, reads in enumerate(ro.resultants) for k in reads}
         noise_iter = None
         if self.noise is not None:
-            noise_iter = self.noise.frames(ro.nreads, needed, nints=nints, reuse=True)
-        maxdn = np.float32(2 ** self.adc_bits - 1)
-        gain = np.float32(self.gain)
+            noise_iter = self.noise.frames(ro.nreads, needed, nints=ro.nints, reuse=True)
+        run.finalizers.append(lambda: noise_iter is not None and noise_iter.close())
         q = np.empty(shape, dtype=np.float32) if self._has_charge else None
         done = 0
-        try:
-            for i in range(nints):
-                acc = np.zeros(shape, dtype=self._dtype) if self._has_charge else None
-                if (self._has_charge and self._chunks and self.options.shot_noise
-                        and self.options.arrivals == "2d"):
-                    self._scale = self._shot_2d(i, needed, pool)
-                if (self._has_charge and self._chunks and self.options.shot_noise
-                        and self.options.arrivals == "time"):
-                    self._gens = [self._chunk_generator(2, i, c)
-                                  for c in range(len(self._chunks))]
-                    self._drawn = [None] * len(self._chunks)
-                prev = None
-                res = [_Resultant(tuple(r)) for r in ro.resultants]
-                for pos, k in enumerate(needed):
-                    charge = None
-                    if self._has_charge:
-                        if self._chunks:
-                            self._poisson(acc, i, needed, pos, pool)
-                        hit = self._add_cosmic_rays(acc, i, prev, k)
-                        if hit is not None:
-                            cr_seen |= hit
-                        if self.ipc_kernel is not None:
-                            each(lambda b: self._pointwise(acc, q, sat_read, i, k, b))
-                            charge = self._ipc_flat(q)
-                        else:
-                            charge = q
-                    prev = k
-                    nframe = None
-                    if noise_iter is not None:
-                        _, _, nframe = next(noise_iter)
-                    r_index = read_to_res[k]
-                    rr = res[r_index]
-                    first = rr.count == 0
-                    if first:
-                        # a one-read resultant is digitised straight into its uint16
-                        # output (the same values: f is integral and in [0, maxdn])
-                        rr.dn_sum = np.empty(shape, dtype=np.uint16 if len(rr.reads) == 1
-                                             else np.uint32)
-                        if save_charge:
-                            rr.charge_sum = np.zeros(shape, dtype=np.float64)
-                        if save_noise:
-                            rr.noise_sum = np.zeros(shape, dtype=np.float64)
+        for i in range(ro.nints):
+            acc = self._start_integration(i, needed, run.pool)
+            prev = None
+            res = [_Resultant(tuple(r)) for r in ro.resultants]
+            for pos, k in enumerate(needed):
+                charge = None
+                if self._has_charge:
+                    charge = self._charge_of_read(run, acc, q, i, needed, pos, prev)
+                    if charge is None:
+                        charge = q
+                prev = k
+                nframe = next(noise_iter)[2] if noise_iter is not None else None
+                r_index = read_to_res[k]
+                rr = res[r_index]
+                first = rr.count == 0
+                if first:
+                    # a one-read resultant is digitised straight into its uint16
+                    # output (the same values: the codes are integral, in [0, top])
+                    rr.dn_sum = np.empty(shape, dtype=np.uint16 if len(rr.reads) == 1
+                                         else np.uint32)
+                    if save_charge:
+                        rr.charge_sum = np.zeros(shape, dtype=np.float64)
+                    if save_noise:
+                        rr.noise_sum = np.zeros(shape, dtype=np.float64)
 
-                    def digitise(b, charge=charge, nframe=nframe, rr=rr, first=first):
-                        if q is not None and charge is q and self.ipc_kernel is None:
-                            self._pointwise(acc, q, sat_read, i, k, b)
-                        if charge is not None and nframe is not None:
-                            f = np.add(charge[b], nframe[b])
-                        elif charge is not None:
-                            f = charge[b].copy()
-                        elif nframe is not None:
-                            f = nframe[b].copy()
-                        else:
-                            f = np.zeros(rr.dn_sum[b].shape, dtype=np.float32)
-                        f /= gain
-                        np.rint(f, out=f)
-                        np.clip(f, 0, maxdn, out=f)
-                        if first:
-                            np.copyto(rr.dn_sum[b], f, casting="unsafe")
-                        else:
-                            np.add(rr.dn_sum[b], f, out=rr.dn_sum[b], casting="unsafe")
-                        if save_charge and charge is not None:
-                            rr.charge_sum[b] += charge[b]
-                        if save_noise and nframe is not None:
-                            rr.noise_sum[b] += nframe[b]
+                def rows(b, charge=charge, nframe=nframe, rr=rr, first=first):
+                    if charge is q and q is not None and self.ipc_kernel is None:
+                        self._pointwise(acc, q, run.sat_read, i, k, b)
+                    self._digitise(b, rr, first, charge, nframe, save_charge, save_noise)
 
-                    each(digitise)
-                    rr.count += 1
-                    if rr.count == len(rr.reads):
-                        if rr.dn_sum.dtype == np.uint16:
-                            out_dn = rr.dn_sum
-                        else:
-                            out_dn = np.empty(shape, dtype=np.uint16)
-                            each(lambda b, rr=rr: _mean_dn(rr.dn_sum[b], rr.count, maxdn,
-                                                           out_dn[b]))
-                        ch = (rr.charge_sum / rr.count).astype(np.float32) \
-                            if save_charge else None
-                        nz = (rr.noise_sum / rr.count).astype(np.float32) \
-                            if save_noise else None
-                        res[r_index] = None
-                        on_resultant(i, r_index, out_dn, ch, nz)
-                    done += 1
-                    if progress is not None:
-                        progress(done)
-        finally:
-            if pool is not None:
-                pool.shutdown()
-            if noise_iter is not None:
-                noise_iter.close()
-        return {"sat_read": sat_read, "cr_seen": cr_seen}
+                run.each(rows)
+                rr.count += 1
+                if rr.count == len(rr.reads):
+                    res[r_index] = None
+                    yield self._finish(run, i, r_index, rr, save_charge, save_noise)
+                done += 1
+                if progress is not None:
+                    progress(done)
 
     def expected_rate(self, t1=None, t2=None):
         """Expected rate (e-/s) per pixel before IPC/flat; light curves averaged over
@@ -640,7 +717,7 @@ class ChargeEngine:
         if t1 is None:
             t1 = 0.0
         if t2 is None:
-            t2 = ro.nints * (1 + ro.nreads) * det.frame_time
+            t2 = exposure_slots(ro.nints, ro.nreads) * det.frame_time
         rate = self.rate.copy()
         for v in self.variable:
             mean = float(v.light_curve.integral(np.array([t1]), np.array([t2]))[0]) / (t2 - t1)
@@ -699,9 +776,4 @@ def _poisson_or_gauss(g, lam, threshold):
         out[big] = np.maximum(np.rint(lam[big] + np.sqrt(lam[big]) * z), 0)
     return out
 
-
-def _any_noise(p):
-    return any(p.enabled(n) for n in ("rd_noise", "u_pink", "acn")) or any(
-        getattr(p, n) > 0 for n in ("c_pink", "pca0", "pedestal", "ktc", "bias_amp")) or (
-        p.bias_offset != 0) or (p.rtn_fraction > 0 and p.rtn_amp > 0)
 

@@ -32,13 +32,14 @@ import numpy as np
 from astropy.table import vstack
 
 from noise import streams
+from noise.clock import exposure_slots
 from noise.errors import ParameterError
 
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.io.exposure import write_exposure
+from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import psf_cards
 
-__all__ = ["build_engine", "run_scene", "RunResult", "build_light_curve"]
+__all__ = ["build_engine", "run_scene", "write_exposure", "RunResult", "build_light_curve"]
 
 
 @dataclass
@@ -154,6 +155,49 @@ def _cosmic_rays(scene, seed, t_total):
                          np.asarray(table["CHARGE"], dtype=float))
 
 
+def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
+                   save_noise=False, sources=None, progress=None, overwrite=True):
+    """Run ``engine`` and write what it makes: the exposure and the truth file.
+
+    The loop of every simulation: resultants are pulled from the engine's run
+    (:meth:`ChargeEngine.simulate`) and pushed to the sink
+    (:class:`scenesim.io.exposure.ExposureWriter`), one at a time, so memory holds
+    one resultant, not the ramp.  An error or interrupt leaves no output file and no
+    temporary file behind.
+
+    Parameters
+    ----------
+    engine : scenesim.engine.ChargeEngine
+    path : str or None
+        Exposure file; ``None`` writes no ramp file (truth and in-memory result only).
+    cards : sequence of (key, value, comment)
+        Extra primary-header cards (scene, seed, ...).
+    truth_path : str or None
+        Truth file; ``None`` writes none.
+    save_charge, save_noise : bool
+        Add the noise-free charge and the noise-only resultants to the truth file.
+    sources : astropy.table.Table or None
+        Rendered source catalogue for the truth file.
+    progress : callable, optional
+        Called with the number of reads done.
+    overwrite : bool
+        Replace existing files.
+
+    Returns
+    -------
+    dict
+        See :meth:`scenesim.io.exposure.ExposureWriter.finish`.
+    """
+    with ExposureWriter(engine, path, cards=cards, truth_path=truth_path,
+                        save_charge=save_charge, save_noise=save_noise, sources=sources,
+                        overwrite=overwrite) as writer:
+        with engine.simulate(save_charge=writer.save_charge, save_noise=writer.save_noise,
+                             progress=progress) as run:
+            for resultant in run:
+                writer.add(resultant)
+        return writer.finish(run)
+
+
 def build_engine(scene, *, options=EngineOptions()):
     """Everything needed to run ``scene``: ``(engine, rendered_catalogue)``.
 
@@ -168,7 +212,7 @@ def build_engine(scene, *, options=EngineOptions()):
     readout = scene.readout.build()
     seed = scene.seed
     rate, variable, rendered = _rates(scene, seed)
-    t_total = readout.nints * (1 + readout.nreads) * det.frame_time
+    t_total = exposure_slots(readout.nints, readout.nreads) * det.frame_time
     crs = _cosmic_rays(scene, seed, t_total)
     eff = scene.effects
     full_well = None

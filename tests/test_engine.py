@@ -14,7 +14,7 @@ import pytest
 from noise.clock import Detector, preset
 from noise.errors import ParameterError
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.io.exposure import write_exposure
+from scenesim.run import write_exposure
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.detector.readout import Readout
 
@@ -36,11 +36,10 @@ def _collect(engine):
     det = engine.detector
     charge = np.zeros((ro.nints, ro.ngroups) + det.shape)
 
-    def cb(i, r, dn, ch, nz):
-        charge[i, r] = ch
-
-    out = engine.run(on_resultant=cb, save_charge=True)
-    return charge, out
+    with engine.simulate(save_charge=True) as run:
+        for res in run:
+            charge[res.integration, res.index] = res.charge
+    return charge, {"sat_read": run.sat_read, "cr_seen": run.cr_seen}
 
 
 def test_frame_time_matches_closed_form():
@@ -122,7 +121,8 @@ def test_no_charge_noise_only_ramp():
     params = noise.ZERO_NOISE.replace(rd_noise=5.0, bias_offset=1000.0)
     eng = ChargeEngine(det, Readout.from_reads([[0], [1]]), noise_params=params, rng=2)
     dn = {}
-    eng.run(on_resultant=lambda i, r, d, c, z: dn.__setitem__(r, d.astype(float)))
+    for res in eng.simulate():
+        dn[res.index] = res.dn.astype(float)
     x = dn[1][~det.reference_mask()] - dn[0][~det.reference_mask()]
     n = x.size
     # CDS of two reads: variance 2 sigma^2 + 2/12 (rounding); 5 sigma of the mean

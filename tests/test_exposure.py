@@ -11,8 +11,8 @@ import noise
 from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.io.exposure import (Exposure, read_exposure, read_truth, truth_path_for,
-                               write_exposure)
+from scenesim.io.exposure import Exposure, read_exposure, read_truth, truth_path_for
+from scenesim.run import write_exposure
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.detector.readout import Readout
 
@@ -135,11 +135,11 @@ def test_truth_file_contents(tmp_path):
     charge = np.zeros((2, 3) + det.shape, np.float32)
     noise_r = np.zeros_like(charge)
 
-    def cb(i, r, dn, ch, nz):
-        charge[i, r] = ch
-        noise_r[i, r] = nz
-
-    ref = make().run(on_resultant=cb, save_charge=True, save_noise=True)
+    with make().simulate(save_charge=True, save_noise=True) as run:
+        for res in run:
+            charge[res.integration, res.index] = res.charge
+            noise_r[res.integration, res.index] = res.noise
+    ref = {"sat_read": run.sat_read}
     np.testing.assert_array_equal(truth["CHARGE"], charge)
     np.testing.assert_array_equal(truth["NOISE"], noise_r)
     np.testing.assert_array_equal(truth["SATREAD"], ref["sat_read"])

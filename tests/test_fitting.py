@@ -22,7 +22,8 @@ import noise
 from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, EngineOptions
-from scenesim.io.exposure import Exposure, read_exposure, write_exposure
+from scenesim.io.exposure import Exposure, read_exposure
+from scenesim.run import write_exposure
 from scenesim.rampfit.fit import read_fit
 from scenesim.calib.prepare import (PreparedExposure, exposure_readout, fit_exposure_file,
                               load_exposure, prepare_exposure)

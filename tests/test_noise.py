@@ -20,7 +20,7 @@ import pytest
 from scipy.special import polygamma
 
 from noise import (NIRSPEC_DEFAULTS, ZERO_NOISE, Detector, NoiseGenerator, NoiseParams,
-                   preset, synthetic_template, template_for, to_uint16_dn)
+                   preset, synthetic_template, template_for, to_dn)
 from noise import generator as generator_module
 from noise.errors import ParameterError
 
@@ -599,11 +599,11 @@ def test_frames_selected_integrations_in_order():
 @pytest.mark.parametrize("gain, offset", [(1.0, 5000.0), (2.7, 5000.0), (1.0, 0.0),
                                           (0.5, 32767.0), (2.0, 5000.0), (4.0, 100.0)])
 def test_dn_frames_equal_converted_electron_frames(gain, offset, size):
-    """frames(dn_gain=g) is exactly to_uint16_dn(frame, g), clipping at 0 and 65535
+    """frames(dn_gain=g) is exactly noise.adc.to_dn(frame, g), clipping at 0 and 65535
     included (offset 0 clips about half the pixels low, 32767 e- at 0.5 e-/DN high).
 
     With g = 2.7 a float32 division would round ~1e-4 of the pixels differently from
-    to_uint16_dn's float64 one (e/g near a half-integer): the 256x256 frames make that
+    to_dn's float64 one (e/g near a half-integer): the 256x256 frames make that
     visible (~40 pixels), so the comparison checks the arithmetic, not just the layout.
     Powers of two (0.5, 1, 2, 4) take the float32 shortcut, which must agree exactly.
     """
@@ -614,7 +614,7 @@ def test_dn_frames_equal_converted_electron_frames(gain, offset, size):
     assert [(i, k) for i, k, _ in dn] == [(i, k) for i, k, _ in e]
     for (_, _, fe), (_, _, fd) in zip(e, dn):
         assert fd.dtype == np.uint16 and fd.shape == fe.shape
-        np.testing.assert_array_equal(fd, to_uint16_dn(fe, gain))
+        np.testing.assert_array_equal(fd, to_dn(fe, gain))
     if offset == 0.0:
         assert np.mean(dn[0][2] == 0) > 0.3
     if offset == 32767.0:

@@ -49,18 +49,17 @@ def run(eng, *, save_charge=True, save_noise=False):
     nz = np.full(shape, np.nan, dtype=np.float64) if save_noise else None
     seen = np.zeros(shape[:2], dtype=bool)
 
-    def on_resultant(i, r, d, c, n):
-        seen[i, r] = True
-        dn[i, r] = d
-        if save_charge:
-            charge[i, r] = 0.0 if c is None else c
-        if save_noise:
-            nz[i, r] = n
-
-    out = eng.run(on_resultant=on_resultant, save_charge=save_charge,
-                  save_noise=save_noise)
+    with eng.simulate(save_charge=save_charge, save_noise=save_noise) as run:
+        for res in run:
+            i, r = res.integration, res.index
+            seen[i, r] = True
+            dn[i, r] = res.dn
+            if save_charge:
+                charge[i, r] = 0.0 if res.charge is None else res.charge
+            if save_noise:
+                nz[i, r] = res.noise
     assert seen.all()
-    return dn, charge, nz, out["sat_read"]
+    return dn, charge, nz, run.sat_read
 
 
 def documented_clock(det):

@@ -279,7 +279,7 @@ def _engine_exposure():
     first read at FW per pixel."""
     import noise
     from scenesim.engine import ChargeEngine, EngineOptions
-    from scenesim.io.exposure import write_exposure
+    from scenesim.run import write_exposure
     from scenesim.detector.readout import Readout
 
     det = preset("H2RG", naxis1=32, naxis2=32)

@@ -36,7 +36,7 @@ from noise.errors import FileFormatError, ParameterError  # noqa: E402
 from noise.params import ZERO_NOISE  # noqa: E402
 from scenesim.validate.compare import compare_files  # noqa: E402
 from scenesim.engine import ChargeEngine, EngineOptions  # noqa: E402
-from scenesim.io.exposure import write_exposure  # noqa: E402
+from scenesim.run import write_exposure  # noqa: E402
 from scenesim.rampfit.fit import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # noqa: E402
                           SATURATED, model_chi2, ols_variance, optimal_variance,
                           read_fit)

@@ -231,14 +231,19 @@ def bench_noise(frames, threads):
 
 def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
                 on_resultant=None):
-    """Run a ChargeEngine (to a temp FITS file unless ``on_resultant`` is given)."""
+    """Run a ChargeEngine (to a temp FITS file unless ``on_resultant`` is given: then
+    each :class:`scenesim.engine.Resultant` goes to it)."""
     from scenesim.engine import ChargeEngine, EngineOptions
-    from scenesim.io.exposure import write_exposure
+    from scenesim.run import write_exposure
     opts = options if options is not None else EngineOptions(threads=threads)
     eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
                        options=opts)
     if on_resultant is not None:
-        return _timed(lambda: eng.run(on_resultant=on_resultant)), eng
+        def consume():
+            with eng.simulate() as run:
+                for res in run:
+                    on_resultant(res)
+        return _timed(consume), eng
     with tempfile.TemporaryDirectory() as tmp:
         return _timed(lambda: write_exposure(eng, os.path.join(tmp, "exp.fits"))), eng
 
@@ -275,7 +280,7 @@ def bench_jwst(size, threads):
     rate = 0.5 + 0.01 + _star_rates(det.shape, 1000, np.random.default_rng(3), (1, 5))
     params = noise.NoiseParams()
     timing, _ = _run_engine(det, ro, rate, threads, params,
-                            on_resultant=(lambda *a: None) if engine_only else None)
+                            on_resultant=(lambda res: None) if engine_only else None)
     return _engine_result(det, ro, rate, params, timing,
                           f"H2RG {det.ny}x{det.nx}, 1000 stars 10-1e5 e-/s, bg 0.5, "
                           f"dark 0.01, RAPID x {ngroups}, full noise, "
@@ -387,11 +392,12 @@ def bench_options(case, threads):
     det, ro, rate, params = _options_scene(size)
     out = {}
 
-    def keep(i, r, dn, charge, nz):
-        out[r] = dn.astype(np.float32)
+    def keep(res):
+        out[res.index] = res.dn.astype(np.float32)
 
     timing, eng = _run_engine(det, ro, rate, threads, params,
-                              options=_engine_options(case[0], threads), on_resultant=keep)
+                              options=_engine_options(case[0], threads),
+                              on_resultant=keep)
     res = np.stack([out[r] for r in range(ro.ngroups)])
     times = ro.read_times(det.frame_time)
     live = ~det.reference_mask()
@@ -487,7 +493,7 @@ def bench_skips(case, threads):
         params = noise.ZERO_NOISE.replace(rd_noise=5.2)
         rate = np.full(det.shape, 1.0)
         if not defeated:
-            keep = lambda *a: None  # noqa: E731  (in-memory resultants, no file)
+            keep = lambda res: None  # noqa: E731  (in-memory resultants, no file)
     else:
         raise ParameterError(f"unknown skip case {what!r}")
     timing, _ = _run_engine(det, ro, rate, threads, params, on_resultant=keep)

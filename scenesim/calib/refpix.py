@@ -117,7 +117,8 @@ import numpy as np
 
 from noise.clock import Detector
 from noise.errors import ParameterError
-from noise.generator import NoiseGenerator, root_seed
+from noise.generator import NoiseGenerator
+from noise.streams import root_seed
 from noise.params import NIRSPEC_DEFAULTS, NoiseParams
 
 __all__ = ["SCHEMES", "MEASURED_COMPONENTS", "correct_reference", "reference_layout",

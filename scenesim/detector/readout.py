@@ -29,9 +29,8 @@ Read times (``docs/CONVENTIONS.md``), seconds from the pixel's own reset:
   ``k`` of a pixel with clock offset ``t_pix`` (``noise.Detector.pixel_time()``) is at
   ``k * t_frame + t_pix``, i.e. the rolling times shifted by ``t_pix - t_frame``.
 
-Exposure time line: each integration is one reset frame slot followed by its
-``nreads`` read slots; read ``k`` of integration ``i`` sits in absolute frame slot
-``i * (1 + nreads) + 1 + k`` (:meth:`Readout.frame_slots`).
+Exposure time line: read ``k`` of integration ``i`` sits in absolute frame slot
+:func:`noise.clock.frame_slot` ``(i, k, nreads)`` (:meth:`Readout.frame_slots`).
 
 Resultant times (Brandt 2024, PASP 136, 045004, eqs. 28-29)
 ------------------------------------------------------------
@@ -90,6 +89,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
+from noise.clock import frame_slot
 from noise.errors import FileFormatError, ParameterError
 
 __all__ = [
@@ -595,7 +595,7 @@ class Readout:
         """
         k = np.asarray(self.needed_reads, dtype=np.int64)
         i = np.arange(self.nints, dtype=np.int64)
-        return i[:, None] * (1 + self.nreads) + 1 + k[None, :]
+        return frame_slot(i[:, None], k[None, :], self.nreads)
 
     def resultant_matrix(self):
         """Weights that average the needed reads into resultants.

@@ -28,7 +28,7 @@ read saw it), ``SOURCES`` (the catalogue as rendered), and optionally ``CHARGE``
 
 In memory: :class:`Exposure` holds what an exposure file holds (``SCI``, the primary
 header and the ``READS`` table, exactly as :func:`read_exposure` returns them from a
-file).  ``write_exposure(engine, None)`` returns one, so a run that wants slopes but
+file).  ``ExposureWriter(engine, None)`` returns one, so a run that wants slopes but
 no ramp file fits the resultants straight from memory
 (:func:`scenesim.calib.prepare.prepare_exposure` takes a path or an :class:`Exposure`); its
 header and table go through the same FITS serialisation as the file's, so the fit
@@ -52,7 +52,7 @@ from noise.fitsio import StreamingFITS, atomic_path
 
 from scenesim.io.header import exposure_cards
 
-__all__ = ["Exposure", "write_exposure", "truth_path_for", "read_exposure",
+__all__ = ["Exposure", "ExposureWriter", "truth_path_for", "read_exposure",
            "read_truth"]
 
 #: Output file buffer (bytes): small frames are written 1 MB at a time, not per frame.
@@ -135,91 +135,132 @@ class _RawCube:
             os.unlink(self.path)
 
 
-def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
-                   save_noise=False, sources=None, progress=None, overwrite=True):
-    """Run ``engine`` and stream its resultants to ``path`` (and the truth file).
+class ExposureWriter:
+    """The sink of a run: streams resultants to the exposure file and writes the truth.
+
+    The writer does not run the engine: the orchestrator
+    (:func:`scenesim.run.write_exposure`) pulls each :class:`scenesim.engine.Resultant`
+    from the engine's run and hands it to :meth:`add`, then calls :meth:`finish` with
+    the finished run.  Used as a context manager, an exception (or interrupt) before
+    :meth:`finish` removes every temporary file and leaves existing files untouched.
 
     Parameters
     ----------
     engine : scenesim.engine.ChargeEngine
+        Describes what is written (header, readout, truth rates); not run here.
     path : str or None
-        Exposure file; ``None`` writes no ramp file (truth and in-memory result only).
+        Exposure file; ``None`` keeps the resultants in memory (:meth:`finish`
+        returns them as an :class:`Exposure`).
     cards : sequence of (key, value, comment)
-        Extra primary-header cards (scene, seed, ...).
+        Extra primary-header cards (scene, seed, PSF, ...).
     truth_path : str or None
         Truth file; ``None`` writes none.
     save_charge, save_noise : bool
         Add the noise-free charge and the noise-only resultants to the truth file.
     sources : astropy.table.Table or None
         Rendered source catalogue for the truth file.
-    progress : callable, optional
-        Called with the number of reads done.
-
-    Returns
-    -------
-    dict
-        ``sat_read`` and ``cr_seen`` (see ``ChargeEngine.run``) and, when ``path`` is
-        None, ``sci`` (nints, ngroups, ny, nx) uint16 DN held in memory and
-        ``exposure``, an :class:`Exposure` of it whose header and ``READS`` table are
-        those the file would have had, as :func:`read_exposure` would return them.
+    overwrite : bool
+        Replace existing files.
     """
-    det, ro = engine.detector, engine.readout
-    if path is not None:
-        check_writable("output path", path, overwrite=overwrite)
-    if truth_path is not None:
-        check_writable("truth path", truth_path, overwrite=overwrite)
-    shape = (ro.nints, ro.ngroups) + det.shape
-    t_frame = det.frame_time
-    header = exposure_cards(engine, cards)
-    stack = contextlib.ExitStack()
-    raws = {}
-    with stack:
-        stream = None
-        sci_mem = None
+
+    def __init__(self, engine, path, *, cards=(), truth_path=None, save_charge=False,
+                 save_noise=False, sources=None, overwrite=True):
         if path is not None:
-            tmp = stack.enter_context(atomic_path(path, overwrite=overwrite))
-            fobj = stack.enter_context(open(tmp, "wb", buffering=_WRITE_BUFFER))
-            stream = StreamingFITS(fobj)
-            stream.begin_image((), np.uint8, header)
-            stream.end_image()
-            stream.begin_image(shape, np.uint16,
-                               [("BUNIT", "DN", "raw counts")], name="SCI")
-        else:
-            sci_mem = np.empty(shape, dtype=np.uint16)
-        tdir = os.path.dirname(os.path.abspath(truth_path or path or "."))
+            check_writable("output path", path, overwrite=overwrite)
+        if truth_path is not None:
+            check_writable("truth path", truth_path, overwrite=overwrite)
+        self.engine, self.path, self.truth_path = engine, path, truth_path
+        self.sources, self.overwrite = sources, overwrite
+        det, ro = engine.detector, engine.readout
+        self.shape = (ro.nints, ro.ngroups) + det.shape
+        self.header = exposure_cards(engine, cards)
+        self.save_charge = truth_path is not None and save_charge
+        self.save_noise = truth_path is not None and save_noise
+        self._stack = contextlib.ExitStack()
+        self._stream = None
+        self._sci = None
+        self._raws = {}
         try:
-            if truth_path is not None and save_charge:
-                raws["CHARGE"] = _RawCube(tdir)
-            if truth_path is not None and save_noise:
-                raws["NOISE"] = _RawCube(tdir)
+            if path is not None:
+                tmp = self._stack.enter_context(atomic_path(path, overwrite=overwrite))
+                fobj = self._stack.enter_context(open(tmp, "wb", buffering=_WRITE_BUFFER))
+                self._stream = StreamingFITS(fobj)
+                self._stream.begin_image((), np.uint8, self.header)
+                self._stream.end_image()
+                self._stream.begin_image(self.shape, np.uint16,
+                                         [("BUNIT", "DN", "raw counts")], name="SCI")
+            else:
+                self._sci = np.empty(self.shape, dtype=np.uint16)
+            tdir = os.path.dirname(os.path.abspath(truth_path or path or "."))
+            for name, wanted in (("CHARGE", self.save_charge),
+                                 ("NOISE", self.save_noise)):
+                if wanted:
+                    self._raws[name] = _RawCube(tdir)
+        except BaseException:
+            self.abort()
+            raise
 
-            def on_resultant(i, r, dn, charge, noise_frame):
-                if stream is not None:
-                    stream.write(dn)
-                else:
-                    sci_mem[i, r] = dn
-                if "CHARGE" in raws:
-                    raws["CHARGE"].write(charge)
-                if "NOISE" in raws:
-                    raws["NOISE"].write(noise_frame)
+    def add(self, res):
+        """Write one :class:`scenesim.engine.Resultant` (they come in file order)."""
+        if self._stream is not None:
+            self._stream.write(res.dn)
+        else:
+            self._sci[res.integration, res.index] = res.dn
+        if "CHARGE" in self._raws:
+            self._raws["CHARGE"].write(res.charge)
+        if "NOISE" in self._raws:
+            self._raws["NOISE"].write(res.noise)
 
-            out = engine.run(on_resultant=on_resultant, save_charge="CHARGE" in raws,
-                             save_noise="NOISE" in raws, progress=progress)
-            if stream is not None:
-                stream.end_image()
-                table = ro.read_table(t_frame)
-                hdu = fits.BinTableHDU(table, name="READS")
-                stream.append_hdu(hdu)
-            if truth_path is not None:
-                _write_truth(engine, truth_path, header, out, raws, sources, overwrite)
+    def finish(self, run):
+        """Complete the files from the finished ``run`` (its ``sat_read`` and
+        ``cr_seen``) and rename them into place.
+
+        Returns
+        -------
+        dict
+            ``sat_read`` and ``cr_seen``; and, when ``path`` is None, ``sci``
+            (nints, ngroups, ny, nx) uint16 DN held in memory and ``exposure``, an
+            :class:`Exposure` of it whose header and ``READS`` table are those the
+            file would have had, as :func:`read_exposure` would return them.
+        """
+        out = {"sat_read": run.sat_read, "cr_seen": run.cr_seen}
+        ro, t_frame = self.engine.readout, self.engine.detector.frame_time
+        try:
+            if self._stream is not None:
+                self._stream.end_image()
+                self._stream.append_hdu(fits.BinTableHDU(ro.read_table(t_frame),
+                                                         name="READS"))
+            if self.truth_path is not None:
+                _write_truth(self.engine, self.truth_path, self.header, out, self._raws,
+                             self.sources, self.overwrite)
+            self._stack.close()                 # renames the exposure into place
+        except BaseException:
+            self.abort()
+            raise
         finally:
-            for raw in raws.values():
-                raw.discard()
-    if sci_mem is not None:
-        out["sci"] = sci_mem
-        out["exposure"] = Exposure(sci_mem, _read_back_header(header),
-                                   _read_back_table(ro.read_table(t_frame), "READS"))
-    return out
+            self._discard_raws()
+        if self._sci is not None:
+            out["sci"] = self._sci
+            out["exposure"] = Exposure(self._sci, _read_back_header(self.header),
+                                       _read_back_table(ro.read_table(t_frame), "READS"))
+        return out
+
+    def abort(self):
+        """Remove every temporary file; existing files are left as they were."""
+        self._discard_raws()
+        self._stack.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+    def _discard_raws(self):
+        for raw in self._raws.values():
+            raw.discard()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, typ, exc, tb):
+        if typ is not None:
+            self.abort()
+        return False
 
 
 def _read_back_header(cards):

@@ -231,7 +231,7 @@ def exposure_cards(engine, cards):
     else:
         out.append(("RDNOISE", 0.0, "[e-] white read noise per read (not CDS)"))
     out.append(("SEEDENT", str(engine.entropy), "root SeedSequence entropy"))
-    out.append(("FULLWELL", float(np.max(engine.full_well)) if engine.full_well is not None
+    out.append(("FULLWELL", engine.full_well.max if engine.full_well is not None
                 else 0.0, "[e-] full well (max over pixels; 0 = none)"))
     out.append(("IPC", engine.ipc_kernel is not None, "IPC applied"))
     if engine.ipc_kernel is not None:

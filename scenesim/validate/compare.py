@@ -69,6 +69,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
+from noise.clock import detector_from_header, frame_slot
 from noise.errors import FileFormatError, ParameterError
 from noise.fitsio import atomic_path
 
@@ -313,7 +314,6 @@ def _ramp_windows(truth, readout, t_frame):
     two resultants are unsaturated), or None when the truth lacks the detector
     cards.  Clock time of frame slot ``s``: ``s * t_frame + t_pix``.
     """
-    from noise.clock import detector_from_header
     try:
         det = detector_from_header(truth["header"])
     except (FileFormatError, ParameterError, KeyError, ValueError):
@@ -322,7 +322,7 @@ def _ramp_windows(truth, readout, t_frame):
     if tpix.shape != truth.get("RATE", np.zeros(det.shape)).shape:
         return None
     nints = readout.nints
-    period = 1 + readout.nreads
+    nreads = readout.nreads
     first_read = readout.resultants[0][0]
     last_reads = np.array([r[-1] for r in readout.resultants])
     satg = truth.get("SATGROUP")
@@ -337,12 +337,12 @@ def _ramp_windows(truth, readout, t_frame):
     def bounds(y, x):
         i = np.arange(nints)[:, None]
         tp = tpix[y, x][None, :]
-        t0 = (i * period + 1 + first_read) * t_frame + tp
+        t0 = frame_slot(i, first_read, nreads) * t_frame + tp
         g_end = np.full((nints, y.size), ng - 1)
         if satg is not None:
             s = satg[:, y, x].astype(np.int64)
             g_end = np.where(s >= 0, s - 1, ng - 1)
-        t1 = (i * period + 1 + last_reads[np.clip(g_end, 0, ng - 1)]) * t_frame + tp
+        t1 = frame_slot(i, last_reads[np.clip(g_end, 0, ng - 1)], nreads) * t_frame + tp
         return t0, np.where(g_end >= 1, t1, np.nan)
 
     return bounds
