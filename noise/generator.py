@@ -40,15 +40,6 @@ in bands of ``_BAND_ROWS`` rows with one barrier per band:
   frame is written once; with ``dn_gain`` the rows are converted to uint16 DN in the
   same task.
 
-Measured on the 2-core development machine (full-frame H2RG, 4 outputs, NG defaults,
-steady state, in-process, 15 frames, ``reuse=1``, :func:`noise.fast.memory.keep_freed_memory`
-applied): 1 thread 0.119-0.127 s per frame (0.8x the numpy float32 floor of 0.154 s,
-2.2x a floor drawn with :mod:`noise.fast.normal`'s sampler, 0.058 s), 2 threads
-0.089-0.098 s (1.2x and 3.0x; the second thread buys only 1.3x, not diagnosed further:
-the FFTs and the frame assembly passes are the likely limit).  Before the Box-Muller sampler (numpy's ziggurat) it was
-0.185-0.21 s and 0.105-0.117 s.  The first frame of a run also pays for the kTC map,
-the coarse 1/f levels and first-touch memory (~0.1 s of CPU).
-
 Small frames (fewer than ``_POOL_MIN_PIXELS`` pixels: windows, time series) are made
 without the thread pool, ``K`` requested frames at a time (``K * ny * nx <=
 _BATCH_PIXELS``, ``K <= _BATCH_FRAMES``), because there the per-frame Python overhead
@@ -65,15 +56,6 @@ With two or more threads, the 1/f lines and reset levels are made ahead by a for
 helper process (:mod:`noise.fast.producer`): threads lost to GIL hand-overs between the many
 small calls of the frame assembly and the line synthesis.  Frames are copied out of
 the batch buffer one at a time, so ``reuse`` keeps its meaning.
-
-Measured (64x64 window, 1 output, NIRSpec defaults, 300 integrations x 5 reads, through
-the charge engine to a FITS file, ``scenesim bench timeseries``, 2 threads): 0.60 s and
-3.4x the random-number floor before; 0.26-0.40 s, median 1.65x over 16 runs (1.2-2.2)
-with the merged single-output pink (below), the pedestal per block of slots, batched
-white draws and the forked helper.  The two processes are then about equally busy: the
-helper with the 1/f synthesis (two full-rate lines over the whole time line, reset
-slots included, ~12 ns per sample) and the reset levels, this process with the white
-draws and the charge engine's per-read work.
 
 On a detector with one active output, correlated and uncorrelated pink land on the
 same pixels through the same clock; their sum is one Gaussian 1/f process of amplitude

@@ -61,8 +61,6 @@ Properties:
   ~1 ns of copies; :meth:`PinkSeries.plan` hands a range of samples to a thread pool as
   one independent task per series.  Requests are served by whole groups, so up to one
   group (115k samples) per series is drawn ahead of the request and used by the next one.
-  (An earlier ``mode='fast'`` drew 24-bit-truncated Box-Muller inputs; once the exact
-  input used the same transform with exact tails it saved nothing, so it was removed.)
 
 Normalisation (see :mod:`noise.params`): the level is set from the *realised* PSD of the
 designed filters so that the expected variance over one frame of ``n`` samples, with

@@ -31,13 +31,14 @@ Poisson draws use :func:`noise.fast.poisson.poisson` (exact inversion for means 
 10 e-, numpy's sampler above; 1.4-3x faster than numpy's at the small means of
 dark current and background).
 
-Randomness and draw layout: one root ``SeedSequence``; the noise generator uses spawn
-key ``(1,)``.  The frame is cut into stream chunks of ``max(32, ceil(65536 / nx))``
-rows (32 rows for nx >= 2048, one chunk for a 64x64 window); chunk ``c`` (counted
+Randomness and draw layout: one root ``SeedSequence``; the streams are those of the
+registry :mod:`noise.streams` (the noise generator ``NOISE``, Poisson arrivals
+``POISSON``, the '2d' shortcut ``POISSON_2D``).  The frame is cut into stream chunks
+of ``max(32, ceil(65536 / nx))`` rows (32 rows for nx >= 2048, one chunk for a 64x64 window); chunk ``c`` (counted
 from row 0) of integration ``i`` draws every Poisson variate of that integration from
-one generator with spawn key ``(2, i, c)`` (the '2d' shortcut: ``(5, i, c)``), in
-read order.  A chunk at least half charged draws every pixel (mean 0, hence exactly
-0 e-, where nothing is collected: no gather/scatter per read); a sparser chunk draws
+one generator with spawn key ``POISSON + (i, c)`` (the '2d' shortcut:
+``POISSON_2D + (i, c)``), in read order.  A chunk at least half charged draws every
+pixel (mean 0, hence exactly 0 e-, where nothing is collected: no gather/scatter per read); a sparser chunk draws
 only its charged pixels.  The reads of an integration are drawn in groups of
 ``max(1, 65536 // n)`` reads per call, ``n`` the most pixels any chunk draws (a 64x64
 window draws its 5 RAPID reads in one call; 2048^2 and 4096^2 frames one read per
@@ -45,14 +46,6 @@ call), which removes the per-read Python overhead of small frames.  Chunks, grou
 and keys depend only on the detector, the readout and the rate map, never on the
 thread count or on the row blocks of the per-read passes, so neither changes the
 result.
-
-Cost per read of the 64x64 window of ``scenesim bench timeseries`` (one star on
-0.51 e-/s, 1500 reads, noise off, best of 3): 242 us with the earlier layout (one
-``SeedSequence`` + generator and one ``poisson`` call per 32-row chunk and read, and
-~20 inversion passes for the star's few bright pixels), 62 us now, of which ~45 us is
-the Poisson sampling itself (20480 draws per call at 7.7 ns).  The 2048^2 frame
-(RAPID x 5, one thread, noise off) went from 0.59 s to 0.49 s (no per-read
-gather/scatter around the reference-pixel border).
 """
 
 import os

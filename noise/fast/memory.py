@@ -5,8 +5,7 @@ buffers, FFT outputs, per-chunk means and draws).  By default glibc returns free
 memory at the top of the heap to the kernel once more than 128 kB is free, and serves
 requests above a (dynamic) threshold with fresh ``mmap`` regions; the next allocation
 then page-faults fresh pages, which the kernel must zero.  On the 4096^2 Roman-like
-workload that zeroing (``clear_page_erms``) was 12 % of all CPU samples and system time
-was 20 % of the total (2.1 s of 10.5 s CPU for 10 reads, one thread).
+workload that zeroing was a large share of the CPU (BENCHMARKS.md).
 
 :func:`keep_freed_memory` raises the trim threshold and the top pad so that freed heap
 memory is kept for reuse, and fixes the mmap threshold at its maximum (32 MB), so only

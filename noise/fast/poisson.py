@@ -90,27 +90,11 @@ arrays of >~10^4 elements.  On this machine (x86-64, AVX-512, numpy 2.4, one thr
 fresh memory is expensive (~350 us per MB of first-touched pages, i.e. ~2.7 ns per
 float64 element per new array), so allocations are kept few.
 
-Measured (131072 float64 means of one value, one thread, best of 5, ns per draw,
-fresh output each call for both; ``python -m noise.fast.poisson`` reprints it):
-
-    lam           0.03   0.3    1     3     10    15    20    30
-    g.poisson     14     22     29    40    60    54    52    45
-    inversion      9     13      9    19    31    37    40    54
-
-(the inversion column at 15-30 is with ``small=100``).  The speed-up is 1.4-3x for
-``lam <= 10``; inversion stays faster than numpy's PTRS up to lam ~ 20-25 and is slower
-at 30, so ``small`` may be raised to 20, but the default 10 keeps the PTRS branch for
-every mean where numpy itself switches to it.  Numbers vary by +-30 % with machine load
-and with the allocator (first-touch page faults dominate some rows).
-
-Small arrays are dominated by per-call overhead (~0.4-1.5 us per numpy call): arrays
-of fewer than ``_NUMPY_BELOW = 2048`` means go to ``g.poisson`` whole (in particular the
-few non-background pixels left after a shared-mean draw).  The
-64x64 time-series window (0.51 e-/s x 49.4 ms = 0.025 e- per read plus one star with
-24 pixels above 1 e-, up to 72 e-), best of 200 calls, one thread: 4096 means (one
-read) 78 -> 52 us with the routing above, 20480 means (five reads in one call, as the
-engine batches them) 224 -> 158 us, i.e. 7.7 ns per draw (``g.poisson``: 11.7 ns per
-draw at this mean).
+Inversion is faster than numpy's PTRS up to means of ~20; the default ``small = 10``
+keeps numpy's branch for every mean where numpy itself switches to it.  Arrays of
+fewer than ``_NUMPY_BELOW = 2048`` means go to ``g.poisson`` whole (there the per-call
+overhead of the passes dominates).  ``python -m noise.fast.poisson`` prints ns per
+draw of both samplers on this machine (the measured table is in BENCHMARKS.md).
 """
 
 import functools

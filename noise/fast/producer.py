@@ -7,8 +7,7 @@ large GIL-free FFTs and normal draws, while the rest of a batch (white noise, th
 charge engine, the file writer) is hundreds of small numpy calls per frame.  Run in a
 worker *thread*, the line synthesis lost more than it gained: each small call releases
 the GIL, the waiting thread takes it, and every hand-over between the two cores costs
-a futex wake-up (measured on the 2-core VM: a 300-integration 64x64 series went from
-0.47 s on one thread to 0.44-0.58 s on two, with 40-60 % more CPU).  A forked child has
+a futex wake-up (BENCHMARKS.md has the measurement).  A forked child has
 its own interpreter, so the two halves share nothing but the result buffers.
 
 Protocol
