@@ -146,7 +146,7 @@ def test_per_pixel_time_step_source():
     reg = ~det.reference_mask()
     idx = np.flatnonzero(reg)
     # weight 1e7 e-/s: a pixel read 0.5 dt = 5 us after T has lam = 50, P(0) = e^-50
-    src = VariableSource(idx, np.full(idx.size, 1e7), LightCurve.step(T))
+    src = VariableSource(idx, np.full(idx.size, 1e7), LightCurve.step(T, before=0.0, after=1.0))
     eng = ChargeEngine(det, ro, variable_sources=[src], rng=3)
     charge, _ = _collect(eng)
     c = charge[0]
@@ -387,10 +387,10 @@ def test_bad_variable_source():
     n = det.nx * det.ny
     with pytest.raises(ParameterError, match="out of range"):
         ChargeEngine(det, ro, variable_sources=[
-            VariableSource(np.array([n]), np.array([1.0]), LightCurve.step(0.0))])
+            VariableSource(np.array([n]), np.array([1.0]), LightCurve.step(0.0, before=0.0, after=1.0))])
     with pytest.raises(ParameterError, match="weights"):
         ChargeEngine(det, ro, variable_sources=[
-            VariableSource(np.array([5]), np.array([-1.0]), LightCurve.step(0.0))])
+            VariableSource(np.array([5]), np.array([-1.0]), LightCurve.step(0.0, before=0.0, after=1.0))])
 
 
 @pytest.mark.parametrize("name", ["rate", "full_well", "flat"])
@@ -413,7 +413,7 @@ def test_variable_source_exact_charge_two_integrations(reset_mode):
     idx = pix[:, 0] * det.nx + pix[:, 1]
     w = np.array([1e4, 2e4, 3e4])
     T = 2.3 * tf
-    src = VariableSource(idx, w, LightCurve.step(T))
+    src = VariableSource(idx, w, LightCurve.step(T, before=0.0, after=1.0))
     eng = ChargeEngine(det, ro, variable_sources=[src], rng=0,
                        options=EngineOptions(shot_noise=False))
     c, _ = _collect(eng)
@@ -481,7 +481,7 @@ def test_multichunk_results_threads_independent(case):
     if case == "sparse":
         rate[g.random(det.shape) > 0.4] = 0.0                # ~40 % charged
     idx = np.arange(200 * 512 + 100, 200 * 512 + 140)        # a stamp in one chunk
-    src = VariableSource(idx, np.full(idx.size, 300.0), LightCurve.step(2.5 * 0.7))
+    src = VariableSource(idx, np.full(idx.size, 300.0), LightCurve.step(2.5 * 0.7, before=0.0, after=1.0))
     ro = Readout.from_reads([[k] for k in range(5)], nints=2)
     opts = {"exact": {}, "sparse": {}, "gauss": {"gauss_above": 20.0},
             "2d": {"arrivals": "2d"}}[case]
@@ -523,3 +523,53 @@ def test_adc_bits_must_fit_the_uint16_resultants(bits):
     det = Detector(name="T", naxis1=8, naxis2=8, n_out=1, nroh=0, nfoh=0, ref_border=0)
     with pytest.raises(ParameterError, match="adc_bits"):
         ChargeEngine(det, Readout.named("RAPID", 2), rate=1.0, adc_bits=bits, rng=1)
+
+
+def test_engine_adc_is_the_definition_for_any_gain():
+    # Each read is digitised as DN = clip(rint(float64(charge + noise) / gain)): one
+    # ADC for every path (noise.adc).  Old behaviour: the engine divided in float32
+    # by float32(gain), which for gains that are not powers of two (2.7 here) rounded
+    # thousands of values the other way; new: the float64 quotient, as documented.
+    import noise
+    det = _det()
+    params = noise.ZERO_NOISE.replace(rd_noise=7.0, bias_offset=2000.0)
+    for gain in (2.0, 2.7):
+        eng = ChargeEngine(det, Readout.from_reads([[0], [1], [2]]), noise_params=params,
+                           rate=5e4, gain=gain, rng=5)
+        with eng.simulate(save_charge=True, save_noise=True) as run:
+            for res in run:
+                total = (res.charge + res.noise).astype(np.float32)   # as the engine adds
+                want = np.clip(np.rint(total.astype(np.float64) / gain), 0, 65535)
+                np.testing.assert_array_equal(res.dn, want)
+
+
+def test_fractional_full_well_holds_whole_electrons():
+    # The well holds whole electrons: full_well = 1000.5 e- clips charge at 1000 e-,
+    # as apply_saturation documents.  Old behaviour: the engine clipped at 1000.5
+    # (its own copy of the step); new: the engine calls the one FullWell.
+    det = _det()
+    eng = ChargeEngine(det, Readout.from_reads([[0], [1]]), rate=1e6, full_well=1000.5,
+                       rng=6)
+    charge, out = _collect(eng)
+    reg = ~det.reference_mask()
+    np.testing.assert_array_equal(charge[0, :, reg], 1000.0)
+    assert np.all(out["sat_read"][0][reg] == 0)
+
+
+def test_stopping_a_run_early_releases_its_threads():
+    # a run closed before its end (a consumer that stops, or an interrupt) shuts its
+    # thread pool down and closes the noise generator: no thread is left behind
+    import threading
+
+    import noise
+    det = preset("H2RG", naxis1=256, naxis2=256)
+    eng = ChargeEngine(det, Readout.from_reads([[k] for k in range(6)]),
+                       noise_params=noise.NIRSPEC_DEFAULTS, rate=1.0, rng=7,
+                       options=EngineOptions(threads=2))
+    before = threading.active_count()
+    with eng.simulate() as run:
+        first = next(run)
+        assert first.index == 0
+    assert threading.active_count() == before
+    with pytest.raises(StopIteration):
+        next(run)

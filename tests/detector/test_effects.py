@@ -1,4 +1,4 @@
-"""Tests of scenesim.detector.effects against closed forms: saturation, nonlinearity, IPC, ADC."""
+"""Tests of the detector effects against closed forms: saturation, nonlinearity, IPC, flat."""
 
 import math
 import pickle
@@ -12,7 +12,6 @@ from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.flat import apply_flat
 from scenesim.detector.ipc import apply_ipc, ipc_kernel
 from scenesim.detector.saturation import apply_saturation
-from noise.adc import from_dn, to_dn
 
 
 # ------------------------------------------------------------------------ saturation
@@ -255,63 +254,3 @@ def test_apply_flat_scalar_and_map():
         apply_flat(rate, np.ones((2, 3)))
     with pytest.raises(ParameterError, match="flat"):
         apply_flat(rate, np.array([[1.0, np.nan], [1.0, 1.0]]))
-
-
-# ------------------------------------------------------------------------------- ADC
-def test_to_dn_rounds_half_to_even_and_clips():
-    e = np.array([[-10.0, -0.4, 0.5, 1.5, 2.5, 2.49, 2.51, 65534.5, 65535.6, 1e9,
-                   np.inf, -np.inf]])
-    dn = to_dn(e, 1.0)
-    assert dn.dtype == np.uint16
-    np.testing.assert_array_equal(dn, [[0, 0, 0, 2, 2, 2, 3, 65534, 65535, 65535,
-                                        65535, 0]])
-    # Gain divides first: 5 e- at 2 e-/DN is 2.5 DN -> 2; 7 e- -> 3.5 -> 4.
-    np.testing.assert_array_equal(to_dn(np.array([[5.0, 7.0]]), 2.0), [[2, 4]])
-
-
-def test_to_dn_bits_and_gain_map():
-    e = np.array([[100.0, 5000.0], [1e6, 3.0]])
-    np.testing.assert_array_equal(to_dn(e, 1.0, bits=12), [[100, 4095], [4095, 3]])
-    dn20 = to_dn(e, np.array([[1.0, 2.0], [4.0, 1.0]]), bits=20)
-    assert dn20.dtype == np.uint32
-    np.testing.assert_array_equal(dn20, [[100, 2500], [250000, 3]])
-
-
-def test_to_dn_quantisation_error_is_uniform():
-    # Electrons spread over many DN: the rounding error u = dn*g - e is uniform on
-    # [-g/2, g/2]; in DN, E[u] = 0, E[u^2] = 1/12, Var(u^2) = 1/80 - 1/144 = 1/180.
-    n = 200_000
-    g = 2.0
-    e = np.random.default_rng(11).uniform(100.0, 60_000.0, (1, n))
-    u = from_dn(to_dn(e, g), g) / g - e / g
-    assert np.all(np.abs(u) <= 0.5)
-    # 5 sigma of the sample mean: 5 * sqrt(1/12 / n) = 3.2e-3.
-    assert abs(u.mean()) < 5 * math.sqrt(1 / 12 / n)
-    # 5 sigma of the sample mean of u^2: 5 * sqrt(1/180 / n) = 8.3e-4.
-    assert abs(np.mean(u**2) - 1 / 12) < 5 * math.sqrt(1 / 180 / n)
-
-
-@pytest.mark.parametrize("gain", [0.0, -1.0, math.nan, math.inf])
-def test_to_dn_rejects_bad_gain(gain):
-    with pytest.raises(ParameterError, match="gain"):
-        to_dn(np.ones((2, 2)), gain)
-    with pytest.raises(ParameterError, match="gain"):
-        from_dn(np.ones((2, 2), dtype=np.uint16), gain)
-
-
-@pytest.mark.parametrize("bits", [0, 33, 16.0, True])
-def test_to_dn_rejects_bad_bits(bits):
-    with pytest.raises(ParameterError, match="adc_bits"):
-        to_dn(np.ones((2, 2)), 1.0, bits=bits)
-
-
-def test_to_dn_rejects_nan():
-    with pytest.raises(ParameterError, match="NaN"):
-        to_dn(np.array([[1.0, np.nan]]), 1.0)
-
-
-def test_from_dn():
-    dn = np.array([[0, 1, 65535]], dtype=np.uint16)
-    out = from_dn(dn, 1.5)
-    assert out.dtype == np.float64
-    np.testing.assert_array_equal(out, [[0.0, 1.5, 65535 * 1.5]])

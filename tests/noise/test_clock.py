@@ -247,3 +247,19 @@ def test_bad_subarray_fields(kwargs, name):
     args = {"kind": "window", "x0": 0, "y0": 0, "nx": 8, "ny": 8, **kwargs}
     with pytest.raises(ParameterError, match=f"'{name}'"):
         Subarray(**args)
+
+
+def test_frame_slot_is_the_documented_time_line():
+    # each integration is one reset slot followed by its nreads read slots
+    from noise.clock import exposure_slots, frame_slot
+    nreads = 4
+    layout = []
+    for i in range(3):
+        layout += [("reset", i, None)] + [("read", i, k) for k in range(nreads)]
+    for s, (kind, i, k) in enumerate(layout):
+        if kind == "read":
+            assert frame_slot(i, k, nreads) == s
+    assert exposure_slots(3, nreads) == len(layout)
+    i = np.arange(3)[:, None]
+    k = np.arange(nreads)[None, :]
+    assert frame_slot(i, k, nreads).shape == (3, nreads)

@@ -1,0 +1,47 @@
+"""Tests of :class:`noise.NoiseParams`: which parameters add noise (null limits)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import noise
+from noise.params import NoiseParams
+
+#: Fields that shape a component but add nothing alone (every other field is an
+#: amplitude); kept here, independently of the module, so that a new field must be
+#: classified in both places.
+OPTIONS = {"ref_ratio", "rtn_fraction", "rtn_tau_low", "rtn_tau_high", "f_min",
+           "pink_spectrum", "pca0_file"}
+AMPLITUDES = [f.name for f in dataclasses.fields(NoiseParams) if f.name not in OPTIONS]
+
+
+def test_zero_noise_is_silent_and_makes_zero_frames():
+    assert noise.ZERO_NOISE.is_silent()
+    det = noise.preset("H2RG", naxis1=64, naxis2=64)
+    frames = noise.NoiseGenerator(det, noise.ZERO_NOISE, rng=1).cube(2)
+    assert not frames.any()
+
+
+@pytest.mark.parametrize("name", AMPLITUDES)
+def test_each_amplitude_alone_is_not_silent_and_adds_noise(name):
+    # the null limit in reverse: any one amplitude switched on makes the parameters
+    # audible (so the engine's "no noise" shortcut cannot skip it) and the frames
+    # non-zero
+    changes = {name: 10.0}
+    if name == "rtn_amp":
+        changes["rtn_fraction"] = 0.5       # RTN needs pixels that switch
+    params = noise.ZERO_NOISE.replace(**changes)
+    assert not params.is_silent()
+    det = noise.preset("H2RG", naxis1=64, naxis2=64)
+    frames = noise.NoiseGenerator(det, params, rng=2).cube(3)
+    assert np.any(frames != 0)
+
+
+def test_rtn_amplitude_without_pixels_is_silent():
+    assert noise.ZERO_NOISE.replace(rtn_amp=10.0, rtn_fraction=0.0).is_silent()
+
+
+def test_options_alone_are_silent():
+    params = noise.ZERO_NOISE.replace(ref_ratio=2.0, f_min=1e-3, rtn_tau_low=2.0)
+    assert params.is_silent()
