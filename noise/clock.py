@@ -44,13 +44,14 @@ Reference pixels of a subarray are those of the full array that fall inside it.
 """
 
 import dataclasses
+import difflib
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
 from noise.validate import check_float, check_int
-from noise.errors import ParameterError
+from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header",
            "frame_slot", "exposure_slots"]
@@ -335,8 +336,6 @@ class Detector:
 
 def detector_from_header(header):
     """Rebuild the :class:`Detector` recorded by :meth:`Detector.to_header_cards`."""
-    from noise.errors import FileFormatError
-
     try:
         det = Detector(
             name=str(header["DETECTOR"]), naxis1=int(header["NAXIS1D"]),
@@ -388,7 +387,6 @@ def preset(name, **changes):
     """
     key = str(name).upper()
     if key not in PRESETS:
-        import difflib
         close = difflib.get_close_matches(key, PRESETS, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else ""
         raise ParameterError(

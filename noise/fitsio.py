@@ -8,6 +8,7 @@ interrupted or failed run never leaves a partial or corrupt file.
 """
 
 import contextlib
+import io
 import os
 import shutil
 import sys
@@ -175,7 +176,6 @@ def _fit_comment(key, value, comment):
 
 
 def _hdu_bytes(hdu):
-    import io
     buf = io.BytesIO()
     fits.HDUList([fits.PrimaryHDU(), hdu]).writeto(buf)
     raw = buf.getvalue()

@@ -15,6 +15,7 @@ import functools
 import os
 
 import numpy as np
+from astropy.io import fits
 
 from noise.errors import FileFormatError
 
@@ -143,8 +144,6 @@ def load_template(path, detector):
     The image may be the full array (it is then cut to the subarray) or exactly the
     read-out shape.  It is normalised to zero median and unit robust sigma.
     """
-    from astropy.io import fits
-
     if not os.path.isfile(path):
         raise FileFormatError(f"'pca0_file': {path!r} does not exist")
     with fits.open(path) as hdul:

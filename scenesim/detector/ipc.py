@@ -23,6 +23,7 @@ comes out of the inverse amplified by :func:`ipc_noise_gain`.
 
 import math
 import numbers
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -210,7 +211,6 @@ class _Deconvolver:
         # max |K 1 - 1|, on the border only (0 for a kernel with k[1+d] = k[1-d]; see
         # __call__); K 1 at a pixel depends only on which of its neighbours exist,
         # so a frame of at most 5 x 5 has every value that the full one has
-        from scenesim.detector.ipc import apply_ipc
         ones = np.ones((min(ny, 5), min(nx, 5)))
         self.delta = float(np.max(np.abs(apply_ipc(ones, k) - 1.0)))
         self.row_fac = {0: fac[0], ny - 1: fac[ny - 1]}
@@ -313,7 +313,6 @@ def _deconvolve_frames(frames, kernel, tolerance, threads=1):
     if threads == 1:
         n = max(dec(f, tolerance) for f in flat)
     else:
-        from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(threads) as pool:
             n = max(pool.map(lambda f: dec(f, tolerance), flat))
     if not np.shares_memory(flat, frames):          # reshape had to copy

@@ -47,6 +47,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
+from noise.errors import FileFormatError
 from noise.validate import check_writable
 from noise.fitsio import StreamingFITS, atomic_path
 
@@ -323,7 +324,6 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
 
 def read_exposure(path):
     """Load an exposure: ``(sci uint16 (nints, ngroups, ny, nx), header, reads Table)``."""
-    from noise.errors import FileFormatError
     if not os.path.isfile(path):
         raise FileFormatError(f"exposure file {path!r} does not exist")
     with fits.open(path) as hdul:
@@ -340,7 +340,6 @@ def read_exposure(path):
 
 def read_truth(path):
     """Load a truth file as a dict of arrays/tables keyed by extension name."""
-    from noise.errors import FileFormatError
     if not os.path.isfile(path):
         raise FileFormatError(f"truth file {path!r} does not exist")
     out = {}
