@@ -19,7 +19,7 @@ from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["suggest", "is_sequence", "is_real", "check_int", "check_float",
            "check_bool", "check_str", "check_choice", "check_shape", "check_map",
-           "check_image", "check_writable", "check_existing_file"]
+           "check_image", "check_writable", "check_existing_file", "check_array"]
 
 
 def _num(v):
@@ -209,3 +209,23 @@ def check_existing_file(name, path, extensions=None):
     if not os.path.isfile(path):
         raise FileFormatError(f"{name!r} file {path!r} does not exist")
     return path
+
+
+def check_array(name, value, *, minimum=None, strict_min=False, unit=""):
+    """``value`` (a scalar or an array of any shape) as a float64 ndarray whose values
+    are all finite and ``>= minimum`` (``> minimum`` with ``strict_min``; no bound for
+    ``minimum=None``); ``unit`` is named in the message."""
+    what = f" ({unit})" if unit else ""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(
+            f"{name!r} must be a real number or array{what}, got {value!r}") from exc
+    bad = ~np.isfinite(arr)
+    rule = ""
+    if minimum is not None:
+        bad |= (arr <= minimum) if strict_min else (arr < minimum)
+        rule = f" and {'>' if strict_min else '>='} {_num(minimum)}"
+    if bad.any():
+        raise ParameterError(f"{name!r} must be finite{rule}{what}, got {value!r}")
+    return arr

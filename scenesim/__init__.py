@@ -5,7 +5,7 @@ Modules, one per stage: :mod:`scenesim.detector.readout` (readout patterns),
 :mod:`scenesim.sky.sources`, :mod:`scenesim.sky.lightcurve`, :mod:`scenesim.sky.cosmic` (rates
 and events), :mod:`scenesim.engine` (charge read by read), :mod:`scenesim.detector.effects`
 (saturation, nonlinearity, IPC, flat, ADC), :mod:`scenesim.io.exposure` (uncal and truth
-files), :mod:`scenesim.calib.refpix`, :mod:`scenesim.rampfit.fit`, :mod:`scenesim.calib.prepare`
+files), :mod:`scenesim.calib.refpix`, :mod:`scenesim.rampfit`, :mod:`scenesim.calib.prepare`
 (reference correction and slopes), :mod:`scenesim.validate.compare` (fit vs truth),
 :mod:`scenesim.run` (the orchestrator) and :mod:`scenesim.bench`;
 :mod:`scenesim.adapters.stcal` runs the JWST library stcal's ramp fitting on our
@@ -19,7 +19,8 @@ from scenesim.detector.ipc import apply_ipc, ipc_kernel
 from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
 from scenesim.io.exposure import read_exposure, read_truth
 from scenesim.io.exposure import Exposure
-from scenesim.rampfit.fit import FitResult, fit_ramps, model_chi2, optimal_variance, read_fit, write_fit
+from scenesim.io.fitfile import FitResult, read_fit, write_fit
+from scenesim.rampfit import fit_ramps, model_chi2, optimal_variance
 from scenesim.calib.prepare import PreparedExposure, fit_exposure_file, prepare_exposure
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources

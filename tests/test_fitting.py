@@ -24,7 +24,7 @@ from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import Exposure, read_exposure
 from scenesim.run import write_exposure
-from scenesim.rampfit.fit import read_fit
+from scenesim.io.fitfile import read_fit
 from scenesim.calib.prepare import (PreparedExposure, exposure_readout, fit_exposure_file,
                               load_exposure, prepare_exposure)
 from scenesim.detector.readout import Readout

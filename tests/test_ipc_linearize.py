@@ -31,7 +31,8 @@ from scenesim.detector.ipc import ipc_kernel
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import read_exposure
 from scenesim.run import write_exposure
-from scenesim.rampfit.fit import SATURATED, fit_ramps
+from scenesim.detector.dq import SATURATED
+from scenesim.rampfit import fit_ramps
 from scenesim.calib.prepare import fit_exposure_file, header_ipc_kernel, prepare_exposure, saturation_flags
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants

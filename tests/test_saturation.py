@@ -27,7 +27,8 @@ from noise.clock import preset
 from noise.errors import ParameterError
 from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.ipc import ipc_kernel
-from scenesim.rampfit.fit import BAD_VARIANCE, DO_NOT_USE, SATURATED, fit_ramps
+from scenesim.detector.dq import BAD_VARIANCE, DO_NOT_USE, SATURATED
+from scenesim.rampfit import fit_ramps
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.calib.prepare import prepare_exposure, saturation_flags
 

@@ -37,9 +37,10 @@ from noise.params import ZERO_NOISE  # noqa: E402
 from scenesim.validate.compare import compare_files  # noqa: E402
 from scenesim.engine import ChargeEngine, EngineOptions  # noqa: E402
 from scenesim.run import write_exposure  # noqa: E402
-from scenesim.rampfit.fit import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # noqa: E402
-                          SATURATED, model_chi2, ols_variance, optimal_variance,
-                          read_fit)
+from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # noqa: E402
+                                  SATURATED)
+from scenesim.io.fitfile import read_fit  # noqa: E402
+from scenesim.rampfit import model_chi2, ols_variance, optimal_variance  # noqa: E402
 from scenesim.calib.prepare import fit_exposure_file, prepare_exposure  # noqa: E402
 from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout  # noqa: E402
 from scenesim.adapters.stcal import (STCAL_ALGORITHMS, fit_exposure_stcal,  # noqa: E402

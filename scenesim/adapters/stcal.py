@@ -175,8 +175,10 @@ import numpy as np
 from noise.validate import check_writable
 from noise.errors import ParameterError
 
-from scenesim.rampfit.fit import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, SATURATED,
-                  FitResult, model_chi2, write_fit)
+from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
+                                  SATURATED)
+from scenesim.io.fitfile import FitResult, write_fit
+from scenesim.rampfit.variance import model_chi2
 from scenesim.calib.prepare import (REFPIX_SCHEMES, exposure_read_noise, exposure_readout,
                       load_exposure, prepare_exposure)
 

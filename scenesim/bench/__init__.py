@@ -325,7 +325,7 @@ def bench_timeseries(nints, threads):
 def bench_fit(spec, threads):
     """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter."""
     import noise
-    from scenesim.rampfit.fit import fit_ramps
+    from scenesim.rampfit import fit_ramps
     size, fitter = spec
     ngroups, rate, rn = 20, 10.0, 10.0
     tf = noise.preset("H2RG").frame_time
@@ -387,7 +387,7 @@ def bench_options(case, threads):
     the largest per-pixel slope difference from the exact path (same seed) in units
     of the optimal sigma.
     """
-    from scenesim.rampfit.fit import fit_ramps, optimal_variance
+    from scenesim.rampfit import fit_ramps, optimal_variance
     size = 1024 if case[1] == "full" else 256
     det, ro, rate, params = _options_scene(size)
     out = {}
@@ -535,7 +535,7 @@ def _child(name, case, threads, queue):
     from scenesim import engine  # noqa: F401
     from scenesim.detector import readout  # noqa: F401
     from scenesim.io import exposure  # noqa: F401
-    from scenesim.rampfit import fit  # noqa: F401
+    from scenesim.rampfit import fitter  # noqa: F401
     keep_freed_memory()            # as the scenesim command does (noise.fast.memory)
     try:
         queue.put(("ok", run_case(name, case, threads)))

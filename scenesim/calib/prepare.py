@@ -152,7 +152,9 @@ from scenesim.io.exposure import Exposure
 from scenesim.io.header import (COPIED_KEYS, card, exposure_card, exposure_read_noise,
                                 exposure_readout, header_ipc_kernel,
                                 header_nonlinearity)
-from scenesim.rampfit.fit import FITTERS, common_mode, fit_ramps, measure_read_noise, write_fit
+from scenesim.calib.noise_model import common_mode, measure_read_noise
+from scenesim.io.fitfile import write_fit
+from scenesim.rampfit.fitter import FITTERS, fit_ramps
 
 __all__ = ["PreparedExposure", "prepare_exposure", "load_exposure", "fit_exposure_file",
            "saturation_flags", "REFPIX_SCHEMES"]

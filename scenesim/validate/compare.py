@@ -75,10 +75,11 @@ from noise.fitsio import atomic_path
 
 from scenesim.io.header import (exposure_read_noise, header_psf, readout_from_header,
                                 readout_from_table)
-from scenesim.rampfit.fit import (DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL, FitResult,
-                                  ols_variance, optimal_variance, read_fit)
+from scenesim.detector.dq import DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL
+from scenesim.io.fitfile import fit_arrays, read_slopes
+from scenesim.rampfit import ols_variance, optimal_variance
 
-__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "read_slopes"]
+__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files"]
 
 #: Default flux-bin edges, e-/s (true rate ``RATE_IPC``).
 DEFAULT_EDGES = (0.0, 0.01, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4, np.inf)
@@ -163,100 +164,6 @@ class Report:
         if self.notes:
             lines += ["", "Notes:"] + [f"- {n}" for n in self.notes]
         return "\n".join(lines)
-
-
-def read_slopes(path, *, gain=None):
-    """Read a slope file of either supported layout into a dict, e-/s.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        scenesim fit file (``SLOPE``, ``VAR_READ``, ``VAR_POIS``, ``CHI2``, ``DQ``) or
-        JWST rate file (``SCI`` DN/s, ``DQ``, ``VAR_POISSON`` + ``VAR_RNOISE`` or
-        ``ERR``).
-    gain : float, keyword-only
-        e-/DN; required for a JWST rate file.
-
-    Returns
-    -------
-    dict
-        ``slope``, ``var`` ((ny, nx) float64, e-/s and (e-/s)^2), ``dq`` (uint32),
-        ``chi2`` (float64 or None), ``read_noise`` (e- per read or None),
-        ``layout`` ('scenesim' or 'jwst').
-    """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileFormatError(f"'fit_path': slope file {path!r} does not exist")
-    try:
-        with fits.open(path, memmap=False) as hdul:
-            names = [h.name for h in hdul]
-            if "SLOPE" in names:
-                layout = "scenesim"
-            elif "SCI" in names:
-                layout = "jwst"
-                need = ["SCI", "DQ"]
-                if not ("VAR_POISSON" in names and "VAR_RNOISE" in names):
-                    need.append("ERR")
-                missing = [n for n in need if n not in names]
-                if missing:
-                    raise FileFormatError(
-                        f"JWST rate file {path!r} lacks extension(s) {missing} (found "
-                        f"{names}; needs SCI, DQ and VAR_POISSON + VAR_RNOISE or ERR)")
-                if gain is None or not np.isfinite(gain) or gain <= 0:
-                    raise ParameterError(
-                        f"'gain' (e-/DN, > 0) is needed to convert the JWST rate file "
-                        f"{path!r} to e-/s, got {gain!r}")
-                g = float(gain)
-                sci = np.asarray(hdul["SCI"].data, dtype=np.float64)
-                if "VAR_POISSON" in names and "VAR_RNOISE" in names:
-                    var = (np.asarray(hdul["VAR_POISSON"].data, dtype=np.float64)
-                           + np.asarray(hdul["VAR_RNOISE"].data, dtype=np.float64))
-                else:
-                    var = np.asarray(hdul["ERR"].data, dtype=np.float64) ** 2
-                out = {"slope": sci * g, "var": var * g * g,
-                       "dq": np.asarray(hdul["DQ"].data).astype(np.uint32),
-                       "chi2": None, "read_noise": None, "layout": layout}
-                for key in ("slope", "var"):
-                    out[key] = np.nan_to_num(out[key], nan=0.0 if key == "slope"
-                                             else np.inf, posinf=np.inf)
-                return out
-            else:
-                raise FileFormatError(
-                    f"{path!r} is neither a scenesim fit file (extension 'SLOPE') nor a "
-                    f"JWST rate file (extension 'SCI'); found {names}")
-    except OSError as exc:
-        raise FileFormatError(f"cannot read slope file {path!r}: {exc}") from exc
-    fit = read_fit(path)
-    return _fit_dict(fit)
-
-
-def _fit_dict(fit):
-    if isinstance(fit, FitResult):
-        return {"slope": np.asarray(fit.slope, dtype=np.float64),
-                "var": np.asarray(fit.var, dtype=np.float64),
-                "dq": np.asarray(fit.dq).astype(np.uint32),
-                "chi2": np.asarray(fit.chi2, dtype=np.float64),
-                "read_noise": float(fit.read_noise), "layout": "scenesim"}
-    if isinstance(fit, dict):
-        missing = [k for k in ("slope", "var", "dq") if k not in fit]
-        if missing:
-            raise ParameterError(
-                f"'fit' dict lacks {missing}; needs 'slope' (e-/s), 'var' ((e-/s)^2), "
-                f"'dq', optionally 'chi2' and 'read_noise'")
-        out = {"slope": np.asarray(fit["slope"], dtype=np.float64),
-               "var": np.asarray(fit["var"], dtype=np.float64),
-               "dq": np.asarray(fit["dq"]).astype(np.uint32),
-               "chi2": None if fit.get("chi2") is None else np.asarray(
-                   fit["chi2"], dtype=np.float64),
-               "read_noise": fit.get("read_noise"), "layout": fit.get("layout", "dict")}
-        shapes = {k: out[k].shape for k in ("slope", "var", "dq")}
-        if out["chi2"] is not None:
-            shapes["chi2"] = out["chi2"].shape
-        if len(set(shapes.values())) != 1 or out["slope"].ndim != 2:
-            raise ParameterError(f"'fit' arrays must share one 2-D shape, got {shapes}")
-        return out
-    raise ParameterError(
-        f"'fit' must be a FitResult or a dict of arrays, got {type(fit).__name__}")
 
 
 def _readout_from_exposure(path):
@@ -538,7 +445,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     -------
     Report
     """
-    f = _fit_dict(fit)
+    f = fit_arrays(fit)
     if not isinstance(truth, dict) or "header" not in truth:
         raise ParameterError("'truth' must be a dict from scenesim.io.exposure.read_truth "
                              f"(with 'header'), got {type(truth).__name__}")

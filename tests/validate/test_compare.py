@@ -22,7 +22,8 @@ from scipy.special import erf
 
 from noise.errors import FileFormatError, ParameterError
 from scenesim.validate.compare import Report, compare, compare_files
-from scenesim.rampfit.fit import DO_NOT_USE, JUMP_DET, FitResult, write_fit
+from scenesim.detector.dq import DO_NOT_USE, JUMP_DET
+from scenesim.io.fitfile import FitResult, write_fit
 
 NG, TF, NINTS, GAIN = 6, 10.0, 2, 2.0
 

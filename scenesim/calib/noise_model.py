@@ -1,0 +1,324 @@
+"""Read noise from the data: the common mode of an output and the effective white noise.
+
+The fitter's model (:mod:`scenesim.rampfit`) is white read noise per read (e-, not
+CDS).  Real data after reference correction also carry noise common to many
+pixels: (i) per output and read (the 1/f noise of the output's own amplifier, which
+the side reference columns of the outer outputs do not see, and low frequencies
+that a stripe without reference rows cannot remove); (ii) per row and read (the part
+of the 1/f banding that the row-wise reference correction misses, larger the later
+the pixel is read within its row).  In one pixel's ramp (ii) looks like extra white
+noise and (i) like a slow wander common to the output.  The GLS jump statistic is a
+step test over the whole ramp (the score test for a jump is powerful because it
+compares all reads before and after), so a slow wander of a few tenths of the read
+noise reads as a step and clean pixels are flagged as jumps.
+
+Two data-driven corrections, used by :func:`scenesim.calib.prepare.prepare_exposure`:
+
+* :func:`common_mode` estimates (i): after a first fit of a subsample of rows, the
+  median over an output's read-noise dominated pixels of ``d_i - f_hat`` (robust to
+  jumps and sources), minus its GLS-weighted mean over ``i`` (a constant offset of
+  the ``d_i`` is a rate, indistinguishable from a uniform background of the output,
+  and is kept; the weights are those of a read-noise limited ramp, so that the
+  correction leaves those pixels' GLS slopes unchanged), summed into resultant
+  offsets that are subtracted.  The slopes keep the mean of the common wander; the
+  jump statistic and ``chi2`` lose the rest.
+* :func:`measure_read_noise` estimates the effective white noise per group of pixels
+  (e.g. per column) from the median ``chi2`` of read-noise dominated pixels, each
+  normalised by the median of the chi-square distribution of its degrees of freedom
+  (exactly 1 for a right model; the median is robust to the ramps with jumps):
+  ``sigma_eff = k sigma``, ``k^2 = median(chi2 / med_nu)``, corrected to first
+  order for the Poisson share and refined by a second fit at ``sigma_eff``.  Near
+  zero rate it reads up to ~1 % low: the fit's covariance uses the clipped fitted
+  rate, above the true one half of the time, so its ``chi2`` is slightly low.
+
+A pixel is *read-noise dominated* when the Poisson variance of every difference, at
+its fitted rate, is at most half its read variance.  Both functions fit at most
+``max_rows`` evenly spaced rows, with GLS and without jump detection.  Their measured
+effect on the example scenes is in ``docs/VALIDATION_FIT.md``.
+"""
+
+import numpy as np
+from scipy.special import gammaincinv
+
+from noise.errors import ParameterError
+from noise.validate import check_int, check_map, is_sequence
+
+from scenesim.detector.dq import DO_NOT_USE
+from scenesim.rampfit.covariance import RampCovariance
+from scenesim.rampfit.fitter import fit_ramps
+from scenesim.rampfit.times import check_read_times
+
+__all__ = ["NOISE_MIN_PIXELS", "common_mode", "measure_read_noise"]
+
+#: Read-noise dominated pixels a group needs for its own estimate.
+NOISE_MIN_PIXELS = 32
+
+_F32 = np.float32
+_NOISE_RHO = 0.5         # read-noise dominated: Poisson / read variance of a difference
+_NOISE_CONVERGED = 0.02  # a second chi2 pass unless every group's k^2 is within 2 % of 1
+_CM_MAX_PIXELS = 16384   # pixels per group for the common-mode medians
+_NOISE_K2_MIN = 0.01     # sigma_eff >= 0.1 sigma
+
+
+def measure_read_noise(resultants, read_times, *, read_noise, groups, saturated=None,
+                       refmask=None, max_rows=256, threads=None):
+    """Effective white read noise per read, per group of pixels, from the data.
+
+    A GLS fit (no jump detection) of at most ``max_rows`` evenly spaced rows gives
+    each pixel's chi-square per degree of freedom.  Where the read noise dominates
+    the differences, ``chi2 / dof`` estimates ``k^2 = sigma_eff^2 / sigma^2``
+    (corrected to first order for the Poisson share ``rho``:
+    ``k^2 = (chi2 / dof) (1 + rho) - rho``).  The median over a group, each pixel
+    normalised by the median of the chi-square distribution of its ``dof`` (so that
+    it is exactly 1 for a right model; the median is robust to the few ramps with
+    jumps), gives the group's ``sigma_eff = k sigma``.  Unless every ``k^2`` is
+    within 2 % of 1, a second fit with ``sigma_eff`` refines it: at the right
+    model ``chi2 / dof = 1`` whatever ``rho``, so the first-order correction no
+    longer matters.  See the module notes.
+
+    Parameters
+    ----------
+    resultants, read_times, saturated, refmask :
+        As in :func:`scenesim.rampfit.fit_ramps`.
+    read_noise : float or ndarray (ny, nx), e- per read (not CDS)
+        Model read noise (e.g. the white noise of the header), >= 0.
+    groups : ndarray of int, shape (ny, nx)
+        Group label (>= 0) of every pixel; one ``sigma_eff`` per group (e.g. the
+        column index: the noise that the reference correction leaves depends on
+        the read time within the row).
+    max_rows : int
+        Rows used (>= 1): every ``ceil(ny / max_rows)``-th row.
+    threads : int or None
+        As in :func:`scenesim.rampfit.fit_ramps`.
+
+    Returns
+    -------
+    ndarray, shape (ny, nx), float64, e- per read
+        ``k_g * read_noise``.  A group with fewer than :data:`NOISE_MIN_PIXELS`
+        read-noise dominated pixels (Poisson variance of every difference at most
+        half its read variance) gets the median over all groups; with fewer than
+        that in total, ``k = 1``.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        On bad input, before any work.
+    """
+    rn = read_noise
+    k = None
+    for _ in range(2):
+        fp = _first_pass(resultants, read_times, rn, groups, saturated, refmask,
+                         max_rows, threads)
+        k2 = _k2_per_group(fp)
+        step = np.sqrt(np.maximum(k2, _NOISE_K2_MIN))
+        if k is None:
+            k, rn0 = step, np.asarray(fp["rn"], dtype=float)
+        else:
+            k = k * step
+        lab = np.asarray(groups)
+        rn = np.broadcast_to(rn0, lab.shape) * k[lab]
+        if np.all(np.abs(k2 - 1) < _NOISE_CONVERGED):
+            break
+    return rn
+
+
+def _k2_per_group(fp):
+    """``k^2 = (sigma_eff / sigma)^2`` of every group from one first pass."""
+    g, ok = fp["fit"], fp["quiet"]
+    k2 = np.ones(fp["ngroups"])
+    if ok.sum() < NOISE_MIN_PIXELS:
+        return k2
+    nu, inv = np.unique(g.dof[ok], return_inverse=True)
+    med_chi2 = (2 * gammaincinv(nu / 2, 0.5) / nu)[inv]  # median chi2_nu / nu
+    rho = fp["rho"][ok]
+    u = (g.chi2[ok] / med_chi2) * (1 + rho) - rho
+    k2[:] = np.median(u)
+    order = np.argsort(fp["groups"][ok], kind="stable")
+    lab, u = fp["groups"][ok][order], u[order]
+    uniq, start, count = np.unique(lab, return_index=True, return_counts=True)
+    for lb, a, c in zip(uniq, start, count):        # one median per group
+        if c >= NOISE_MIN_PIXELS:
+            k2[lb] = np.median(u[a:a + c])
+    return k2
+
+
+def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
+                refmask=None, max_rows=64, threads=None):
+    """Offsets shared by all pixels of a group, read by read, that a line cannot fit.
+
+    Noise common to all pixels of an output (the per-output 1/f noise, the part of
+    the correlated 1/f noise that the reference pixels miss) adds the same series
+    ``m_i`` to the rate estimates ``d_i`` of every pixel of the output.  From a
+    first GLS fit (no jumps) of at most ``max_rows`` evenly spaced rows,
+    ``c_i = median over the group's read-noise dominated pixels of (d_i - f_hat)``,
+    minus its GLS-weighted mean over ``i`` (weights of a read-noise limited ramp, so
+    that the correction leaves those pixels' GLS slopes unchanged); the offsets are
+    its running sum ``C_k = sum_{i<k} c_i dt_i`` (``C_0 = 0``).  Subtracting ``C_k``
+    from resultant ``k`` of the group's pixels removes the common series except its
+    mean, which is a rate common to the group and cannot be told from a uniform
+    background (module notes).
+
+    The median uses at most 16384 pixels per group (evenly spaced among those
+    selected): its noise, ``1.25 sigma_d / sqrt(n)``, is then < 1 % of the noise
+    ``sigma_d`` of one difference.
+
+    Parameters
+    ----------
+    resultants, read_times, saturated, refmask :
+        As in :func:`scenesim.rampfit.fit_ramps`.
+    read_noise : float or ndarray (ny, nx), e- per read (not CDS), >= 0
+        Model read noise (selects read-noise dominated pixels).
+    groups : ndarray of int, shape (ny, nx)
+        Group label (>= 0) of every pixel, e.g. the output index of its column.
+    max_rows : int
+        Rows used (>= 1): every ``ceil(ny / max_rows)``-th row.
+    threads : int or None
+        As in :func:`scenesim.rampfit.fit_ramps`.
+
+    Returns
+    -------
+    ndarray, shape (nints, nres, n_groups), float64, e-
+        ``C_k`` of each integration and group (``n_groups = max(groups) + 1``); 0
+        for a group with fewer than :data:`NOISE_MIN_PIXELS` usable pixels.
+        ``resultants - C[..., groups]`` is the corrected cube.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        On bad input, before any work.
+    """
+    fp = _first_pass(resultants, read_times, read_noise, groups, saturated, refmask,
+                     max_rows, threads)
+    sub = fp["res"]
+    nints, nres = sub.shape[:2]
+    out = np.zeros((nints, nres, fp["ngroups"]))
+    if nres < 3:
+        return out
+    lab_all = fp["groups"]
+    for lb in np.unique(lab_all[fp["usable"]]):
+        pix = fp["quiet"] & (lab_all == lb)
+        if pix.sum() < NOISE_MIN_PIXELS:
+            pix = fp["usable"] & (lab_all == lb)
+        if pix.sum() < NOISE_MIN_PIXELS:
+            continue
+        ys, xs = np.nonzero(pix)
+        stride = -(-ys.size // _CM_MAX_PIXELS)                 # enough for the median
+        for k in range(nints):
+            c = _group_offsets(fp, k, ys[::stride], xs[::stride])
+            if c is not None:
+                out[k, 1:, lb] = np.cumsum(c * fp["cov"].dt)
+    return out
+
+
+def _group_offsets(fp, k, ys, xs):
+    """``c_i`` (nd,) of one group and integration from its pixels ``(ys, xs)``, or
+    None when fewer than two differences have enough usable pixels."""
+    g, cov, sub = fp["fit"], fp["cov"], fp["res"]
+    f = g.slope[ys, xs]
+    inv_dt = (1 / cov.dt).astype(_F32)[:, None]
+    r = sub[k][:, ys, xs].astype(_F32)                    # (nres, n)
+    d = np.diff(r, axis=0) * inv_dt - f[None]
+    if fp["sat"] is not None:
+        bad = fp["sat"][k][:, ys, xs]
+        bad = np.maximum.accumulate(bad, axis=0)
+        d[bad[1:]] = np.nan
+    fin = np.isfinite(d)
+    good = fin.sum(axis=1) >= NOISE_MIN_PIXELS
+    if good.sum() < 2:
+        return None
+    if fin.all():
+        c = np.median(d, axis=1)
+    else:
+        c = np.array([np.median(row[ok]) if gd else 0.0
+                      for row, ok, gd in zip(d, fin, good)])
+    # keep the GLS-weighted mean (weights at rate 0), so that the correction
+    # changes no read-noise dominated slope: sum_i w_i (c_i - cbar) = 0
+    w = _rate0_weights(cov, good)
+    return np.where(good, c - np.sum(w * np.where(good, c, 0.0)), 0.0)
+
+
+def _rate0_weights(cov, good):
+    """GLS weights (summing to 1) of the rate estimates ``d_i`` of the differences
+    flagged ``good``, for read noise only: ``C^-1 1 / (1^T C^-1 1)`` with the
+    tridiagonal covariance ``alpha_i = Ar_i``, ``beta_i = Br_i`` (sigma^2 cancels)."""
+    n = cov.dt.size
+    c = np.diag(cov.Ar) + np.diag(cov.Br, 1) + np.diag(cov.Br, -1)
+    idx = np.flatnonzero(good)
+    w = np.zeros(n)
+    if idx.size:
+        sub = np.linalg.solve(c[np.ix_(idx, idx)], np.ones(idx.size))
+        w[idx] = sub / sub.sum()
+    return w
+
+
+def _check_first_pass_args(resultants, groups, max_rows, read_noise, saturated,
+                           refmask):
+    """Validate the arguments shared by both estimators; return them as arrays."""
+    res = np.asarray(resultants)
+    if res.ndim not in (3, 4):
+        raise ParameterError(
+            f"'resultants' must have shape (nres, ny, nx) or (nints, nres, ny, nx), "
+            f"got shape {res.shape}")
+    ny, nx = res.shape[-2:]
+    gr = np.asarray(groups)
+    if gr.shape != (ny, nx) or gr.dtype.kind not in "iu" or (gr.size and gr.min() < 0):
+        raise ParameterError(
+            f"'groups' must be an integer array >= 0 of shape {(ny, nx)}, got "
+            f"{gr.dtype} {gr.shape}")
+    max_rows = check_int("max_rows", max_rows, minimum=1)
+    rn = check_map("read_noise", read_noise, (ny, nx), minimum=0.0)
+    sat = None
+    if saturated is not None:
+        sat = np.asarray(saturated)
+        if sat.dtype != bool or sat.shape != res.shape:
+            raise ParameterError(
+                f"'saturated' must be a bool array of the shape of 'resultants' "
+                f"{res.shape}, got {sat.dtype} {sat.shape}")
+        sat = sat if sat.ndim == 4 else sat[None]
+    ref = None
+    if refmask is not None:
+        ref = np.asarray(refmask)
+        if ref.dtype != bool or ref.shape != (ny, nx):
+            raise ParameterError(
+                f"'refmask' must be a bool array of shape {(ny, nx)}, got "
+                f"{ref.dtype} {ref.shape}")
+    return res, gr, max_rows, rn, sat, ref
+
+
+def _first_pass(resultants, read_times, read_noise, groups, saturated, refmask,
+                max_rows, threads):
+    """Validate, fit a row subsample (GLS, no jumps) and select read-dominated pixels.
+
+    Returns a dict: ``res`` (nints, nres, m, nx) subsample, ``sat`` its saturation
+    flags or None, ``rows``, ``fit`` (FitResult of the subsample), ``cov``
+    (RampCovariance), ``s2`` (m, nx) read variance, ``rho`` (m, nx) mean Poisson /
+    read variance of a difference at the fitted rate, ``usable`` and ``quiet``
+    (m, nx) bool (usable; usable and read-noise dominated: Poisson variance of every
+    difference <= ``_NOISE_RHO`` times its read variance), ``groups`` (m, nx)
+    labels, ``ngroups`` and ``rn`` (validated read noise).
+    """
+    res, gr, max_rows, rn, sat, ref = _check_first_pass_args(
+        resultants, groups, max_rows, read_noise, saturated, refmask)
+    ny = res.shape[-2]
+    rows = np.arange(0, ny, -(-ny // max_rows))
+    res4 = res if res.ndim == 4 else res[None]
+    sub = res4[:, :, rows]
+    times = read_times
+    if is_sequence(read_times):
+        times = [t[:, rows] if np.ndim(t) == 3 else t for t in read_times]
+    sat = None if sat is None else sat[:, :, rows]
+    ref = None if ref is None else ref[rows]
+    rn_sub = rn if np.isscalar(rn) else rn[rows]
+    g = fit_ramps(sub, times, read_noise=rn_sub, saturated=sat, refmask=ref,
+                  threads=threads, variance_rate="fit")
+    cov = RampCovariance(check_read_times(times, len(times), sub.shape[-2:])[0])
+    s2 = np.broadcast_to(np.asarray(rn_sub, dtype=float) ** 2, g.slope.shape)
+    fpos = np.maximum(g.slope.astype(float), 0.0)
+    ratio = cov.Ap / cov.Ar              # Poisson / read variance per unit f and s2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_max = np.where(s2 > 0, fpos * ratio.max() / s2, np.inf)
+        rho = np.where(s2 > 0, fpos * ratio.mean() / s2, np.inf)
+    usable = ((g.dq & np.uint32(DO_NOT_USE)) == 0) & (g.dof >= 1)
+    return {"res": sub, "sat": sat, "rows": rows, "fit": g, "cov": cov, "s2": s2,
+            "rho": rho, "usable": usable, "quiet": usable & (rho_max <= _NOISE_RHO),
+            "groups": gr[rows], "ngroups": int(np.max(gr, initial=0)) + 1, "rn": rn}

@@ -1,0 +1,97 @@
+"""The covariance model of up-the-ramp rate estimates (Brandt 2024, PASP 136, 045004).
+
+Conventions
+-----------
+Resultants are in electrons, times in seconds from the pixel's reset, rates in
+e-/s.  The read noise ``sigma`` is the noise of **one read** (one frame), in e-,
+never the CDS noise (CDS noise = sqrt(2) sigma).
+
+Model
+-----
+Resultant ``i`` averages ``N_i`` reads at times ``t_{i,1} < ... < t_{i,N_i}``.  With a
+constant rate ``f`` the charge collected by time ``t`` is a Poisson process, so
+``Cov(Q(t), Q(t')) = f min(t, t')``, and each read adds independent read noise of
+variance ``sigma^2``.  Hence, with ``tbar_i`` the mean read time and
+``tau_i = (1/N_i^2) sum_k (2 N_i - 2k + 1) t_{i,k}``
+(:func:`scenesim.detector.readout.resultant_moments`)::
+
+    Var(R_i)            = sigma^2 / N_i + f tau_i
+    Cov(R_i, R_j), i<j  = f tbar_i                   (all reads of i precede those of j)
+
+The rate estimates ``d_i = (R_{i+1} - R_i) / dt_i`` (``dt_i = tbar_{i+1} - tbar_i``) have
+a tridiagonal covariance ``C`` (Brandt 2024, eqs. 28-29)::
+
+    alpha_i = [sigma^2 (1/N_i + 1/N_{i+1}) + f (tau_i + tau_{i+1} - 2 tbar_i)] / dt_i^2
+    beta_i  = [-sigma^2 / N_{i+1} + f (tbar_{i+1} - tau_{i+1})] / (dt_i dt_{i+1})
+
+and every ``d_i`` has mean ``f``.  :class:`RampCovariance` holds the read part (per
+``sigma^2``) and the Poisson part (per unit ``f``) of ``alpha`` and ``beta``, which
+depend on the readout only.  Differencing removes the unknown zero point (bias,
+kTC); because the covariance only involves differences of times, a common shift of
+all read times (a global reset) changes nothing.
+
+Where ``sigma = 0`` the covariance is evaluated at a rate of at least
+:data:`RATE_FLOOR`, so that it stays positive definite when the rate estimate is
+<= 0 (no effect otherwise).
+"""
+
+import numpy as np
+
+__all__ = ["RampCovariance", "RATE_FLOOR"]
+
+#: Least rate (e-/s) of the covariance where the read noise is 0.
+RATE_FLOOR = 1e-6
+
+
+class RampCovariance:
+    """Per-resultant constants and covariance coefficients of one readout.
+
+    Parameters
+    ----------
+    read_times : sequence of 1-D ndarray, s from reset
+        Sorted read times of every resultant (one pixel; validated by
+        :func:`scenesim.rampfit.times.check_read_times`).
+
+    Attributes
+    ----------
+    n, tbar, tau : ndarray, shape (nres,), float64
+        Reads per resultant, mean read time (s) and Brandt's ``tau`` (s).
+    dt : ndarray, shape (nres - 1,), s
+        ``tbar_{i+1} - tbar_i``.
+    Ar, Ap : ndarray, shape (nres - 1,)
+        Read (per sigma^2, s^-2) and Poisson (per f, s^-1) parts of ``alpha_i``.
+    Br, Bp : ndarray, shape (nres - 2,)
+        The same for ``beta_i``.
+    """
+
+    def __init__(self, read_times):
+        self.n = np.array([t.size for t in read_times], dtype=float)
+        self.tbar = np.array([t.mean() for t in read_times])
+        self.tau = np.array([_tau(t) for t in read_times])
+        self.dt = np.diff(self.tbar)
+        n, tb, tau, dt = self.n, self.tbar, self.tau, self.dt
+        self.Ar = (1 / n[:-1] + 1 / n[1:]) / dt ** 2
+        self.Ap = (tau[:-1] + tau[1:] - 2 * tb[:-1]) / dt ** 2
+        self.Br = (-1 / n[1:-1]) / (dt[:-1] * dt[1:])
+        self.Bp = (tb[1:-1] - tau[1:-1]) / (dt[:-1] * dt[1:])
+
+    @property
+    def nres(self):
+        """Number of resultants."""
+        return self.n.size
+
+    def coefficient_lists(self):
+        """``((Ar, Ap), (Br, Bp))`` as lists of Python floats.
+
+        The form :func:`scenesim.rampfit.solver.ldl_pass` takes: Python floats keep
+        the float32 arithmetic of the per-pixel arrays in float32.
+        """
+        return ((self.Ar.tolist(), self.Ap.tolist()),
+                (self.Br.tolist(), self.Bp.tolist()))
+
+
+def _tau(t):
+    """Brandt (2024) tau: ``(1/N^2) sum_k (2N - 2k + 1) t_k``, k = 1..N, t sorted."""
+    n = t.size
+    k = np.arange(1, n + 1)
+    return float(np.dot(2 * n - 2 * k + 1, t)) / n ** 2

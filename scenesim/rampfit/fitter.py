@@ -1,0 +1,596 @@
+"""Up-the-ramp slope fitting: CDS, equal-weight least squares and optimal GLS.
+
+Conventions
+-----------
+Resultants are in electrons (the caller multiplies DN by the gain and subtracts
+nothing else), times in seconds from the pixel's reset, rates in e-/s.  The read
+noise ``sigma`` is the noise of **one read** (one frame), in e-, never the CDS noise
+(CDS noise = sqrt(2) sigma).  The JWST calibration library stcal instead takes the
+CDS read noise in DN; convert with ``sigma = rnoise_cds_dn * gain / sqrt(2)``.
+
+Model: the rate estimates ``d_i = (R_{i+1} - R_i) / dt_i`` all have mean ``f`` and a
+tridiagonal covariance ``C(f)`` (Brandt 2024, PASP 136, 045004, eqs. 28-29;
+:mod:`scenesim.rampfit.covariance`).  The best linear unbiased estimate is the GLS
+mean ``f_hat = (1^T C^-1 d) / (1^T C^-1 1)`` with variance ``1 / (1^T C^-1 1)``
+(:func:`scenesim.rampfit.variance.optimal_variance`).  Differencing removes the
+unknown zero point (bias, kTC), and the GLS estimate from differences equals the GLS
+estimate from resultants with a free intercept.
+
+Algorithm
+---------
+All fitters are one routine: a weighted mean of the ``d_i`` whose weights are
+``W^-1 1 / (1^T W^-1 1)`` for a tridiagonal "weighting" matrix ``W``:
+
+* ``'gls'``: ``W = C(f)`` -- optimal.  ``f`` is unknown, so it is iterated: start from
+  the CDS estimate, clip at >= 0 for the covariance, re-solve ``n_iter`` times.
+* ``'ols'``: ``W`` = covariance of differences of independent, equal-variance
+  resultants (``2`` on the diagonal and ``-1`` off it, in charge units): this is
+  exactly equal-weight least squares of the resultants against ``tbar`` with a free
+  intercept (Rauscher et al. 2007).
+* ``'cds'``: ``W = diag(1/dt_i)``: ``sum D_i / sum dt_i``, i.e. last minus first usable
+  resultant over their ``tbar`` difference.
+
+The tridiagonal systems are solved by :func:`scenesim.rampfit.solver.ldl_pass`
+(vectorised over pixels, float32, in row chunks on a thread pool); the weights are
+propagated through the model covariance to split the variance into a read part
+(``sigma^2`` terms) and a Poisson part (``f`` terms)::
+
+    var_read = sigma^2 w^T C_read w,     var_poisson = r w^T C_poisson w
+
+with ``r`` the *variance rate* (:mod:`scenesim.rampfit.local_rate`;
+``max(slope, 0)`` with ``variance_rate='fit'``).  For GLS with ``r = max(slope, 0)``
+their sum is ``1 / (1^T C^-1 1)`` up to the last update of ``f``.
+
+Unusable differences (after saturation, or containing a jump) are removed by
+replacing their row and column of ``W`` by the identity: the matrix becomes block
+diagonal, one block per usable segment, and the estimate is the inverse-variance
+combination of the segment estimates with one common rate (so no pixel grouping is
+needed, and pixels with different numbers of usable resultants share one vectorised
+code path).  Integrations are further independent blocks with the same rate: GLS
+solves them jointly (= inverse-variance weighting of the per-integration slopes with
+one common ``f``); OLS and CDS combine their per-integration slopes with inverse
+model variances evaluated at the joint rate (JWST style).
+
+chi-square: ``chi2 = (d - f_hat)^T C^-1 (d - f_hat) / dof`` with ``dof = n_diff - 1``
+(usable differences of all integrations minus one).  For GLS its expectation is 1;
+for OLS and CDS it is ``1 + (V/V_opt - 1)/dof`` (slightly above 1).  ``chi2 = 0`` where
+``dof <= 0``.  :func:`scenesim.rampfit.variance.model_chi2` evaluates the same
+quantity for a rate from elsewhere (e.g. another fitter's).
+
+Saturation, jumps and short ramps
+---------------------------------
+* Only resultants before the first saturated one are used.  DQ ``SATURATED`` is set
+  when any resultant of the pixel is saturated (even if the slope is measured).
+* Jumps (``jump_threshold`` in sigma): :mod:`scenesim.rampfit.jumps`; flagged
+  differences are excluded, which splits the ramp into independent segments, and
+  ``n_jumps`` counts them.
+* Two usable resultants: one difference, the CDS slope (all fitters agree).
+* One usable resultant: the zero point (bias + reset level) is in the data and cannot
+  be separated from the charge, so by default the pixel is ``DO_NOT_USE``.  If the
+  caller knows it (``zero_point``, e.g. a superbias plus reset frame), the slope is
+  ``(R_0 - zero_point) / tbar_0`` with variance ``(sigma^2 / N_0 + f tau_0)/tbar_0^2``
+  (as stcal does for one-group ramps after its superbias step).  This is used only
+  when no integration of the pixel has a usable difference.
+* Unmeasured pixels (no usable difference and no usable single resultant, e.g. fully
+  saturated): ``DO_NOT_USE`` (plus ``SATURATED`` if saturated), slope 0,
+  ``var_read = BAD_VARIANCE`` (finite and huge, so inverse-variance weights vanish),
+  ``var_poisson = 0``, ``chi2 = 0``, ``dof = 0``.  Never NaN.
+* ``refmask`` pixels are fitted like the others but flagged
+  ``REFERENCE_PIXEL | DO_NOT_USE`` (JWST practice).
+
+Cost: working memory beyond the outputs (36 bytes per pixel per integration) is
+bounded by the row chunks, about 15 MiB per thread.  Measured timings are in
+``docs/VALIDATION_FIT.md``.
+"""
+
+import contextlib
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from noise.errors import ParameterError
+from noise.validate import check_choice, check_float, check_int, check_map
+
+from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
+                                  SATURATED)
+from scenesim.io.fitfile import FitResult
+from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
+from scenesim.rampfit.jumps import flag_jumps
+from scenesim.rampfit.local_rate import local_rate
+from scenesim.rampfit.solver import TINY, ldl_pass, quad_form, row_chunks
+from scenesim.rampfit.times import check_read_times
+
+__all__ = ["FITTERS", "VARIANCE_RATES", "fit_ramps"]
+
+#: Fitter names accepted by :func:`fit_ramps`.
+FITTERS = ("cds", "ols", "gls")
+
+#: Named choices of the rate of the reported Poisson variance (:func:`fit_ramps`).
+VARIANCE_RATES = ("local", "fit")
+
+_F32 = np.float32
+#: Per-pixel outputs of a chunk written to the FitResult, and the auxiliary ones.
+_OUTPUTS = ("slope", "var_read", "chi2", "dof", "dq", "slope_ints", "var_ints",
+            "n_jumps")
+_AUX = ("pcoef", "pcoef_ints")
+
+
+# ---------------------------------------------------------------------- entry point
+def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
+              saturated=None, jump_threshold=None, n_iter=2, refmask=None,
+              zero_point=None, threads=None, variance_rate="local"):
+    """Fit a rate to every pixel's resultants.
+
+    Parameters
+    ----------
+    resultants : ndarray, shape (nres, ny, nx) or (nints, nres, ny, nx), e-
+        Resultants of one or several integrations, in electrons (DN times gain;
+        nothing else subtracted).  Any real dtype; computations are float32.
+    read_times : sequence of nres arrays, seconds from reset
+        Times of the reads averaged into each resultant: 1-D ``(N_i,)`` arrays, the
+        same for every pixel (uneven Roman-style tables and gaps are allowed), or
+        ``(N_i, ny, nx)`` arrays that differ between pixels by a common shift (global
+        reset, as returned by ``Readout.read_times``).
+    read_noise : float or ndarray (ny, nx), e- per read
+        White read noise of **one read** (not CDS), >= 0.
+    gain : float
+        e-/DN (> 0); only used for ``SLOPE_DN`` in the output file.
+    fitter : {'gls', 'ols', 'cds'}
+        Optimal generalised least squares, equal-weight least squares on resultants
+        against mean read time, or last minus first usable resultant.
+    saturated : ndarray of bool, same shape as ``resultants``, optional
+        Saturated resultants; only resultants before the first saturated one of
+        each pixel and integration are used (flagged values may be NaN).
+    jump_threshold : float or None
+        Jump detection threshold in sigma (> 0); ``None`` turns detection off.
+    n_iter : int
+        GLS solves, each with the covariance at the previous rate estimate (>= 1).
+    refmask : ndarray of bool, shape (ny, nx), optional
+        Reference pixels, flagged ``REFERENCE_PIXEL | DO_NOT_USE``.
+    zero_point : float or ndarray (ny, nx), e-, optional
+        Known zero point (bias + reset level) of the resultants; used only for
+        pixels with a single usable resultant (see module notes).  ``None``: such
+        pixels are ``DO_NOT_USE``.
+    threads : int or None
+        Worker threads over row chunks (None: ``min(os.cpu_count(), 8)``).  The
+        result does not depend on it.
+    variance_rate : {'local', 'fit'} or ndarray (ny, nx), e-/s
+        Rate at which the Poisson part of the reported variances (``var_poisson``,
+        ``var_ints``) is evaluated; the slopes do not depend on it.  ``'local'``
+        (default): the pixel's fitted rate shrunk toward the median of its 5 x 5
+        neighbours, as far as they predict it
+        (:func:`scenesim.rampfit.local_rate.local_rate`); ``'fit'``: the pixel's own
+        fitted rate clipped at 0 (stcal and fitramp practice; its error is
+        correlated with the slope's, which makes the reported variance wrong by up
+        to ~10 % at low flux); an array: a rate known independently of these data
+        (e.g. from a deeper exposure), clipped at 0.
+
+    Returns
+    -------
+    scenesim.io.fitfile.FitResult
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        On bad input, before any work.
+    """
+    check_choice("fitter", fitter, FITTERS)
+    res4, sat4 = _check_resultants(resultants, saturated)
+    nints, nres, ny, nx = res4.shape
+    times, shift = check_read_times(read_times, nres, (ny, nx))
+    read_noise = check_map("read_noise", read_noise, (ny, nx), minimum=0.0)
+    gain = check_float("gain", gain, minimum=0.0, strict_min=True)
+    thr = None if jump_threshold is None else check_float(
+        "jump_threshold", jump_threshold, minimum=0.0, strict_min=True)
+    n_iter = check_int("n_iter", n_iter, minimum=1)
+    refmask = _check_refmask(refmask, (ny, nx))
+    if zero_point is not None:
+        zero_point = check_map("zero_point", zero_point, (ny, nx), minimum=None)
+    variance_rate = _check_variance_rate(variance_rate, (ny, nx))
+    threads = min(os.cpu_count() or 1, 8) if threads is None else check_int(
+        "threads", threads, minimum=1)
+    _check_finite(res4, sat4)
+
+    cov = RampCovariance(times)
+    bounds = row_chunks(ny, nx * nints * nres)
+    s2 = float(read_noise) ** 2 if np.isscalar(read_noise) else \
+        (read_noise ** 2).astype(_F32)
+    setup = _Setup(res4, sat4, s2, cov, fitter, thr, n_iter, zero_point, shift)
+    pool = ThreadPoolExecutor(max_workers=threads) \
+        if threads > 1 and len(bounds) > 1 else None
+    with pool if pool is not None else contextlib.nullcontext():
+        out = _fit_chunks(setup, bounds, pool)
+        if refmask is not None:
+            out["dq"][refmask] |= np.uint32(REFERENCE_PIXEL | DO_NOT_USE)
+        rate_v = _variance_rate(variance_rate, out, pool)
+    pcoef, pcoef_ints = out.pop("pcoef"), out.pop("pcoef_ints")
+    out["var_poisson"] = (rate_v * pcoef).astype(_F32)
+    out["var_ints"] += rate_v[None] * pcoef_ints
+    rn = float(read_noise) if np.isscalar(read_noise) else float(np.median(read_noise))
+    return FitResult(gain=gain, read_noise=rn, fitter=fitter, **out)
+
+
+# ---------------------------------------------------------------------- validation
+def _check_resultants(resultants, saturated):
+    """``resultants`` and ``saturated`` as (nints, nres, ny, nx) arrays (or None)."""
+    if not isinstance(resultants, np.ndarray):
+        try:
+            resultants = np.asarray(resultants)
+        except (TypeError, ValueError) as exc:
+            raise ParameterError("'resultants' must be a numeric array") from exc
+    if resultants.dtype.kind not in "iuf":
+        raise ParameterError(
+            f"'resultants' must be a real numeric array (e-), got dtype "
+            f"{resultants.dtype}")
+    if resultants.ndim not in (3, 4):
+        raise ParameterError(
+            f"'resultants' must have shape (nres, ny, nx) or (nints, nres, ny, nx), "
+            f"got shape {resultants.shape}")
+    res4 = resultants if resultants.ndim == 4 else resultants[None]
+    if min(res4.shape) == 0:
+        raise ParameterError(f"'resultants' must not be empty, got shape "
+                             f"{resultants.shape}")
+    if saturated is None:
+        return res4, None
+    sat = np.asarray(saturated)
+    if sat.dtype != bool:
+        raise ParameterError(f"'saturated' must be a bool array, got dtype "
+                             f"{sat.dtype}")
+    if sat.shape != resultants.shape:
+        raise ParameterError(
+            f"'saturated' must have the shape of 'resultants' {resultants.shape}, "
+            f"got {sat.shape}")
+    return res4, sat if sat.ndim == 4 else sat[None]
+
+
+def _check_refmask(refmask, shape):
+    if refmask is None:
+        return None
+    refmask = np.asarray(refmask)
+    if refmask.dtype != bool or refmask.shape != shape:
+        raise ParameterError(
+            f"'refmask' must be a bool array of shape {shape}, got "
+            f"{refmask.dtype} {refmask.shape}")
+    return refmask
+
+
+def _check_variance_rate(variance_rate, shape):
+    if not isinstance(variance_rate, str):
+        return check_map("variance_rate", variance_rate, shape, minimum=None)
+    try:
+        return check_choice("variance_rate", variance_rate, VARIANCE_RATES)
+    except ParameterError as exc:
+        raise ParameterError(f"{exc}; or an array of shape {shape} (e-/s)") from exc
+
+
+def _check_finite(res4, sat4):
+    """Raise unless ``res4`` is finite wherever ``sat4`` does not flag it."""
+    nints, nres = res4.shape[:2]
+    for k in range(nints):
+        for r in range(nres):
+            bad = ~np.isfinite(res4[k, r])
+            if sat4 is not None:
+                bad &= ~sat4[k, r]
+            if bad.any():
+                raise ParameterError(
+                    f"'resultants' must be finite where not flagged in 'saturated'; "
+                    f"integration {k} resultant {r} has {int(bad.sum())} NaN or inf "
+                    f"values")
+
+
+# ---------------------------------------------------------------------- chunks
+@dataclass(frozen=True, eq=False)
+class _Setup:
+    """What every row chunk of one :func:`fit_ramps` call needs (validated)."""
+
+    res4: np.ndarray
+    sat4: object
+    s2: object                 # read variance per read: float, or (ny, nx) float32
+    cov: RampCovariance
+    fitter: str
+    thr: object
+    n_iter: int
+    zero_point: object
+    shift: object
+
+    def chunk(self, y0, y1):
+        """Arguments of :func:`_fit_block` for rows ``y0:y1``, pixels flattened."""
+        nints, nres = self.res4.shape[:2]
+
+        def pix(a):
+            return None if a is None or np.isscalar(a) else a[y0:y1].reshape(-1)
+
+        blk = self.res4[:, :, y0:y1].reshape(nints, nres, -1)
+        sblk = None if self.sat4 is None else \
+            self.sat4[:, :, y0:y1].reshape(nints, nres, -1)
+        s2 = self.s2 if np.isscalar(self.s2) else self.s2[y0:y1].reshape(-1)
+        zp = self.zero_point if self.zero_point is None or np.isscalar(
+            self.zero_point) else pix(self.zero_point)
+        return (blk, sblk, s2, self.cov, self.fitter, self.thr, self.n_iter, zp,
+                pix(self.shift))
+
+
+def _fit_chunks(setup, bounds, pool):
+    """Fit every row chunk; return the dict of (ny, nx) / (nints, ny, nx) outputs."""
+    nints, _, ny, nx = setup.res4.shape
+    out = {"slope": np.zeros((ny, nx), _F32), "var_read": np.zeros((ny, nx), _F32),
+           "chi2": np.zeros((ny, nx), _F32), "dof": np.zeros((ny, nx), np.int32),
+           "dq": np.zeros((ny, nx), np.uint32),
+           "slope_ints": np.zeros((nints, ny, nx), _F32),
+           "var_ints": np.zeros((nints, ny, nx), _F32),
+           "n_jumps": np.zeros((ny, nx), np.int32),
+           "pcoef": np.zeros((ny, nx), _F32),
+           "pcoef_ints": np.zeros((nints, ny, nx), _F32)}
+
+    def work(bound):
+        y0, y1 = bound
+        shp = (y1 - y0, nx)
+        for key, val in _fit_block(*setup.chunk(y0, y1)).items():
+            if val.ndim == 2:
+                out[key][:, y0:y1] = val.reshape((nints,) + shp)
+            else:
+                out[key][y0:y1] = val.reshape(shp)
+
+    if pool is None:
+        for b in bounds:
+            work(b)
+    else:
+        list(pool.map(work, bounds))
+    return out
+
+
+def _variance_rate(variance_rate, out, pool):
+    """Rate (ny, nx) float32 >= 0 of the Poisson part of the reported variances."""
+    if isinstance(variance_rate, str) and variance_rate == "local":
+        usable = (out["dq"] & np.uint32(DO_NOT_USE)) == 0
+        return local_rate(out["slope"], out["var_read"], out["pcoef"], usable=usable,
+                          pool=pool)
+    if isinstance(variance_rate, str):
+        return np.maximum(out["slope"], _F32(0))
+    return np.maximum(np.asarray(variance_rate, dtype=_F32), _F32(0))
+
+
+# ---------------------------------------------------------------------- one chunk
+class _Block:
+    """Per-pixel outputs of one chunk of ``P`` pixels, filled by the fit steps.
+
+    ``var_ints`` holds the read part only (the Poisson part is added by
+    :func:`fit_ramps` at the variance rate); ``pcoef``/``pcoef_ints`` are the
+    Poisson variances per unit rate.
+    """
+
+    def __init__(self, nints, npix):
+        self.slope = np.zeros(npix, _F32)
+        self.var_read = np.zeros(npix, _F32)
+        self.pcoef = np.zeros(npix, _F32)
+        self.chi2 = np.zeros(npix, _F32)
+        self.dof = np.zeros(npix, np.int32)
+        self.slope_ints = np.zeros((nints, npix), _F32)
+        self.var_ints = np.full((nints, npix), BAD_VARIANCE, _F32)
+        self.pcoef_ints = np.zeros((nints, npix), _F32)
+        self.n_jumps = np.zeros(npix, np.int32)
+        self.measured = np.zeros(npix, bool)
+
+
+def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift):
+    """Fit one chunk: ``res`` (nints, nres, P); returns a dict of (P,)/(nints, P) arrays."""
+    nints, nres, npix = res.shape
+    nuse, anysat = _usable_resultants(res, sat)
+    blk = _Block(nints, npix)
+    if nres >= 2:
+        d, valid = _rate_estimates(res, sat, nuse, cov)
+        if thr is not None and nres >= 4:
+            blk.n_jumps = flag_jumps(d, valid, s2, cov, thr)
+        diffs = _Differences(d, valid, s2, cov)
+        if fitter == "gls":
+            chi2_raw = _fit_gls(diffs, n_iter, blk)
+        else:
+            chi2_raw = _fit_weighted(diffs, fitter, blk)
+        ndof = valid.sum(axis=1, dtype=np.int32).sum(axis=0) - 1
+        blk.dof = np.where(blk.measured, np.maximum(ndof, 0), 0).astype(np.int32)
+        blk.chi2 = np.divide(np.maximum(chi2_raw, 0), blk.dof,
+                             out=np.zeros(npix, _F32), where=blk.dof > 0).astype(_F32)
+    unmeasured = ~blk.measured
+    if unmeasured.any():
+        blk.slope[unmeasured] = 0
+        blk.var_read[unmeasured] = BAD_VARIANCE
+        blk.pcoef[unmeasured] = 0
+        blk.chi2[unmeasured] = 0
+        if zp is not None:
+            _single_resultant(res, nuse, unmeasured, s2, cov, zp, tshift, blk)
+    dq = np.where(anysat, SATURATED, 0).astype(np.uint32)
+    dq[blk.n_jumps > 0] |= np.uint32(JUMP_DET)
+    dq[~blk.measured] |= np.uint32(DO_NOT_USE)
+    return {"slope": blk.slope.astype(_F32), "var_read": blk.var_read.astype(_F32),
+            "pcoef": blk.pcoef.astype(_F32), "chi2": blk.chi2, "dof": blk.dof,
+            "dq": dq, "slope_ints": blk.slope_ints, "var_ints": blk.var_ints,
+            "pcoef_ints": blk.pcoef_ints, "n_jumps": blk.n_jumps}
+
+
+def _usable_resultants(res, sat):
+    """Resultants before the first saturated one (nints, P) and any saturation (P,)."""
+    nints, nres, npix = res.shape
+    if sat is None:
+        return np.full((nints, npix), nres, np.int32), np.zeros(npix, bool)
+    satany = sat.any(axis=1)
+    nuse = np.where(satany, sat.argmax(axis=1), nres).astype(np.int32)
+    return nuse, satany.any(axis=0)
+
+
+def _rate_estimates(res, sat, nuse, cov):
+    """Rate estimates ``d`` (nints, nd, P) float32 and their usable mask."""
+    nd = res.shape[1] - 1
+    rf = res if res.dtype in (np.float32, np.float64) else res.astype(np.float64)
+    if sat is not None:
+        rf = np.where(sat, rf.dtype.type(0), rf)   # saturated values may be NaN
+    inv_dt = (1.0 / cov.dt)[None, :, None]
+    d = (np.diff(rf, axis=1) * inv_dt).astype(_F32)
+    valid = np.arange(nd)[None, :, None] < (nuse[:, None, :] - 1)
+    return d, valid
+
+
+class _Differences:
+    """The usable rate estimates of a chunk and what every solve of them needs."""
+
+    def __init__(self, d, valid, s2, cov):
+        self.d, self.valid, self.s2, self.cov = d, valid, s2, cov
+        self.nints, _, self.npix = d.shape
+        self.mf = valid.astype(_F32)
+        self.mc = self.mf[:, :-1] * self.mf[:, 1:]
+        # Rate floor of the covariance where sigma = 0, so that W stays positive
+        # definite when the rate estimate is <= 0 (no effect otherwise).
+        if np.isscalar(s2):
+            self.lo = _F32(RATE_FLOOR if s2 == 0 else 0)
+        else:
+            self.lo = np.where(s2 == 0, _F32(RATE_FLOOR), _F32(0))
+        self.A_mod, self.B_mod = cov.coefficient_lists()
+
+    def solve(self, k, fref, s2, f, A, B, *, want_x):
+        """:func:`~scenesim.rampfit.solver.ldl_pass` of integration ``k``."""
+        return ldl_pass(self.d[k], self.valid[k], self.mf[k], self.mc[k], fref, s2, f,
+                        A, B, want_x=want_x)
+
+    def model_solves(self, fref, f, *, want_x):
+        """Solves of every integration with the model covariance ``C(f)``."""
+        return [self.solve(k, fref, self.s2, f, self.A_mod, self.B_mod, want_x=want_x)
+                for k in range(self.nints)]
+
+    def zeros(self):
+        return np.zeros(self.npix, _F32)
+
+
+def _fit_gls(diffs, n_iter, blk):
+    """GLS with the covariance at the previous estimate; fills ``blk``, returns raw chi2."""
+    dtw = diffs.cov.dt.astype(_F32)[None, :, None]
+    den = (diffs.mf * dtw).sum(axis=(0, 1))
+    num = (diffs.d * diffs.mf * dtw).sum(axis=(0, 1))
+    fref = np.divide(num, den, out=diffs.zeros(), where=den > 0)    # CDS start
+    for it in range(n_iter):
+        last = it == n_iter - 1
+        passes = diffs.model_solves(fref, np.maximum(fref, diffs.lo), want_x=last)
+        S11 = sum(p[0] for p in passes)
+        S1y = sum(p[1] for p in passes)
+        blk.measured = S11 > 0
+        new = fref + np.divide(S1y, S11, out=diffs.zeros(), where=blk.measured)
+        if not last:
+            fref = new
+    blk.slope = new
+    _gls_variances(diffs, passes, fref, S11, blk)
+    syy = sum(p[2] for p in passes)
+    return syy - np.divide(S1y * S1y, S11, out=diffs.zeros(), where=blk.measured)
+
+
+def _gls_variances(diffs, passes, fref, S11, blk):
+    """Read and Poisson variances of the GLS slopes, combined and per integration."""
+    cov, s2 = diffs.cov, diffs.s2
+    inv11 = np.divide(1, S11, out=diffs.zeros(), where=blk.measured)
+    qr_tot = diffs.zeros()
+    qp_tot = diffs.zeros()
+    for k, p in enumerate(passes):
+        x = p[3]
+        qr = quad_form(x, cov.Ar, cov.Br)
+        qp = quad_form(x, cov.Ap, cov.Bp)
+        qr_tot += qr
+        qp_tot += qp
+        ok = p[0] > 0
+        ik = np.divide(1, p[0], out=diffs.zeros(), where=ok)
+        blk.slope_ints[k] = np.where(ok, fref + p[1] * ik, 0)
+        blk.var_ints[k] = np.where(ok, s2 * qr * ik * ik, BAD_VARIANCE)
+        blk.pcoef_ints[k] = qp * ik * ik
+    blk.var_read = s2 * qr_tot * inv11 * inv11
+    blk.pcoef = qp_tot * inv11 * inv11
+
+
+def _weighting(fitter, cov):
+    """Tridiagonal weighting matrix ``W`` of OLS or CDS, as (A, B) coefficient lists."""
+    if fitter == "ols":
+        return (((2.0 / cov.dt ** 2).tolist(), None),
+                ((-1.0 / (cov.dt[:-1] * cov.dt[1:])).tolist(), None))
+    return ((1.0 / cov.dt).tolist(), None), None
+
+
+def _fit_weighted(diffs, fitter, blk):
+    """OLS or CDS per integration, combined with inverse model variances at the
+    joint rate; fills ``blk``, returns the raw chi2 about the combined slope."""
+    A_w, B_w = _weighting(fitter, diffs.cov)
+    zero = diffs.zeros()
+    passes = [diffs.solve(k, zero, 1.0, 0.0, A_w, B_w, want_x=True)
+              for k in range(diffs.nints)]
+    S11 = sum(p[0] for p in passes)
+    blk.measured = S11 > 0
+    f0 = np.divide(sum(p[1] for p in passes), S11, out=diffs.zeros(),
+                   where=blk.measured)
+    weights = _integration_weights(diffs, passes, np.maximum(f0, _F32(0)), blk)
+    _combine_integrations(weights, diffs, blk)
+    slope = blk.slope
+    return sum(p[2] for p in diffs.model_solves(slope, np.maximum(slope, diffs.lo),
+                                                want_x=False))
+
+
+def _integration_weights(diffs, passes, fv, blk):
+    """Per-integration slopes and variances (into ``blk``) and their inverse-variance
+    weights at the rate ``fv``: a list of (w, var_read, pcoef) per integration."""
+    cov, s2 = diffs.cov, diffs.s2
+    weights = []
+    for k, p in enumerate(passes):
+        ok = p[0] > 0
+        ik = np.divide(1, p[0], out=diffs.zeros(), where=ok)
+        x = p[3]
+        vr = s2 * quad_form(x, cov.Ar, cov.Br) * ik * ik
+        qp = quad_form(x, cov.Ap, cov.Bp) * ik * ik
+        vp = fv * qp
+        blk.slope_ints[k] = p[1] * ik
+        blk.var_ints[k] = np.where(ok, vr, BAD_VARIANCE)
+        blk.pcoef_ints[k] = qp
+        w = np.where(ok, 1 / np.maximum(vr + vp, _F32(TINY)), 0).astype(_F32)
+        weights.append((w, vr, qp))
+    return weights
+
+
+def _combine_integrations(weights, diffs, blk):
+    """Inverse-variance mean of the per-integration slopes, and its variances."""
+    wsum = diffs.zeros()
+    wslope = diffs.zeros()
+    for k, (w, _, _) in enumerate(weights):
+        wsum += w
+        wslope += w * blk.slope_ints[k]
+    iw = np.divide(1, wsum, out=diffs.zeros(), where=wsum > 0)
+    blk.slope = wslope * iw
+    for w, vr, qp in weights:
+        blk.var_read += (w * iw) ** 2 * vr
+        blk.pcoef += (w * iw) ** 2 * qp
+
+
+def _single_resultant(res, nuse, unmeasured, s2, cov, zp, tshift, blk):
+    """Slope ``(R_0 - zero_point) / tbar_0`` for pixels with one usable resultant.
+
+    Updates ``blk`` in place (``var_ints`` gets the read part, ``pcoef``/
+    ``pcoef_ints`` the Poisson variance per unit rate, ``measured`` the pixels).
+    """
+    nints, _, npix = res.shape
+    tb = np.full(npix, cov.tbar[0]) if tshift is None else cov.tbar[0] + tshift
+    ta = np.full(npix, cov.tau[0]) if tshift is None else cov.tau[0] + tshift
+    use = (nuse >= 1) & unmeasured[None, :] & (tb > 0)[None, :]     # (nints, P)
+    n1 = use.sum(axis=0)
+    pick = n1 > 0
+    if not pick.any():
+        return
+    tb_safe = np.where(tb > 0, tb, 1.0)
+    r0 = np.where(use, res[:, 0, :].astype(np.float64), 0.0)         # (nints, P)
+    sk = np.where(use, (r0 - zp) / tb_safe, 0.0)
+    mean = sk.sum(axis=0) / np.maximum(n1, 1)
+    s2v = s2 if np.isscalar(s2) else s2.astype(np.float64)
+    vr = s2v / cov.n[0] / tb_safe ** 2
+    qp = ta / tb_safe ** 2
+    blk.slope[pick] = mean[pick]
+    blk.var_read[pick] = np.broadcast_to(vr / np.maximum(n1, 1), (npix,))[pick]
+    blk.pcoef[pick] = (qp / np.maximum(n1, 1))[pick]
+    vr_b = np.broadcast_to(vr, (npix,))
+    for k in range(nints):
+        uk = use[k]
+        blk.slope_ints[k][uk] = sk[k][uk]
+        blk.var_ints[k][uk] = vr_b[uk]
+        blk.pcoef_ints[k][uk] = qp[uk]
+    blk.measured |= pick

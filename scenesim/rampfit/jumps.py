@@ -1,0 +1,232 @@
+"""Jump (cosmic-ray) detection in up-the-ramp rate estimates.
+
+Statistic
+---------
+For the model ``d = f 1 + J s + noise`` of the rate estimates of one integration
+(covariance ``C`` at rate ``f``, :mod:`scenesim.rampfit.covariance`), the
+standardised score statistic for a jump of signature ``s`` is::
+
+    z = s^T C^-1 r / sqrt(s^T C^-1 s - (s^T C^-1 1)^2 / (1^T C^-1 1)),
+
+``r = d - f_hat 1`` the GLS residuals (:func:`jump_statistics`).  Without a jump it
+is exactly N(0, 1) for Gaussian noise whatever the readout, so a threshold ``k``
+gives ``2 Q(k)`` false alarms per test.  A single difference ``i`` has ``s = e_i``;
+a hit halfway through a multi-read resultant ``R_{i+1}`` adds half its charge to
+``D_i`` and half to ``D_{i+1}``: ``s = e_i / dt_i + e_{i+1} / dt_{i+1}``.
+
+Procedure (:func:`flag_jumps`, threshold in sigma, per integration)
+--------------------------------------------------------------------
+At the rate ``max(median(d), 0)`` (robust to the jumps themselves) every usable
+difference, and every pair sharing a multi-read resultant, gets its statistic.  The
+largest ``|z|`` above the threshold is flagged and excluded (a pair as a whole when
+it is the larger excess), and the test repeated on the pixels that had a flag (at
+most ``n_diff - 2`` passes).  Detection needs >= 3 usable differences.  Excluding a
+difference splits the ramp into independent segments.  The differences next to a
+flagged span that share a multi-read resultant with it are excluded too,
+unconditionally: the hit may have arrived during that resultant, and choosing them
+by their values would bias the slope (excluding them costs some precision in hit
+pixels only).  With single-read resultants (JWST NFRAMES=1) neither the pairs nor
+the neighbours apply.
+
+Where the read noise is 0 the covariance uses a rate of at least
+:data:`scenesim.rampfit.covariance.RATE_FLOOR`.  Pixels are processed in blocks of
+4096, which keeps the (n_diff, pixels) work arrays in cache.
+"""
+
+import numpy as np
+
+from scenesim.rampfit.covariance import RATE_FLOOR
+from scenesim.rampfit.solver import TINY
+
+__all__ = ["flag_jumps", "jump_statistics"]
+
+_F32 = np.float32
+_JUMP_BLOCK = 4096
+
+
+def flag_jumps(d, valid, s2, cov, threshold):
+    """Flag jumps in every integration; ``valid`` is updated in place.
+
+    Parameters
+    ----------
+    d : ndarray, shape (nints, nd, P), float32, e-/s
+        Rate estimates of ``P`` pixels.
+    valid : ndarray of bool, shape (nints, nd, P)
+        Usable differences; flagged ones are set False.
+    s2 : float or ndarray (P,) float32
+        Read variance of one read, e-^2.
+    cov : scenesim.rampfit.covariance.RampCovariance
+    threshold : float
+        Detection threshold, sigma (> 0).
+
+    Returns
+    -------
+    ndarray, shape (P,), int32
+        Number of flagged differences per pixel (all integrations).
+    """
+    nints, _, npix = d.shape
+    counts = np.zeros(npix, np.int32)
+    for k in range(nints):
+        for c0 in range(0, npix, _JUMP_BLOCK):
+            c1 = min(c0 + _JUMP_BLOCK, npix)
+            s2b = s2 if np.isscalar(s2) else s2[c0:c1]
+            counts[c0:c1] += _detect_jumps(
+                d[k, :, c0:c1], valid[k, :, c0:c1], s2b, cov, threshold).sum(
+                axis=0, dtype=np.int32)
+    return counts
+
+
+def _detect_jumps(d, valid, s2, cov, thr):
+    """Flag jumps in one integration; ``valid`` (nd, P) is updated in place.
+
+    Returns the (nd, P) bool array of flagged differences (module notes).
+    """
+    nd, npix = d.shape
+    jumps = np.zeros((nd, npix), bool)
+    multi = cov.n > 1                                  # multi-read resultants
+    idx = np.flatnonzero(valid.sum(axis=0) >= 3)
+    for _ in range(nd - 2):
+        if idx.size == 0:
+            break
+        dd = d[:, idx]
+        vv = valid[:, idx]
+        med = _median_of_valid(dd, vv)
+        s2i = s2 if np.isscalar(s2) else s2[idx]
+        lo = _F32(RATE_FLOOR) * (s2i == 0)
+        z, zp = jump_statistics(dd, vv, med, s2i, np.maximum(med, lo), cov)
+        hit, first, last = _largest_excess(z, zp, thr)
+        ih, a, b = idx[hit], first[hit], last[hit]
+        # A hit may have arrived during a multi-read resultant at either end of the
+        # flagged span; the differences beyond that share it are excluded too
+        # (unconditionally: a data-dependent choice would bias the slope).
+        left = (a >= 1) & multi[a]
+        right = (b + 1 < nd) & multi[np.minimum(b + 1, nd - 1)]
+        for pos, sel in ((a, None), (b, None), (a - 1, left), (b + 1, right)):
+            p, i = (pos, ih) if sel is None else (pos[sel], ih[sel])
+            jumps[p, i] |= valid[p, i]
+            valid[p, i] = False
+        idx = ih[valid[:, ih].sum(axis=0) >= 3]
+    return jumps
+
+
+def _median_of_valid(d, valid):
+    """Median over the usable differences of every pixel, (n,) float32."""
+    srt = np.where(valid, d, np.inf).T.copy()
+    srt.sort(axis=1)
+    n = valid.sum(axis=0)
+    lo = np.take_along_axis(srt, ((n - 1) // 2)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(srt, (n // 2)[:, None], axis=1)[:, 0]
+    return _F32(0.5) * (lo + hi)
+
+
+def _largest_excess(z, zp, thr):
+    """Pixels whose largest statistic exceeds ``thr``, and the flagged span.
+
+    Returns (hit (n,) bool, first (n,), last (n,)): the span of differences of each
+    pixel's largest statistic (one difference, or a pair).
+    """
+    cols = np.arange(z.shape[1])
+    first = z.argmax(axis=0)
+    zmax = z[first, cols]
+    last = first.copy()
+    if zp is not None:
+        q = zp.argmax(axis=0)
+        zq = zp[q, cols]
+        better = zq > zmax
+        first = np.where(better, q, first)
+        last = np.where(better, q + 1, last)
+        zmax = np.where(better, zq, zmax)
+    return zmax > thr, first, last
+
+
+def jump_statistics(d, valid, fref, s2, f, cov):
+    """GLS outlier statistics for a jump in each difference and each shared pair.
+
+    The standardised score statistic of the module notes, for single differences
+    (``s = e_i``) and for pairs sharing a multi-read resultant
+    (``s = e_i / dt_i + e_{i+1} / dt_{i+1}``).  It uses
+    ``(C^-1)_ii = 1/(delta_i + eta_i - a_i)`` with forward and backward pivots
+    ``delta``, ``eta``, and ``(C^-1)_{i,i+1} = -b_i (C^-1)_{i+1,i+1} / delta_i``.
+
+    Parameters
+    ----------
+    d : ndarray, shape (nd, n), float32, e-/s
+        Rate estimates of one integration.
+    valid : ndarray of bool, shape (nd, n)
+        Usable differences.
+    fref : ndarray, shape (n,), float32, e-/s
+        Reference rate subtracted before the solves (e.g. the median of ``d``).
+    s2 : float or ndarray (n,) float32
+        Read variance of one read, e-^2.
+    f : ndarray, shape (n,), float32, e-/s
+        Rate of the covariance.
+    cov : scenesim.rampfit.covariance.RampCovariance
+
+    Returns
+    -------
+    z : ndarray, shape (nd, n), float32
+        ``|z|`` of every single difference; 0 where a difference is not usable.
+    zp : ndarray, shape (nd - 1, n), float32, or None
+        ``|z|`` of every pair, or None when no pair shares a multi-read resultant.
+    """
+    nd, npix = d.shape
+    mf = valid.astype(_F32)
+    a = np.empty((nd, npix), _F32)
+    for i in range(nd):
+        a[i] = np.where(valid[i], s2 * float(cov.Ar[i]) + f * float(cov.Ap[i]),
+                        _F32(1))
+    np.maximum(a, _F32(TINY), out=a)
+    b = np.empty((max(nd - 1, 0), npix), _F32)
+    for i in range(nd - 1):
+        b[i] = (s2 * float(cov.Br[i]) + f * float(cov.Bp[i])) * mf[i] * mf[i + 1]
+    y = (d - fref) * mf
+    # forward pivots, L, and forward solves for 1 and y
+    delta = np.empty_like(a)
+    ell = np.zeros_like(a)
+    zu = np.empty_like(a)
+    zv = np.empty_like(a)
+    S11 = np.zeros(npix, _F32)
+    S1y = np.zeros(npix, _F32)
+    for i in range(nd):
+        if i == 0:
+            delta[0], u, v = a[0], mf[0], y[0]
+        else:
+            ell[i] = b[i - 1] / delta[i - 1]
+            delta[i] = a[i] - ell[i] * b[i - 1]
+            u = mf[i] - ell[i] * u
+            v = y[i] - ell[i] * v
+        zu[i] = u / delta[i]
+        zv[i] = v / delta[i]
+        S11 += u * zu[i]
+        S1y += v * zu[i]
+    for i in range(nd - 2, -1, -1):                    # back substitution
+        zu[i] -= ell[i + 1] * zu[i + 1]
+        zv[i] -= ell[i + 1] * zv[i + 1]
+    h = zu                                               # C^-1 1
+    shift = np.divide(S1y, S11, out=np.zeros(npix, _F32), where=S11 > 0)
+    g = zv - shift * h                                   # C^-1 r
+    eta = np.empty_like(a)
+    eta[nd - 1] = a[nd - 1]
+    for i in range(nd - 2, -1, -1):
+        eta[i] = a[i] - b[i] * b[i] / eta[i + 1]
+    xd = _F32(1) / (delta + eta - a)                     # diag of C^-1
+    inv11 = np.divide(1, S11, out=np.zeros(npix, _F32), where=S11 > 0)
+    den = np.maximum(xd - h * h * inv11, _F32(TINY))
+    z = np.abs(g) * mf / np.sqrt(den)
+    pair_ok = cov.n[1:-1] > 1
+    if nd < 2 or not pair_ok.any():
+        return z, None
+    zp = _pair_statistics(g, h, xd, b, delta, inv11, mf, pair_ok, cov)
+    return z, zp
+
+
+def _pair_statistics(g, h, xd, b, delta, inv11, mf, pair_ok, cov):
+    """``|z|`` of the pairs (nd - 1, n) from the pieces of :func:`jump_statistics`."""
+    xo = -b * xd[1:] / delta[:-1]                        # (C^-1)_{i,i+1}
+    s0 = (1 / cov.dt[:-1]).astype(_F32)[:, None]
+    s1 = (1 / cov.dt[1:]).astype(_F32)[:, None]
+    num = s0 * g[:-1] + s1 * g[1:]
+    sh = s0 * h[:-1] + s1 * h[1:]
+    den_p = s0 * s0 * xd[:-1] + 2 * s0 * s1 * xo + s1 * s1 * xd[1:] - sh * sh * inv11
+    ok = mf[:-1] * mf[1:] * pair_ok[:, None]
+    return np.abs(num) * ok / np.sqrt(np.maximum(den_p, _F32(TINY)))
