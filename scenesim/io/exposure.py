@@ -275,12 +275,12 @@ def _read_back_header(cards):
 
 def _read_back_table(table, name):
     """``table`` after a trip through a FITS binary table, as :func:`read_exposure`
-    reads it from a file (same column types, no ``meta``)."""
+    reads it from a file (same column types; ``meta`` from the table header)."""
     buf = io.BytesIO()
     fits.HDUList([fits.PrimaryHDU(), fits.BinTableHDU(table, name=name)]).writeto(buf)
     buf.seek(0)
     with fits.open(buf) as hdul:
-        return Table(hdul[name].data)
+        return Table.read(hdul[name])
 
 
 def _write_truth(engine, path, header, out, raws, sources, overwrite):
@@ -334,7 +334,7 @@ def read_exposure(path):
                     f"exposure file {path!r} has no {need!r} extension (found {names})")
         sci = np.asarray(hdul["SCI"].data)
         header = hdul[0].header.copy()
-        reads = Table(hdul["READS"].data)
+        reads = Table.read(hdul["READS"])
     return sci, header, reads
 
 
