@@ -1,0 +1,76 @@
+"""Aperture photometry in ``compare`` for an Airy PSF recorded in the truth header.
+
+The truth header records the PSF (``PSFAIRY``: radius of the first dark ring); the
+aperture correction must be the Airy encircled energy, closed form
+``EE(r) = 1 - J0(v)^2 - J1(v)^2`` with ``v = j1 r / a``, ``j1 = 3.8317`` the first zero
+of ``J1`` (the dark ring sits at ``v = j1``; Born & Wolf, section 8.5.2).
+Before the header contract, ``PSFAIRY`` was written but never read, so Airy scenes got
+no aperture correction (ratio ~ EE(4 px) = 0.93 instead of 1).
+"""
+
+import math
+
+import numpy as np
+import pytest
+from astropy.io import fits
+from astropy.table import Table
+from scipy.special import j0, j1, jn_zeros
+
+from scenesim.io.fitfile import FitResult, write_fit
+from scenesim.sky.psf import AiryPSF, render_point_sources
+from scenesim.validate.compare import compare_files
+
+
+def _ee(r, a):
+    v = jn_zeros(1, 1)[0] * r / a
+    return 1.0 - j0(v) ** 2 - j1(v) ** 2
+
+
+def test_airy_psf_from_header_gives_the_aperture_correction(tmp_path):
+    a, radius, bkg, flux, sigma = 1.5, 4.0, 10.0, 2e5, 2.0
+    shape = (140, 140)
+    rng = np.random.default_rng(21)
+    g = np.arange(25, 120, 22.0)
+    xs, ys = np.meshgrid(g, g)
+    xs = xs.ravel() + rng.uniform(-0.5, 0.5, xs.size)
+    ys = ys.ravel() + rng.uniform(-0.5, 0.5, ys.size)
+    n = xs.size
+    img, _ = render_point_sources(shape, xs, ys, np.full(n, flux), AiryPSF(a),
+                                  stamp_radius=20)
+    rate = bkg + img
+    slope = rate + sigma * rng.standard_normal(shape)
+    z = np.zeros(shape, np.float32)
+    fit = FitResult(slope=slope.astype(np.float32),
+                    var_read=np.full(shape, sigma ** 2, np.float32), var_poisson=z,
+                    chi2=np.ones(shape, np.float32), dof=np.full(shape, 9, np.int32),
+                    dq=np.zeros(shape, np.uint32),
+                    slope_ints=slope[None].astype(np.float32),
+                    var_ints=np.full((1,) + shape, sigma ** 2, np.float32),
+                    n_jumps=np.zeros(shape, np.int32), gain=1.0, read_noise=5.0,
+                    fitter="gls")
+    write_fit(str(tmp_path / "fit.fits"), fit)
+    prim = fits.PrimaryHDU()
+    for key, value in {"NINTS": 1, "NGROUPS": 5, "NFRAMES": 1, "GROUPGAP": 0,
+                       "DROPFRM1": 0, "TFRAME": 10.0, "READPATT": "RAPID",
+                       "RESETMD": "rolling", "RDNOISE": 5.0, "GAIN": 1.0,
+                       "PSFAIRY": a}.items():
+        prim.header[key] = value
+    fits.HDUList([prim, fits.ImageHDU(rate.astype(np.float32), name="RATE"),
+                  fits.ImageHDU(rate.astype(np.float32), name="RATE_IPC"),
+                  fits.BinTableHDU(Table({"x": xs, "y": ys, "flux": np.full(n, flux)}),
+                                   name="SOURCES")]).writeto(tmp_path / "truth.fits")
+    p = compare_files(tmp_path / "fit.fits", tmp_path / "truth.fits").photometry
+    ee = _ee(radius, a)
+    assert p["aperture_correction"] == pytest.approx(ee, rel=1e-9)
+    # Expected ratio: the annulus (2r..3r) median removes the Airy wing lying in it,
+    # (EE(3r) - EE(2r)) / A_ann per pixel, times the aperture area A_ap.
+    a_ap = math.pi * radius ** 2
+    a_ann = math.pi * ((3 * radius) ** 2 - (2 * radius) ** 2)
+    expected = (ee - (_ee(3 * radius, a) - _ee(2 * radius, a)) * a_ap / a_ann) / ee
+    # Noise of one ratio: aperture sum sigma^2 A_ap, annulus median (pi/2) sigma^2 /
+    # A_ann per pixel times A_ap^2; the median of n ratios has standard error
+    # 1.2533 s / sqrt(n).  Pixel integration moves the encircled energy at 4 px (where
+    # the Airy surface brightness is < 1e-3 of its peak) by at most 2e-3 (allowed):
+    s = math.sqrt(sigma ** 2 * a_ap + math.pi / 2 * sigma ** 2 / a_ann * a_ap ** 2) / ee / flux
+    assert abs(p["median_ratio"] - expected) < 5 * 1.2533 * s / math.sqrt(n) + 2e-3
+    assert abs(p["median_ratio"] - 1.0) < 0.02   # without the correction: ~ 1/0.93
