@@ -1,7 +1,7 @@
 """scenesim: HxRG scenes injected read by read into noise ramps, and their slope fits.
 
 Modules, one per stage: :mod:`scenesim.detector.readout` (readout patterns),
-:mod:`scenesim.scene.config` (TOML scene files), :mod:`scenesim.sky.psf`,
+:mod:`scenesim.scene` (TOML scene files), :mod:`scenesim.sky.psf`,
 :mod:`scenesim.sky.sources`, :mod:`scenesim.sky.lightcurve`, :mod:`scenesim.sky.cosmic` (rates
 and events), :mod:`scenesim.engine` (charge read by read), :mod:`scenesim.detector.effects`
 (saturation, nonlinearity, IPC, flat, ADC), :mod:`scenesim.io.exposure` (uncal and truth
@@ -27,7 +27,7 @@ from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, r
 from scenesim.detector.readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
 from scenesim.calib.refpix import correct_reference, measure_reference_correction, white_noise_added
 from scenesim.run import build_engine, run_scene, write_exposure
-from scenesim.scene.config import Scene, load_scene, parse_scene
+from scenesim.scene import Scene, load_scene, parse_scene
 
 __all__ = [
     "Readout", "NAMED_PATTERNS", "ROMAN_LIKE_TABLE",

@@ -63,7 +63,7 @@ def _noise(args):
 def _run(args):
     from scenesim.engine import EngineOptions
     from scenesim.run import run_scene
-    from scenesim.scene.config import load_scene
+    from scenesim.scene import load_scene
 
     scene = load_scene(args.scene)
     options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,

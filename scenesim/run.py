@@ -1,4 +1,4 @@
-"""Orchestrator: a validated :class:`~scenesim.scene.config.Scene` in, files out.
+"""Orchestrator: a validated :class:`~scenesim.scene.Scene` in, files out.
 
 Only the outputs asked for are made: with ``[output] ramp = false`` (slopes only) no
 ramp file is written at all -- the resultants are kept in memory
@@ -29,17 +29,18 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from astropy.table import vstack
 
 from noise import streams
 from noise.clock import exposure_slots
 from noise.errors import ParameterError
 
-from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
+from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import psf_cards
+from scenesim.sky.maps import load_map
+from scenesim.sky.rates import cosmic_ray_hits, scene_rates
 
-__all__ = ["build_engine", "run_scene", "write_exposure", "RunResult", "build_light_curve"]
+__all__ = ["build_engine", "run_scene", "write_exposure", "RunResult"]
 
 
 @dataclass
@@ -70,89 +71,6 @@ def _progress_bar(total, unit, desc):
         return tqdm(total=total, unit=unit, desc=desc, leave=False, miniters=1)
     finally:
         tqdm.monitor_interval = interval
-
-
-def build_light_curve(cfg):
-    """A :class:`scenesim.sky.lightcurve.LightCurve` from a ``LightCurveConfig``."""
-    from scenesim.sky.lightcurve import LightCurve
-
-    if cfg.kind == "transit":
-        return LightCurve.transit(cfg.t0, cfg.duration, cfg.depth, cfg.ingress)
-    if cfg.kind == "step":
-        return LightCurve.step(cfg.t_on, before=cfg.before if cfg.before is not None else 0.0,
-                               after=cfg.after if cfg.after is not None else 1.0)
-    if cfg.kind == "flare":
-        return LightCurve.flare(cfg.t0, cfg.amplitude, cfg.rise, cfg.decay)
-    t, f = cfg.samples()
-    return LightCurve(t, f)
-
-
-def _rates(scene, seed):
-    """Static rate map (e-/s), variable sources, rendered catalogue."""
-    from scenesim.sky import psf as psfmod
-    from scenesim.scene.config import load_map
-    from scenesim.sky.sources import draw_hot_pixels
-
-    det = scene.detector
-    src = scene.sources
-    refmask = det.reference_mask()
-    rate = load_map(src.dark_current, det, name="dark_current")
-    rate = rate + load_map(src.background, det, name="background")
-    if src.hot_pixel_fraction > 0:
-        rate = rate + draw_hot_pixels(det.shape, src.hot_pixel_fraction,
-                                      rate=src.hot_pixel_rate,
-                                      rng=streams.generator(seed, streams.HOT_PIXELS),
-                                      refmask=refmask)
-    stars = src.star_table()
-    variable = []
-    rendered = None
-    if len(stars):
-        psf = src.psf.build()
-        static = stars["light_curve"] == ""
-        rendered_parts = []
-        if static.any():
-            img, info = psfmod.render_point_sources(
-                det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
-                psf, min_rate=src.psf.min_rate)
-            rate = rate + img
-            info["light_curve"] = [""] * len(info)
-            rendered_parts.append(info)
-        curves = {}
-        for row in stars[~static]:
-            name = str(row["light_curve"])
-            if name not in curves:
-                curves[name] = build_light_curve(src.light_curve(name))
-            img, info = psfmod.render_point_sources(
-                det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
-                min_rate=src.psf.min_rate)
-            idx = np.flatnonzero(img)
-            variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))
-            info["light_curve"] = [name]
-            rendered_parts.append(info)
-        rendered = vstack(rendered_parts) if rendered_parts else None
-    rate = np.where(refmask, 0.0, rate)
-    return rate, variable, rendered
-
-
-def _cosmic_rays(scene, seed, t_total):
-    eff = scene.effects
-    if eff.cosmic_ray_rate <= 0:
-        return None
-    from scenesim.sky.cosmic import CosmicRayModel, draw_cosmic_rays
-
-    det = scene.detector
-    median, sigma_ln = eff.cosmic_ray_charge
-    # scene: log-normal median (e-) and sigma of ln(charge); model: mean and std (e-)
-    mean = median * np.exp(sigma_ln ** 2 / 2)
-    model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_mean=mean,
-                           charge_sigma=mean * np.sqrt(np.expm1(sigma_ln ** 2)))
-    table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
-                             rng=streams.generator(seed, streams.COSMIC_RAYS),
-                             refmask=det.reference_mask())
-    index = np.asarray(table["Y"], dtype=np.int64) * det.nx + np.asarray(table["X"],
-                                                                          dtype=np.int64)
-    return CosmicRayHits(np.asarray(table["TIME"], dtype=float), index,
-                         np.asarray(table["CHARGE"], dtype=float))
 
 
 def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
@@ -203,17 +121,15 @@ def build_engine(scene, *, options=EngineOptions()):
 
     ``scene.seed`` must be set (see :meth:`Scene.ensure_seed`).
     """
-    from scenesim.scene.config import load_map
-
     if scene.seed is None:
         raise ParameterError("'seed' must be set before building the engine; call "
                              "scene.ensure_seed()")
     det = scene.detector
     readout = scene.readout.build()
     seed = scene.seed
-    rate, variable, rendered = _rates(scene, seed)
+    rate, variable, rendered = scene_rates(scene)
     t_total = exposure_slots(readout.nints, readout.nreads) * det.frame_time
-    crs = _cosmic_rays(scene, seed, t_total)
+    crs = cosmic_ray_hits(scene, t_total)
     eff = scene.effects
     full_well = None
     if eff.full_well is not None:

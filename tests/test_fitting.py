@@ -30,7 +30,7 @@ from scenesim.calib.prepare import (PreparedExposure, exposure_readout, fit_expo
 from scenesim.detector.readout import Readout
 from scenesim.calib.refpix import correct_reference
 from scenesim.run import run_scene
-from scenesim.scene.config import parse_scene
+from scenesim.scene import parse_scene
 
 _FIT_FIELDS = ("slope", "var_read", "var_poisson", "chi2", "dof", "dq", "slope_ints",
                "var_ints", "n_jumps")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from scenesim.run import run_scene
-from scenesim.scene.config import parse_scene
+from scenesim.scene import parse_scene
 
 
 def test_star_field_photometry_recovers_injected_fluxes(tmp_path):

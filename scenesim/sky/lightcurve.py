@@ -39,17 +39,17 @@ bound is derived in the method's notes) and :meth:`LightCurve.from_file`.
 """
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
+from astropy import units as u
 
+from noise.errors import ParameterError
 from noise.validate import check_float
-from noise.errors import FileFormatError, ParameterError
+
+from scenesim.sky.tables import column_values, find_columns, read_table
 
 __all__ = ["LightCurve"]
-
-
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,13 +210,18 @@ class LightCurve:
 
     # constructors ----------------------------------------------------------
     @classmethod
-    def step(cls, t_on, before=0.0, after=1.0):
+    def step(cls, t_on, *, after, before=1.0):
         """A source that switches from ``before`` to ``after`` at ``t_on`` (exact step).
 
         Parameters
         ----------
         t_on : float, seconds
-        before, after : float, relative flux (>= 0)
+            Switch time; from ``t_on`` on the flux is ``after`` (right-continuous).
+        after : float, relative flux (>= 0), keyword-only
+            Relative flux from ``t_on`` on.
+        before : float, relative flux (>= 0), keyword-only
+            Relative flux before ``t_on``; default 1 (the source at its catalogue flux),
+            the same default as the scene's ``step`` light curve.
         """
         t_on = check_float("t_on", t_on)
         before = check_float("before", before, minimum=0.0)
@@ -275,7 +280,11 @@ class LightCurve:
         amplitude : float
             Peak excess over quiescence, relative (>= 0).
         rise : float, seconds
-            Rise time (>= 0).
+            Duration of the linear rise, from quiescence at ``t0 - rise`` to the peak
+            (>= 0; 0 is a step).  A duration, not an e-folding time: white-light flare
+            templates rise in minutes, impulsively and close to linearly (Davenport et
+            al. 2014, ApJ 797, 122 fit a polynomial), and a linear rise keeps the
+            integral exact.
         decay : float, seconds
             e-folding decay time (> 0).
         tol : float
@@ -283,7 +292,10 @@ class LightCurve:
 
         Notes
         -----
-        The decay is sampled on a uniform grid of step ``h = decay * sqrt(8 tol)``:
+        Pointwise, ``|s(t) - s_exact(t)| <= tol * A`` for ``t >= t0`` and
+        ``s = s_exact`` before (``tests/sky/test_lightcurve.py`` checks the values and
+        the interval integrals against this closed form).  The decay is sampled on a
+        uniform grid of step ``h = decay * sqrt(8 tol)``:
         linear interpolation of ``A exp(-u/decay)`` errs by at most
         ``h**2 / 8 * max|f''| = tol * A`` pointwise, always above the curve (it is
         convex).  The grid stops at ``u_end = decay * ln(1/tol)``, where the excess
@@ -312,9 +324,12 @@ class LightCurve:
     def from_file(cls, path):
         """Read a light curve from an ECSV or FITS table with columns time, flux.
 
-        Column names are case-insensitive.  A ``time`` column with a unit is
-        converted to seconds; without a unit it is taken as seconds.  ``flux`` is
-        relative (dimensionless).
+        The one reader of light-curve files: a scene's ``file`` light curve goes
+        through it.  Column names are case-insensitive.  A ``time`` column with a unit
+        is converted to seconds (``h``, ``d``, ``min``, ...); without a unit it is taken
+        as seconds.  ``flux`` is relative (dimensionless; a unit is ignored).  The
+        samples are the nodes of the piecewise-linear curve (two equal consecutive
+        times make a step).
 
         Raises
         ------
@@ -323,29 +338,9 @@ class LightCurve:
         ParameterError
             Invalid values (see :class:`LightCurve`).
         """
-        from astropy import units as u
-        from astropy.table import Table
-        path = os.fspath(path)
-        if not os.path.isfile(path):
-            raise FileFormatError(f"light-curve file {path!r} does not exist")
-        try:
-            table = Table.read(path)
-        except Exception as exc:  # astropy raises many types for unreadable files
-            raise FileFormatError(f"cannot read light curve {path!r}: {exc}") from exc
-        names = {name.lower(): name for name in table.colnames}
-        missing = [c for c in ("time", "flux") if c not in names]
-        if missing:
-            raise FileFormatError(
-                f"light-curve file {path!r} lacks column(s) {missing}; found "
-                f"{table.colnames}")
-        tcol = table[names["time"]]
-        time = np.ma.filled(np.ma.asarray(tcol, dtype=float), np.nan)
-        if tcol.unit is not None:
-            try:
-                time = (time * tcol.unit).to_value(u.s)
-            except u.UnitConversionError as exc:
-                raise FileFormatError(
-                    f"light-curve file {path!r}: 'time' unit {tcol.unit} is not a time"
-                ) from exc
-        flux = np.ma.filled(np.ma.asarray(table[names["flux"]], dtype=float), np.nan)
+        where = f"light-curve file {str(path)!r}"
+        table = read_table(path, what="light-curve file")
+        names = find_columns(table, ("time", "flux"), where=where)
+        time = column_values(table, names["time"], u.s, where=where)
+        flux = column_values(table, names["flux"], where=where)
         return cls(time, flux)

@@ -113,7 +113,7 @@ def test_truth_file_contents(tmp_path):
     cr = CosmicRayHits(np.array([2.5 * tf, 100.0]), np.array([20 * nx + 30, 5 * nx + 9]),
                        np.array([321.0, 50.0]))
     idx = np.array([33 * nx + 33])
-    src = VariableSource(idx, np.array([500.0]), LightCurve.step(tf * 2.0))
+    src = VariableSource(idx, np.array([500.0]), LightCurve.step(tf * 2.0, before=0.0, after=1.0))
     sources = Table({"x": [33.0], "y": [33.0], "flux": [500.0]})
 
     def make():

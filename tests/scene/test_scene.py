@@ -1,4 +1,4 @@
-"""Tests of scenesim.scene.config: TOML scene files validated into frozen dataclasses."""
+"""Tests of scenesim.scene: TOML scene files validated into frozen dataclasses."""
 
 import dataclasses
 import glob
@@ -15,12 +15,13 @@ from astropy.table import Table
 from noise.clock import Detector, Subarray
 from noise.errors import FileFormatError, ParameterError
 from noise.params import NIRSPEC_DEFAULTS, NoiseParams
-from scenesim.scene.config import (EffectsConfig, LightCurveConfig, OutputConfig, PSFConfig,
-                            ReadoutConfig, Scene, SourcesConfig, StarConfig, load_map,
-                            load_scene, parse_scene)
+from scenesim.scene import (EffectsConfig, LightCurveConfig, OutputConfig, PSFConfig,
+                            ReadoutConfig, Scene, SourcesConfig, StarConfig, load_scene,
+                            parse_scene)
+from scenesim.sky.maps import load_map
 
-SCENES_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                          "scenes")
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SCENES_DIR = os.path.join(ROOT, "scenes")
 
 RAPID = '[readout]\npattern = "RAPID"\nngroups = 3\n'
 
@@ -217,9 +218,9 @@ def test_full_scene_round_trips(full_scene_dir, tmp_path_factory, monkeypatch):
     assert src.light_curve("jump").before == 1.0          # default
     assert src.light_curve("burst").rise == 0.5
     assert src.light_curve("tab").time == (0.0, 1.0, 2.5)
-    t, f = src.light_curve("fromfile").samples()
-    np.testing.assert_array_equal(t, [0.0, 5.0, 9.0])
-    np.testing.assert_array_equal(f, [1.0, 1.2, 1.0])
+    lc = src.light_curve("fromfile").build()
+    np.testing.assert_array_equal(lc.time, [0.0, 5.0, 9.0])
+    np.testing.assert_array_equal(lc.flux, [1.0, 1.2, 1.0])
     stars = src.star_table()
     np.testing.assert_array_equal(stars["x"], [3.25, -2.0, 1.0, 10.5])
     np.testing.assert_array_equal(stars["flux"], [1000.0, 5.0, 10.0, 0.0])
@@ -427,8 +428,9 @@ def test_map_values_checked_when_loaded(tmp_path):
     bad[3, 5] = -1.0
     fits.writeto(tmp_path / "bad.fits", bad)
     det = Detector(naxis1=8, naxis2=8, ref_border=0)
-    with pytest.raises(ParameterError, match=r"must be finite and >= 0; 1 pixels are "
-                                             r"not, e.g. \[3, 5\] = -1.0"):
+    with pytest.raises(ParameterError, match=r"'background' map must be finite and >= 0 "
+                                             r"everywhere; 1 pixels are not, e.g. "
+                                             r"\[3, 5\] = -1.0 \(map file '.*bad.fits'\)"):
         load_map(str(tmp_path / "bad.fits"), det, name="background")
 
 
@@ -437,7 +439,7 @@ def test_catalogue_columns_checked(tmp_path):
     with pytest.raises(FileFormatError, match=r"no column 'flux'; did you mean 'flx'\?"):
         load_text(tmp_path, RAPID + "[sources]\ncatalogue = 'c.ecsv'\n")
     Table({"x": [1.0], "y": [2.0], "flux": [-3.0]}).write(tmp_path / "n.ecsv")
-    with pytest.raises(ParameterError, match="'flux' must be >= 0"):
+    with pytest.raises(ParameterError, match="'flux' must be finite and >= 0"):
         load_text(tmp_path, RAPID + "[sources]\ncatalogue = 'n.ecsv'\n")
     Table({"x": [1.0], "y": [2.0], "flux": [3.0], "light_curve": ["transt"]}).write(
         tmp_path / "l.ecsv")

@@ -1,17 +1,15 @@
-"""Tests of scenesim.sky.sources: catalogue reading, rate maps and hot pixels."""
+"""Tests of scenesim.sky.sources: catalogue reading and hot pixels."""
 
 import math
-import os
 
 import numpy as np
 import pytest
 from astropy import units as u
-from astropy.io import fits
 from astropy.table import Table
 
 from noise.clock import preset
 from noise.errors import FileFormatError, ParameterError
-from scenesim.sky.sources import draw_hot_pixels, read_catalogue, uniform_or_map
+from scenesim.sky.sources import draw_hot_pixels, read_catalogue
 
 
 # --------------------------------------------------------------------- catalogues
@@ -31,17 +29,25 @@ def test_read_catalogue_ecsv_and_fits_case_insensitive(tmp_path):
     assert np.array_equal(cat["y"], [3.0, 4.0])
 
 
-def test_read_catalogue_units_ids_and_light_curves(tmp_path):
+def test_read_catalogue_units_ids_and_light_curve_names(tmp_path):
+    # The light_curve column holds names of the scene's [sources.light_curves.NAME]
+    # entries, kept as written (stripped); an empty entry means constant.
     tab = Table({"id": [7, 9], "x": [1.0, 2.0], "y": [1.0, 2.0],
                  "flux": [60.0, 120.0] * u.electron / u.min,
-                 "light_curve": ["lc/a.ecsv", ""]})
+                 "light_curve": [" transit ", ""]})
     path = tmp_path / "cat.ecsv"
     tab.write(path)
     cat = read_catalogue(path)
     assert np.allclose(cat["flux"], [1.0, 2.0])               # e-/min -> e-/s
     assert list(cat["id"]) == [7, 9]
-    assert cat["light_curve"][0] == os.path.join(str(tmp_path), "lc/a.ecsv")
-    assert cat["light_curve"][1] == ""
+    assert list(cat["light_curve"]) == ["transit", ""]
+    # FITS stores the empty string as a missing value: also "constant"
+    tab["flux"] = [1.0, 2.0]             # FITS cannot store the unit e-/min
+    tab.write(tmp_path / "cat.fits")
+    assert list(read_catalogue(tmp_path / "cat.fits")["light_curve"]) == ["transit", ""]
+    # without the column every source is constant
+    plain = read_catalogue(Table({"x": [1.0], "y": [1.0], "flux": [1.0]}))
+    assert list(plain["light_curve"]) == [""]
     bad = Table({"x": [1.0], "y": [1.0], "flux": [1.0] * u.m})
     with pytest.raises(FileFormatError, match="unit"):
         read_catalogue(bad)
@@ -53,6 +59,7 @@ def test_read_catalogue_errors(tmp_path):
     with pytest.raises(FileFormatError) as exc:
         read_catalogue(path)
     assert "flux" in str(exc.value) and "nofux.ecsv" in str(exc.value)
+    assert "did you mean" not in str(exc.value)         # nothing close to flux
     with pytest.raises(FileFormatError, match="does not exist"):
         read_catalogue(tmp_path / "missing.ecsv")
     with pytest.raises(ParameterError, match="flux"):
@@ -68,44 +75,6 @@ def test_read_catalogue_errors(tmp_path):
         read_catalogue(Table({"x": ["a"], "y": [1.0], "flux": [1.0]}))
     with pytest.raises(FileFormatError, match="clash"):
         read_catalogue(Table({"x": [1.0], "X": [1.0], "y": [1.0], "flux": [1.0]}))
-
-
-# ---------------------------------------------------------------------- rate maps
-def test_uniform_or_map_scalar_array_and_fits(tmp_path):
-    m = uniform_or_map(0.02, (4, 5), "dark_current")
-    assert m.shape == (4, 5) and m.dtype == np.float64 and np.all(m == 0.02)
-    arr = np.arange(20, dtype=np.float32).reshape(4, 5)
-    path = tmp_path / "bg.fits"
-    fits.PrimaryHDU(arr).writeto(path)
-    assert np.array_equal(uniform_or_map(path, (4, 5), "background"), arr)
-    assert np.array_equal(uniform_or_map(arr, (4, 5), "background"), arr)
-    with pytest.raises(ParameterError, match=r"'background'.*shape \(4, 5\)"):
-        uniform_or_map(path, (5, 4), "background")
-
-
-def test_uniform_or_map_full_frame_cut_to_subarray(tmp_path):
-    det = preset("H1RG").window(x0=100, y0=200, nx=32, ny=16)
-    full = np.add.outer(np.arange(1024.0) * 1e-3, np.arange(1024.0) * 1e-6)
-    path = tmp_path / "dark_full.fits"
-    fits.PrimaryHDU(full).writeto(path)
-    m = uniform_or_map(path, det.shape, "dark_current", detector=det)
-    assert np.array_equal(m, full[200:216, 100:132])
-    with pytest.raises(ParameterError, match="full frame"):
-        uniform_or_map(full[:10], det.shape, "dark_current", detector=det)
-
-
-def test_uniform_or_map_bad_values():
-    with pytest.raises(ParameterError, match="'dark_current'"):
-        uniform_or_map(-0.1, (3, 3), "dark_current")
-    bad = np.ones((3, 3))
-    bad[1, 2] = np.nan
-    with pytest.raises(ParameterError, match=r"'background'.*y=1, x=2"):
-        uniform_or_map(bad, (3, 3), "background")
-    bad[1, 2] = -1.0
-    with pytest.raises(ParameterError, match="'background'"):
-        uniform_or_map(bad, (3, 3), "background")
-    with pytest.raises(FileFormatError, match="does not exist"):
-        uniform_or_map("/nonexistent/map.fits", (3, 3), "background")
 
 
 # --------------------------------------------------------------------- hot pixels

@@ -59,6 +59,17 @@ def test_step_is_exact():
     assert lc.mean(10.0, 10.0) == 2.0
 
 
+def test_step_default_before_is_one():
+    # Old behaviour: LightCurve.step defaulted to before=0 (a star off until t_on)
+    # while the scene's step light curve defaulted to before=1.  New: one default,
+    # before=1, on every path; 'after' has no default (a step to 1 would be constant).
+    lc = LightCurve.step(10.0, after=3.0)
+    assert lc(9.999) == 1.0 and lc(-1e6) == 1.0 and lc(10.0) == 3.0
+    assert lc.integral(0.0, 20.0) == pytest.approx(10.0 * 1.0 + 10.0 * 3.0, rel=1e-15)
+    with pytest.raises(TypeError, match="after"):
+        LightCurve.step(10.0)
+
+
 def test_integral_broadcasts_is_signed_and_additive():
     lc = LightCurve([0.0, 10.0, 20.0, 20.0, 30.0], [1.0, 3.0, 2.0, 0.0, 4.0])
     t1 = np.linspace(-5, 35, 7)[:, None]
@@ -101,6 +112,61 @@ def test_flare_integral_within_documented_bound():
     assert lc(t0 - rise / 2) == pytest.approx(1 + amp / 2, rel=1e-14)
     step = LightCurve.flare(t0, amp, 0.0, decay)
     assert step(t0 - 1e-9) == 1.0 and step(t0) == pytest.approx(1 + amp)
+
+
+def flare_exact(t, t0, amp, rise, decay):
+    """The flare of the docstring: 1, a linear rise over ``rise`` s to 1 + amp at t0,
+    then an exponential decay."""
+    t = np.asarray(t, dtype=float)
+    up = 1 + amp * np.clip((t - (t0 - rise)) / rise, 0, 1) if rise > 0 else \
+        np.where(t < t0, 1.0, 1 + amp)
+    return np.where(t < t0, up, 1 + amp * np.exp(-(t - t0) / decay))
+
+
+def flare_exact_integral(a, b, t0, amp, rise, decay):
+    """Closed-form integral of :func:`flare_exact` over [a, b] (a <= b)."""
+    def F(t):          # antiderivative, F(t0 - rise) = t0 - rise
+        t = np.asarray(t, dtype=float)
+        t_start = t0 - rise
+        u = np.clip(t - t_start, 0, rise)               # time into the rise
+        rise_part = amp * u ** 2 / (2 * rise) if rise > 0 else 0.0 * u
+        v = np.maximum(t - t0, 0)                       # time into the decay
+        decay_part = amp * decay * -np.expm1(-v / decay)
+        return t + rise_part + decay_part
+    return F(b) - F(a)
+
+
+def test_flare_shape_and_interval_integrals_match_the_closed_form():
+    # The docstring's flare: s = 1 before t0 - rise, linear up to 1 + A at t0, then
+    # 1 + A exp(-(t - t0)/decay).  The rise is exact; the decay is a piecewise-linear
+    # interpolation within tol * A of the exponential (method notes), so over any
+    # interval |integral - exact| <= tol * A * (length after t0).
+    t0, amp, rise, decay, tol = 300.0, 2.5, 20.0, 40.0, 1e-4
+    lc = LightCurve.flare(t0, amp, rise, decay, tol=tol)
+    # values at chosen times: quiescent, on the rise, at the peak, in the decay
+    t_rise = np.array([t0 - rise - 5, t0 - rise, t0 - 15, t0 - 10, t0 - 1e-6])
+    np.testing.assert_allclose(lc(t_rise), flare_exact(t_rise, t0, amp, rise, decay),
+                               rtol=1e-13)
+    assert lc(t0 - rise / 4) == pytest.approx(1 + 0.75 * amp, rel=1e-14)
+    assert lc(t0) == pytest.approx(1 + amp, rel=1e-14)
+    t_decay = t0 + np.array([0.0, 1.0, decay, 3 * decay, 10 * decay, 30 * decay])
+    assert np.all(np.abs(lc(t_decay) - flare_exact(t_decay, t0, amp, rise, decay))
+                  <= tol * amp)
+    assert lc(t0 + decay) == pytest.approx(1 + amp / np.e, abs=tol * amp)
+    # interval integrals, as the engine takes them
+    rng = np.random.default_rng(202)
+    a = rng.uniform(t0 - 2 * rise, t0 + 12 * decay, 200)
+    b = a + rng.uniform(0, 3 * decay, 200)
+    got = lc.integral(a, b)
+    exact = flare_exact_integral(a, b, t0, amp, rise, decay)
+    after_peak = np.maximum(b, t0) - np.maximum(a, t0)
+    assert np.all(np.abs(got - exact) <= tol * amp * after_peak + 1e-12 * b)
+    # within the rise (and before it) the integral is exact
+    a = np.linspace(t0 - 2 * rise, t0 - 1, 50)
+    b = np.minimum(a + rng.uniform(0, rise, 50), t0)
+    np.testing.assert_allclose(lc.integral(a, b),
+                               flare_exact_integral(a, b, t0, amp, rise, decay),
+                               rtol=1e-12, atol=1e-12)
 
 
 def test_from_file_ecsv_and_fits(tmp_path):

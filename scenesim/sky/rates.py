@@ -1,0 +1,139 @@
+"""A scene's sky, as the charge engine takes it: rates, variable sources, cosmic rays.
+
+:func:`scene_rates` turns ``[sources]`` into
+
+* the **static rate map**, e-/s per pixel of the read-out image: dark current +
+  background (:func:`scenesim.sky.maps.load_map`) + hot pixels
+  (:func:`scenesim.sky.sources.draw_hot_pixels`) + every constant point source
+  rendered with the PSF (:func:`scenesim.sky.psf.render_point_sources`), all set to 0
+  on the reference pixels, which collect no charge;
+* the **variable sources**: one :class:`scenesim.engine.VariableSource` per star with
+  a light curve (its rendered stamp at relative flux 1, and the
+  :class:`~scenesim.sky.lightcurve.LightCurve` built once per light-curve name);
+* the **rendered catalogue**: the ``info`` table of the rendering (flux on the
+  array, flux lost outside the stamp, ...) of every star, constant ones first, with
+  its ``light_curve`` name; written to the truth file.
+
+:func:`cosmic_ray_hits` turns ``[effects] cosmic_ray_rate`` and
+``cosmic_ray_charge`` into the engine's :class:`scenesim.engine.CosmicRayHits`
+(:mod:`scenesim.sky.cosmic`).  The scene gives the log-normal charge by its median
+``m`` and the sigma ``s`` of ln(charge); the model takes the mean
+``m exp(s**2 / 2)`` and the standard deviation ``mean sqrt(exp(s**2) - 1)``.
+
+Random streams (:mod:`noise.streams`), under the scene's seed: hot pixels draw from
+``HOT_PIXELS`` ``(4,)``, cosmic rays from ``COSMIC_RAYS`` ``(3,)``, so switching one
+on or off leaves the other draws unchanged.
+"""
+
+import numpy as np
+from astropy.table import vstack
+
+from noise import streams
+from noise.errors import ParameterError
+
+from scenesim.engine import CosmicRayHits, VariableSource
+from scenesim.sky.cosmic import CosmicRayModel, draw_cosmic_rays
+from scenesim.sky.maps import load_map
+from scenesim.sky.psf import render_point_sources
+from scenesim.sky.sources import draw_hot_pixels
+
+__all__ = ["scene_rates", "cosmic_ray_hits"]
+
+
+def _seed(scene):
+    if scene.seed is None:
+        raise ParameterError("'seed' must be set before drawing a scene's sky; call "
+                             "scene.ensure_seed()")
+    return scene.seed
+
+
+def scene_rates(scene):
+    """Static rate map, variable sources and rendered catalogue of ``scene``.
+
+    Parameters
+    ----------
+    scene : scenesim.scene.Scene
+        With ``seed`` set (hot pixels are drawn from it).
+
+    Returns
+    -------
+    rate : ndarray, shape ``detector.shape``, float64, e-/s
+        0 on the reference pixels.
+    variable : list of scenesim.engine.VariableSource
+        In star order (inline stars, then catalogue rows).
+    rendered : astropy.table.Table or None
+        One row per star (constant stars first), ``None`` without stars.
+    """
+    seed = _seed(scene)
+    det = scene.detector
+    src = scene.sources
+    refmask = det.reference_mask()
+    rate = load_map(src.dark_current, det, name="dark_current")
+    rate = rate + load_map(src.background, det, name="background")
+    if src.hot_pixel_fraction > 0:
+        rate = rate + draw_hot_pixels(det.shape, src.hot_pixel_fraction,
+                                      rate=src.hot_pixel_rate,
+                                      rng=streams.generator(seed, streams.HOT_PIXELS),
+                                      refmask=refmask)
+    stars = src.star_table()
+    variable = []
+    rendered = None
+    if len(stars):
+        psf = src.psf.build()
+        static = stars["light_curve"] == ""
+        rendered_parts = []
+        if static.any():
+            img, info = render_point_sources(
+                det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
+                psf, min_rate=src.psf.min_rate)
+            rate = rate + img
+            info["light_curve"] = [""] * len(info)
+            rendered_parts.append(info)
+        curves = {}
+        for row in stars[~static]:
+            name = str(row["light_curve"])
+            if name not in curves:
+                curves[name] = src.light_curve(name).build()
+            img, info = render_point_sources(
+                det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
+                min_rate=src.psf.min_rate)
+            idx = np.flatnonzero(img)
+            variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))
+            info["light_curve"] = [name]
+            rendered_parts.append(info)
+        rendered = vstack(rendered_parts) if rendered_parts else None
+    rate = np.where(refmask, 0.0, rate)
+    return rate, variable, rendered
+
+
+def cosmic_ray_hits(scene, t_total):
+    """The cosmic-ray deposits of ``scene`` over ``[0, t_total)``.
+
+    Parameters
+    ----------
+    scene : scenesim.scene.Scene
+        With ``seed`` set.
+    t_total : float
+        Length of the exposure, s (every integration's reset and read frames).
+
+    Returns
+    -------
+    scenesim.engine.CosmicRayHits or None
+        ``None`` when ``cosmic_ray_rate`` is 0.
+    """
+    eff = scene.effects
+    if eff.cosmic_ray_rate <= 0:
+        return None
+    seed = _seed(scene)
+    det = scene.detector
+    median, sigma_ln = eff.cosmic_ray_charge
+    mean = median * np.exp(sigma_ln ** 2 / 2)
+    model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_mean=mean,
+                           charge_sigma=mean * np.sqrt(np.expm1(sigma_ln ** 2)))
+    table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
+                             rng=streams.generator(seed, streams.COSMIC_RAYS),
+                             refmask=det.reference_mask())
+    index = np.asarray(table["Y"], dtype=np.int64) * det.nx + np.asarray(table["X"],
+                                                                          dtype=np.int64)
+    return CosmicRayHits(np.asarray(table["TIME"], dtype=float), index,
+                         np.asarray(table["CHARGE"], dtype=float))
