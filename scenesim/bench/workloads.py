@@ -1,0 +1,326 @@
+"""The benchmark workloads: what is timed, on which scene, and with what floor.
+
+Each workload is a function ``bench_<name>(case, threads)`` returning a dict of its
+wall and CPU times, its floor counts and details; :data:`WORKLOADS` maps each name to
+its function and cases (full and ``--quick``).  The simulation workloads run the
+charge engine (``ChargeEngine.simulate``) to a FITS file as a user's run would; the fit
+workload times :func:`scenesim.rampfit.fit_ramps` on a cube made in memory.
+"""
+
+import os
+import resource
+import tempfile
+import time
+
+import numpy as np
+
+import noise
+from noise import pink
+from noise.errors import ParameterError
+from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout
+from scenesim.engine import ChargeEngine, EngineOptions
+from scenesim.rampfit import fit_ramps, optimal_variance
+from scenesim.run import write_exposure
+from scenesim.sky.psf import GaussianPSF, render_point_sources
+from scenesim.bench.floor import floor_counts, typical_lambda
+
+__all__ = ['WORKLOADS', 'OPTION_CASES', 'bench_noise', 'bench_jwst', 'bench_roman', 'bench_timeseries', 'bench_fit', 'bench_options', 'bench_pink', 'bench_skips']
+
+
+# --------------------------------------------------------------------- workloads
+def _cpu_seconds():
+    """CPU seconds of this process and of its reaped children (the forked helper of
+    small frames, :mod:`noise.fast.producer`)."""
+    own = time.process_time()
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own + kids.ru_utime + kids.ru_stime
+
+
+def _timed(fn):
+    t0, c0 = time.perf_counter(), _cpu_seconds()
+    out = fn()
+    return time.perf_counter() - t0, _cpu_seconds() - c0, out
+
+
+def bench_noise(frames, threads):
+    """NG-default 4-output H2RG, ``frames`` reads streamed to FITS as uint16 DN (gain 1),
+    the format the original program writes."""
+    det, params = noise.preset("H2RG"), noise.NoiseParams()
+    gen = noise.NoiseGenerator(det, params, rng=1, threads=threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        wall, cpu, _ = _timed(lambda: noise.write_noise_fits(
+            os.path.join(tmp, "noise.fits"), gen, frames, unit="DN", gain=1.0))
+    nn, npo = floor_counts(det, params, frames)
+    return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo, lam=0.0,
+                detail=f"H2RG 2048x2048, 4 outputs, {frames} frames, NG defaults, "
+                       f"uint16 DN to FITS")
+
+
+def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
+                on_resultant=None):
+    """Run a ChargeEngine (to a temp FITS file unless ``on_resultant`` is given: then
+    each :class:`scenesim.engine.Resultant` goes to it)."""
+    opts = options if options is not None else EngineOptions(threads=threads)
+    eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
+                       options=opts)
+    if on_resultant is not None:
+        def consume():
+            with eng.simulate() as run:
+                for res in run:
+                    on_resultant(res)
+        return _timed(consume), eng
+    with tempfile.TemporaryDirectory() as tmp:
+        return _timed(lambda: write_exposure(eng, os.path.join(tmp, "exp.fits"))), eng
+
+
+def _engine_result(det, readout, rate, params, timing, detail):
+    wall, cpu, _ = timing
+    nints = readout.nints
+    n_reads = nints * len(readout.needed_reads)
+    charged = int(np.count_nonzero(rate[~det.reference_mask()] > 0))
+    nn, npo = floor_counts(det, params, n_reads, nints, charged, n_reads)
+    return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo,
+                lam=typical_lambda(rate, det.frame_time), detail=detail,
+                pixel_reads=int(det.ny * det.nx * n_reads))
+
+
+def _star_rates(shape, n, rng, log_flux):
+    """Rate map (e-/s) of ``n`` point sources with log10 flux uniform in ``log_flux``."""
+    ny, nx = shape
+    x, y = rng.uniform(0, nx - 1, n), rng.uniform(0, ny - 1, n)
+    flux = 10 ** rng.uniform(*log_flux, n)
+    return render_point_sources(shape, x, y, flux, GaussianPSF(2.0))[0]
+
+
+def bench_jwst(size, threads):
+    """H2RG star field: 1000 stars over 4 decades, RAPID, full noise."""
+    quick = not size.startswith("full")
+    engine_only = size.endswith("engine")
+    det = noise.preset("H2RG", naxis1=512, naxis2=512) if quick else noise.preset("H2RG")
+    ngroups = 5 if quick else 20
+    ro = Readout.named("RAPID", ngroups)
+    rate = 0.5 + 0.01 + _star_rates(det.shape, 1000, np.random.default_rng(3), (1, 5))
+    params = noise.NoiseParams()
+    timing, _ = _run_engine(det, ro, rate, threads, params,
+                            on_resultant=(lambda res: None) if engine_only else None)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"H2RG {det.ny}x{det.nx}, 1000 stars 10-1e5 e-/s, bg 0.5, "
+                          f"dark 0.01, RAPID x {ngroups}, full noise, "
+                          + ("charge engine only" if engine_only
+                             else "whole exposure (uncal file written)"))
+
+
+def bench_roman(size, threads):
+    """H4RG-10 with a 9-resultant / 44-read MA table, 0.5 % bright pixels, full noise."""
+    quick = size != "full"
+    det = noise.preset("H4RG-10", naxis1=1024, naxis2=1024) if quick \
+        else noise.preset("H4RG-10")
+    ro = Readout.from_ma_table(ROMAN_LIKE_TABLE)
+    g = np.random.default_rng(4)
+    rate = np.ones(det.shape)
+    bright = g.random(det.shape) < 0.005
+    rate[bright] = g.uniform(100, 1000, int(bright.sum()))
+    params = noise.NoiseParams()
+    timing, _ = _run_engine(det, ro, rate, threads, params)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"H4RG-10 {det.ny}x{det.nx}, 9 resultants / 44 reads, bg 1 "
+                          f"e-/s + 0.5% at 100-1000 e-/s, full noise")
+
+
+def bench_timeseries(nints, threads):
+    """64x64 window, ``nints`` integrations of RAPID x 5, one star, full noise."""
+    det = noise.preset("H2RG").window(992, 992, 64, 64, name="BENCH64")
+    ro = Readout.named("RAPID", 5, nints=nints)
+    rate = 0.51 + render_point_sources(det.shape, 31.5, 31.5, 1e4, GaussianPSF(2.0))[0]
+    params = noise.NoiseParams()
+    timing, _ = _run_engine(det, ro, rate, threads, params)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"64x64 window, {nints} ints x RAPID 5, 1 star 1e4 e-/s, "
+                          f"full noise")
+
+
+def bench_fit(spec, threads):
+    """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter."""
+    size, fitter = spec
+    ngroups, rate, rn = 20, 10.0, 10.0
+    tf = noise.preset("H2RG").frame_time
+    g = np.random.default_rng(6)
+    cube = np.empty((ngroups, size, size), dtype=np.float32)
+    acc = np.zeros((size, size), dtype=np.float32)
+    for k in range(ngroups):
+        acc += g.poisson(rate * tf, (size, size)).astype(np.float32)
+        cube[k] = acc + np.float32(rn) * g.standard_normal((size, size), dtype=np.float32)
+    times = [np.array([(k + 1) * tf]) for k in range(ngroups)]
+    t0 = time.perf_counter()
+    cube.sum(dtype=np.float64)
+    baseline = time.perf_counter() - t0
+    wall, cpu, res = _timed(lambda: fit_ramps(cube, times, read_noise=rn, fitter=fitter,
+                                              threads=threads))
+    slope = np.asarray(res.slope, dtype=np.float64)
+    return dict(wall=wall, cpu=cpu, baseline=baseline,
+                baseline_kind="memory bandwidth: one np.sum over the cube",
+                detail=f"{size}x{size}x{ngroups}, 10 e-/s, 10 e- per read, {fitter}",
+                median_slope=float(np.nanmedian(slope)))
+
+
+#: Approximation options measured by ``bench options`` (the exact path is the default).
+OPTION_CASES = ("exact", "gauss_above=1000", "gauss_above=100", "arrivals=2d")
+
+
+def _engine_options(case, threads):
+    if case == "exact":
+        return EngineOptions(threads=threads)
+    key, value = case.split("=")
+    if key == "gauss_above":
+        return EngineOptions(gauss_above=float(value), threads=threads)
+    return EngineOptions(arrivals=value, threads=threads)
+
+
+def _options_scene(size):
+    """Detector, readout, rate map and white-noise params of the options workload."""
+    det = noise.preset("H2RG", naxis1=size, naxis2=size)
+    ro = Readout.named("RAPID", 10)
+    # 0.1 .. 1e3 e-/s: up to ~2.8e4 e- over 10 reads at 1024^2, below the 16-bit ADC
+    # ceiling at gain 1 (the metrics need unclipped ramps)
+    rate = 10 ** np.random.default_rng(8).uniform(-1, 3, det.shape)
+    # a bias offset keeps the ADC from clipping negative read noise at low charge
+    params = noise.ZERO_NOISE.replace(rd_noise=noise.NoiseParams().rd_noise,
+                                      bias_offset=1000.0)
+    return det, ro, rate, params
+
+
+def bench_options(case, threads):
+    """One approximation against the exact path: run time and the slope errors.
+
+    Same scene and seed for every case: rates log-uniform 0.1-1e3 e-/s, RAPID x 10,
+    white read noise only (so the optimal variance is known exactly).  Each case
+    is fitted with the GLS fitter; the metrics are computed per decade of true rate:
+    slope bias and scatter in units of the optimal sigma, the mean reported chi2, and
+    the largest per-pixel slope difference from the exact path (same seed) in units
+    of the optimal sigma.
+    """
+    size = 1024 if case[1] == "full" else 256
+    det, ro, rate, params = _options_scene(size)
+    out = {}
+
+    def keep(res):
+        out[res.index] = res.dn.astype(np.float32)
+
+    timing, eng = _run_engine(det, ro, rate, threads, params,
+                              options=_engine_options(case[0], threads),
+                              on_resultant=keep)
+    res = np.stack([out[r] for r in range(ro.ngroups)])
+    times = ro.read_times(det.frame_time)
+    live = ~det.reference_mask()
+    rn = params.rd_noise
+    fit = fit_ramps(res, times, read_noise=rn, fitter="gls", jump_threshold=None,
+                    threads=threads)
+    truth = eng.rate
+    sig = np.sqrt(optimal_variance(truth, times, rn))
+    z = ((np.asarray(fit.slope, float) - truth) / sig)[live]
+    chi = ((np.asarray(fit.slope, float) - truth) ** 2 / np.asarray(fit.var, float))[live]
+    t = truth[live]
+    decades = np.floor(np.log10(t)).astype(int)
+    per = {}
+    for d in np.unique(decades):
+        m = decades == d
+        per[int(d)] = dict(n=int(m.sum()), bias=float(z[m].mean()),
+                           scatter=float(z[m].std()), chi2=float(chi[m].mean()))
+    n_min = min(v["n"] for v in per.values())
+    r = _engine_result(det, ro, rate, params, timing,
+                       f"{size}x{size}, rates 0.1-1e3 e-/s log-uniform, RAPID x 10, "
+                       f"white read noise {rn} e-, {case[0]}")
+    r.update(per_decade=per, slope=np.asarray(fit.slope, np.float32)[live],
+             sigma_opt=sig[live].astype(np.float32),
+             max_abs_bias=max(abs(v["bias"]) for v in per.values()),
+             max_scatter_dev=max(abs(v["scatter"] - 1) for v in per.values()),
+             max_chi2_dev=max(abs(v["chi2"] - 1) for v in per.values()),
+             # 1 sigma of a per-decade bias (in sigma units) and of the scatter ratio
+             bias_noise=1 / np.sqrt(n_min), scatter_noise=1 / np.sqrt(2 * n_min))
+    return r
+
+
+def bench_pink(nframes, threads):
+    """1/f synthesis accuracy: noise-only full H2RG, PSD deviation per decade."""
+    det = noise.preset("H2RG")
+    params = noise.NoiseParams()
+    gen = noise.NoiseGenerator(det, params, rng=1, threads=threads)
+
+    def run():
+        for _ in gen.frames(nframes):
+            pass
+
+    wall, cpu, _ = _timed(run)
+    err = pink.measure_psd_error(rng=0)
+    nn, npo = floor_counts(det, noise.NoiseParams(), nframes)
+    return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo, lam=0.0,
+                psd_error=err, max_psd_dev=float(max(err["measured"].values())),
+                max_design_dev=float(max(err["design"].values())),
+                psd_z=float(max(err["measured"][k] / err["measured_sigma"][k]
+                                for k in err["measured"])),
+                kurtosis=float(err["measured_kurtosis"]),
+                kurtosis_sigma=float(err["kurtosis_sigma"]),
+                detail=f"H2RG 2048x2048 noise only (NG defaults), {nframes} frames "
+                       f"in memory (peak RSS includes the PSD measurement)")
+
+
+def bench_skips(case, threads):
+    """What one skip saves: the same scene with the skip triggered and defeated.
+
+    ``zero_amplitude``: white noise only with the other components at amplitude 0
+    (skipped) vs at 1e-12 e- (computed, same output to 1e-11 e-).  ``no_charge``:
+    100 stars on an otherwise empty 2048^2 array (only stamp pixels draw Poisson) vs
+    1e-12 e-/s everywhere.  ``unused_frames``: DEEP8 (8 of 20 frames per group are
+    read) vs a pattern that materialises all 20.  ``no_ramp_file``: the charge
+    engine streaming to an exposure file vs keeping only the in-memory resultants.
+    """
+    what, defeated = case
+    det = noise.preset("H2RG")
+    ro = Readout.named("RAPID", 5)
+    params = noise.ZERO_NOISE
+    rate = np.zeros(det.shape)
+    keep = None
+    if what == "zero_amplitude":
+        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        if defeated:
+            params = params.replace(c_pink=1e-12, u_pink=1e-12, acn=1e-12, pca0=1e-12,
+                                    pedestal=1e-12)
+    elif what == "no_charge":
+        rate = _star_rates(det.shape, 100, np.random.default_rng(5), (2, 4))
+        rate[rate < 1e-3] = 0.0
+        if defeated:
+            rate = rate + 1e-12
+    elif what == "unused_frames":
+        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        rate = np.full(det.shape, 1.0)
+        ro = Readout.named("DEEP8", 2)
+        if defeated:
+            ro = Readout.from_reads([list(range(g * 20, g * 20 + 20)) for g in range(2)])
+    elif what == "no_ramp_file":
+        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        rate = np.full(det.shape, 1.0)
+        if not defeated:
+            keep = lambda res: None  # noqa: E731  (in-memory resultants, no file)
+    else:
+        raise ParameterError(f"unknown skip case {what!r}")
+    timing, _ = _run_engine(det, ro, rate, threads, params, on_resultant=keep)
+    return _engine_result(det, ro, rate, params, timing,
+                          f"{what}: {'skip defeated' if defeated else 'skipped'}")
+
+
+#: Workload name -> (function, full cases, quick cases).
+WORKLOADS = {
+    "noise": (bench_noise, [10, 40, 88], [1, 5]),
+    "jwst": (bench_jwst, ["full", "full-engine"], ["quick", "quick-engine"]),
+    "roman": (bench_roman, ["full"], ["quick"]),
+    "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls")],
+            [(512, f) for f in ("cds", "ols", "gls")]),
+    "timeseries": (bench_timeseries, [300], [30]),
+    "options": (bench_options, [(c, "full") for c in OPTION_CASES],
+                [(c, "quick") for c in OPTION_CASES]),
+    "pink": (bench_pink, [10], [2]),
+    "skips": (bench_skips, [(w, d) for w in ("zero_amplitude", "no_charge",
+                                              "unused_frames", "no_ramp_file")
+                            for d in (False, True)],
+              [("zero_amplitude", False), ("zero_amplitude", True)]),
+}
