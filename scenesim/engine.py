@@ -19,10 +19,16 @@ integration time is ``k * t_frame + t_pix(p)``.
 Cosmic rays deposit charge at a time ``T``: a pixel sees it in the first of its reads
 whose time is after ``T``; a hit before the pixel's reset is erased by the reset.
 
-After the charge of each read is known, effects apply in physical order: (1) saturation
-at the full well, (2) polynomial nonlinearity, (3) IPC (3x3), (4) flat/QE, then (5)
-the noise frame from :mod:`noise` (bias, kTC, pedestal, 1/f, ACN, white) is added,
-(6) electrons become DN through the gain, (7) the ADC rounds and clips to uint16.
+The rates are those of the charge collected: a quantum-efficiency flat has already
+scaled the light in them (:func:`scenesim.sky.rates.scene_rates`), so the arrivals
+stay Poisson.  After the charge of each read is known, effects apply in physical
+order, each through its one implementation in :mod:`scenesim.detector`: (1)
+saturation at the full well (:class:`~scenesim.detector.saturation.FullWell`), (2)
+polynomial nonlinearity (:class:`~scenesim.detector.nonlinearity.Nonlinearity`), (3)
+IPC (:func:`~scenesim.detector.ipc.apply_ipc`), then (4) the noise frame from
+:mod:`noise` (bias, kTC, pedestal, 1/f, ACN, white) is added, and (5) the ADC
+(:class:`noise.adc.ADC`) turns electrons into DN through the gain, rounding and
+clipping to the top code.
 Reads are digitised one by one and averaged into resultants (rounded), like on-board
 frame averaging.  Only a few frames are held in memory; finished resultants are
 written straight to the output file.
@@ -252,7 +258,6 @@ class ChargeEngine:
         Saturation level, e-.
     nonlinearity : scenesim.detector.nonlinearity.Nonlinearity or None
     ipc_kernel : ndarray (3, 3) or None
-    flat : float, ndarray (ny, nx) or None
     gain : float
         e-/DN.
     adc_bits : int
@@ -263,7 +268,7 @@ class ChargeEngine:
 
     def __init__(self, detector, readout, *, noise_params=None, rate=0.0,
                  variable_sources=(), cosmic_rays=None, full_well=None,
-                 nonlinearity=None, ipc_kernel=None, flat=None, gain=1.0, adc_bits=16,
+                 nonlinearity=None, ipc_kernel=None, gain=1.0, adc_bits=16,
                  rng=None, options=EngineOptions()):
         self.detector = detector
         self.readout = readout
@@ -296,13 +301,6 @@ class ChargeEngine:
         if ipc_kernel is not None:
             check_kernel(ipc_kernel)                 # refused here, before any work
             self.ipc_kernel = np.asarray(ipc_kernel, dtype=float)
-        if flat is not None:
-            flat = _per_pixel("flat", flat, shape)
-            if not np.all(np.isfinite(flat)) or np.any(flat < 0):
-                raise ParameterError("'flat' must be finite and >= 0")
-            if flat.ndim == 0 and flat == 1.0:
-                flat = None
-        self.flat = flat
         self.options = options
         self.entropy, self.key = root_seed(rng)
         threads = options.threads if options.threads is not None else (os.cpu_count() or 1)
@@ -532,7 +530,7 @@ class ChargeEngine:
         return hit
 
     def _pointwise(self, acc, q, sat_read, integration, read, rows):
-        """Effects (1), (2) and (4) on ``rows``: charge ``acc`` -> float32 ``q`` (e-)."""
+        """Effects (1) and (2) on ``rows``: charge ``acc`` -> float32 ``q`` (e-)."""
         qr = q[rows]
         if self.full_well is not None:
             _, sat = self.full_well.apply(acc[rows], rows=rows, out=qr)
@@ -542,17 +540,10 @@ class ChargeEngine:
             np.copyto(qr, acc[rows], casting="unsafe")
         if self.nonlinearity is not None:
             qr[...] = self.nonlinearity.apply(qr)
-        if self.flat is not None and self.ipc_kernel is None:
-            qr *= self.flat if self.flat.ndim == 0 else self.flat[rows]
 
-    def _ipc_flat(self, q):
-        """Effects (3) and (4) when IPC is on (IPC couples rows: done on the whole frame)."""
-        if self.ipc_kernel is None:
-            return q
-        q = apply_ipc(q, self.ipc_kernel).astype(np.float32, copy=False)
-        if self.flat is not None:
-            q *= self.flat.astype(np.float32) if self.flat.ndim else np.float32(self.flat)
-        return q
+    def _ipc(self, q):
+        """Effect (3), IPC (it couples rows: done on the whole frame)."""
+        return apply_ipc(q, self.ipc_kernel).astype(np.float32, copy=False)
 
     def _blocks(self):
         """Row blocks of the per-read array passes (results do not depend on them)."""
@@ -619,7 +610,7 @@ class ChargeEngine:
         if self.ipc_kernel is None:
             return None
         run.each(lambda b: self._pointwise(acc, q, run.sat_read, i, k, b))
-        return self._ipc_flat(q)
+        return self._ipc(q)
 
     def _digitise(self, b, rr, first, charge, nframe, save_charge, save_noise):
         """Rows ``b`` of one read: charge + noise, through the ADC, into the DN sum
@@ -704,8 +695,9 @@ class ChargeEngine:
                     progress(done)
 
     def expected_rate(self, t1=None, t2=None):
-        """Expected rate (e-/s) per pixel before IPC/flat; light curves averaged over
-        ``[t1, t2]`` (default: the whole exposure).  Shape (ny, nx), float64."""
+        """Expected rate of collected charge (e-/s) per pixel, before IPC (after the
+        QE flat, which is in the rates); light curves averaged over ``[t1, t2]``
+        (default: the whole exposure).  Shape (ny, nx), float64."""
         det, ro = self.detector, self.readout
         if t1 is None:
             t1 = 0.0
@@ -718,12 +710,10 @@ class ChargeEngine:
         return rate
 
     def measured_rate(self, rate):
-        """``rate`` after IPC and flat (what a linear fit should recover), e-/s."""
+        """``rate`` after IPC (what a linear fit of the raw ramps recovers), e-/s."""
         out = np.asarray(rate, dtype=np.float64)
         if self.ipc_kernel is not None:
             out = apply_ipc(out, self.ipc_kernel)
-        if self.flat is not None:
-            out = out * self.flat
         return out
 
 

@@ -136,16 +136,13 @@ def build_engine(scene, *, options=EngineOptions()):
         full_well = load_map(eff.full_well, det, name="full_well", allow_zero=False)
         if full_well.ndim == 2 and np.all(full_well == full_well.flat[0]):
             full_well = np.float64(full_well.flat[0])
-    flat = None
-    if eff.flat != 1.0:
-        flat = load_map(eff.flat, det, name="flat")
     nl = eff.nonlinearity_model()
     if full_well is not None and not nl.is_linear:
         nl.check_monotonic(float(np.max(full_well)))
     engine = ChargeEngine(
         det, readout, noise_params=scene.noise, rate=rate, variable_sources=variable,
         cosmic_rays=crs, full_well=full_well, nonlinearity=nl, ipc_kernel=eff.ipc(),
-        flat=flat, gain=eff.gain, adc_bits=eff.adc_bits,
+        gain=eff.gain, adc_bits=eff.adc_bits,
         rng=np.random.SeedSequence(seed, spawn_key=streams.ENGINE), options=options)
     return engine, rendered
 
@@ -225,10 +222,11 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
             bar.close()
     report = None
     if out_cfg.fit:
-        from scenesim.calib.prepare import fit_exposure_file
+        from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
         exposure = exp_path if keep_ramp else written["exposure"]
         del written
-        fit_exposure_file(exposure, fit_path, fitter=out_cfg.fit, refpix=out_cfg.refpix)
+        fit_exposure_file(exposure, fit_path, fitter=out_cfg.fit,
+                          options=PrepareOptions(refpix=out_cfg.refpix))
         del exposure
         if out_cfg.compare and truth_path is not None:
             from scenesim.validate.compare import compare_files

@@ -372,13 +372,11 @@ def test_bad_gain(gain):
         ChargeEngine(_det(), Readout.from_reads([[0]]), gain=gain)
 
 
-def test_bad_full_well_and_flat():
+def test_bad_full_well():
     det = _det()
     ro = Readout.from_reads([[0]])
     with pytest.raises(ParameterError, match="full_well"):
         ChargeEngine(det, ro, full_well=0.0)
-    with pytest.raises(ParameterError, match="flat"):
-        ChargeEngine(det, ro, flat=-1.0)
 
 
 def test_bad_variable_source():
@@ -393,7 +391,7 @@ def test_bad_variable_source():
             VariableSource(np.array([5]), np.array([-1.0]), LightCurve.step(0.0, before=0.0, after=1.0))])
 
 
-@pytest.mark.parametrize("name", ["rate", "full_well", "flat"])
+@pytest.mark.parametrize("name", ["rate", "full_well"])
 def test_bad_shape(name):
     """Per-pixel arrays of the wrong shape are rejected before any work."""
     with pytest.raises(ParameterError, match=name):

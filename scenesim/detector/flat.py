@@ -14,29 +14,30 @@ __all__ = ['apply_flat']
 
 
 # ------------------------------------------------------------------------------- flat
-def apply_flat(charge, flat):
-    """Multiply by a quantum-efficiency (flat-field) map.
+def apply_flat(rate, flat):
+    """Scale photo-electron rates by a quantum-efficiency (flat-field) map.
 
-    Apply it to **rates** (e-/s) before the Poisson draws: scaling integer charge
-    afterwards would give non-integer charge whose variance is ``flat**2`` times the
-    mean instead of the Poisson ``flat`` times.
+    Applied to the **rates** of light (e-/s) before the Poisson draws
+    (:func:`scenesim.sky.rates.scene_rates`), so the collected charge stays Poisson
+    with variance equal to its mean; scaling integer charge afterwards would give
+    non-integer charge whose variance is ``flat**2`` times the mean instead.
 
     Parameters
     ----------
-    charge : ndarray, shape (..., ny, nx), e- or e-/s
+    rate : ndarray, shape (..., ny, nx), e-/s
     flat : float or ndarray of shape (ny, nx)
         Relative QE, finite and >= 0 (1 = nominal).
 
     Returns
     -------
     ndarray, shape (..., ny, nx), float
-        ``charge * flat`` (a new array).
+        ``rate * flat`` (a new array).
 
     Raises
     ------
     ParameterError
         If ``flat`` is negative or not finite, or a map has the wrong shape.
     """
-    q = check_image("charge", charge)
+    q = check_image("rate", rate)
     f = check_map("flat", flat, q.shape)
     return q * f

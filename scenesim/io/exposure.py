@@ -17,8 +17,9 @@ calibration library's ramp fitting without changing its layout:
 * ``READS``: one row per resultant with its read indices, read times and mean time (the
   per-resultant read times that uneven patterns need).
 
-Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s per pixel before IPC and flat),
-``RATE_IPC`` (after IPC and flat: what a linear ramp fit should recover), ``SATREAD``
+Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s of collected charge per pixel,
+the QE flat included, before IPC), ``RATE_IPC`` (after IPC: what a linear fit of the
+raw ramps recovers), ``SATREAD``
 (first saturated read per pixel and integration, as a frame index counted from reset,
 -1 if none; only reads that some resultant uses are materialised, so a pixel that fills
 its well during skipped frames reports the next read that is actually taken),

@@ -144,8 +144,10 @@ curves* (:class:`LightCurveConfig`).
 * ``ipc_alpha``, ``ipc_alpha_diag``: nearest-neighbour and diagonal IPC coupling
   (>= 0); default 0.  ``ipc_kernel``: an explicit 3x3 kernel (>= 0, summing to 1)
   instead; default none.
-* ``flat``: relative response (>= 0), scalar or FITS map; default 1 (what it acts on:
-  :mod:`scenesim.detector.flat`).
+* ``flat``: relative quantum efficiency (>= 0), scalar or FITS map; default 1.  It
+  scales the light (background and sources) before the Poisson draws, so the charge
+  stays Poisson; dark current and hot pixels are not scaled
+  (:mod:`scenesim.detector.flat`).
 * ``gain``: e-/DN (> 0); default 1.
 * ``adc_bits``: ADC resolution, 1 to 16; default 16.
 

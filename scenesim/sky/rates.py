@@ -6,7 +6,11 @@
   background (:func:`scenesim.sky.maps.load_map`) + hot pixels
   (:func:`scenesim.sky.sources.draw_hot_pixels`) + every constant point source
   rendered with the PSF (:func:`scenesim.sky.psf.render_point_sources`), all set to 0
-  on the reference pixels, which collect no charge;
+  on the reference pixels, which collect no charge.  The light (background and
+  sources, static or variable) is multiplied by the quantum-efficiency flat
+  ``[effects] flat`` (:func:`scenesim.detector.flat.apply_flat`) before the engine
+  draws its Poisson arrivals; dark current and hot pixels are not light and are not
+  flat-fielded;
 * the **variable sources**: one :class:`scenesim.engine.VariableSource` per star with
   a light curve (its rendered stamp at relative flux 1, and the
   :class:`~scenesim.sky.lightcurve.LightCurve` built once per light-curve name);
@@ -31,6 +35,7 @@ from astropy.table import vstack
 from noise import streams
 from noise.errors import ParameterError
 
+from scenesim.detector.flat import apply_flat
 from scenesim.engine import CosmicRayHits, VariableSource
 from scenesim.sky.cosmic import CosmicRayModel, draw_cosmic_rays
 from scenesim.sky.maps import load_map
@@ -68,8 +73,16 @@ def scene_rates(scene):
     det = scene.detector
     src = scene.sources
     refmask = det.reference_mask()
+    qe = None
+    if scene.effects.flat != 1.0:
+        qe = load_map(scene.effects.flat, det, name="flat")
+
+    def light(r):
+        """Photo-electrons: scaled by the QE flat (dark current is not)."""
+        return r if qe is None else apply_flat(np.broadcast_to(r, det.shape), qe)
+
     rate = load_map(src.dark_current, det, name="dark_current")
-    rate = rate + load_map(src.background, det, name="background")
+    rate = rate + light(load_map(src.background, det, name="background"))
     if src.hot_pixel_fraction > 0:
         rate = rate + draw_hot_pixels(det.shape, src.hot_pixel_fraction,
                                       rate=src.hot_pixel_rate,
@@ -86,7 +99,7 @@ def scene_rates(scene):
             img, info = render_point_sources(
                 det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
                 psf, min_rate=src.psf.min_rate)
-            rate = rate + img
+            rate = rate + light(img)
             info["light_curve"] = [""] * len(info)
             rendered_parts.append(info)
         curves = {}
@@ -97,6 +110,7 @@ def scene_rates(scene):
             img, info = render_point_sources(
                 det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
                 min_rate=src.psf.min_rate)
+            img = light(img)
             idx = np.flatnonzero(img)
             variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))
             info["light_curve"] = [name]

@@ -1,6 +1,6 @@
 """Slope errors per true-rate bin: bias, scatter and chi-square.
 
-Pixels are binned by their true rate ``RATE_IPC`` (e-/s, after IPC and flat: what a
+Pixels are binned by their true rate ``RATE_IPC`` (e-/s, after IPC: what a
 linear ramp fit should recover; ``RATE`` if absent), in log bins
 (:data:`DEFAULT_EDGES`).  Reference pixels are left out; the statistics use the pixels
 not flagged ``DO_NOT_USE``.  For each bin, with ``r = fit - truth``:
