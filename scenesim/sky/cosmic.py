@@ -41,13 +41,12 @@ to the charge engine, which receives the hit times here.
 """
 
 import math
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 from astropy.table import Table
 
-from noise.validate import check_float, check_shape
+from noise.validate import check_choice, check_float, check_int, check_shape
 from noise.errors import ParameterError
 
 __all__ = ["CosmicRayModel", "draw_cosmic_rays"]
@@ -92,10 +91,8 @@ class CosmicRayModel:
 
     def __post_init__(self):
         check_float("rate", self.rate, minimum=0.0)
-        if self.charge_distribution not in ("lognormal", "table"):
-            raise ParameterError(
-                f"'charge_distribution' must be 'lognormal' or 'table', got "
-                f"{self.charge_distribution!r}")
+        check_choice("charge_distribution", self.charge_distribution,
+                     ("lognormal", "table"))
         check_float("charge_mean", self.charge_mean, minimum=0.0, strict_min=True)
         check_float("charge_sigma", self.charge_sigma, minimum=0.0)
         if self.charge_distribution == "table":
@@ -152,8 +149,7 @@ class CosmicRayModel:
         ndarray, shape (n,), int64, e-
             Whole electrons (the continuous draw rounded to the nearest integer).
         """
-        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 0:
-            raise ParameterError(f"'n' must be an integer >= 0, got {n!r}")
+        n = check_int("n", n, minimum=0)
         rng = np.random.default_rng(rng)
         if self.charge_distribution == "lognormal":
             s2 = math.log1p((self.charge_sigma / self.charge_mean) ** 2)

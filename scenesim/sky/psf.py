@@ -42,14 +42,13 @@ PSF models
     Gauss-Legendre error on a unit interval is at most
     ``(n!)**4 / ((2n + 1) ((2n)!)**3) * (2 pi / a)**(2n)`` relative to the peak (Davis &
     Rabinowitz, Methods of Numerical Integration, eq. 2.7.12).  ``n`` is the smallest
-    value making this below 1e-6 (``n = 7, 5, 5, 4`` for ``radius = 1, 2, 3, 6``
-    pixels; capped at 16).  Against a 20-point reference the bound proved about 100
-    times pessimistic: the largest pixel error was <= 2.4e-9 of the peak pixel and the
-    summed absolute error over a 49 x 49 stamp <= 1.2e-8 of the flux for those radii.
+    value making this below 1e-6 (:attr:`AiryPSF.quadrature_order`: ``n = 7, 5, 5,
+    4`` for ``radius = 1, 2, 3, 6`` pixels; capped at 16).  The bound is pessimistic
+    (``docs/VALIDATION_SCENE.md`` has the errors measured against a finer rule).
     The profile ``(2 J1(v) / v)**2`` itself is tabulated once per call at a step of
     5e-4 in ``v`` (from photutils' model) and interpolated linearly: error at most
     ``h**2 / 8 * max|f''| = 1.6e-8`` of the peak, because ``|f''| <= 1/2``.  Cost is
-    ``n**2`` profile evaluations of about 10 ns per stamp pixel.
+    ``n**2`` profile evaluations per stamp pixel.
 
     The Airy wings fall as ``r**-3``, so a stamp of radius ``R`` misses a fraction of
     about ``1 - EE(R) ~ 2 a / (pi**2 R)`` of the flux (0.9 % for ``radius = 2``,
@@ -75,7 +74,7 @@ PSF models
     ``1/oversample`` from the aligned one) the result is the exact pixel integral of the
     sampled PSF; elsewhere the uniform-sub-pixel assumption errs by at most
     ``h**2 / 2 * max|grad psf|`` per pixel, ``h = 1/oversample`` (derivation in
-    ``tests/test_psf.py``).  With ``oversample = 1`` the image is treated as a
+    ``tests/sky/test_psf.py``).  With ``oversample = 1`` the image is treated as a
     flux-per-pixel image and a half-pixel shift smooths it by an extra pixel box, so
     supply oversampled PSFs (4 or more) for sub-pixel work.
 
@@ -94,11 +93,11 @@ Gaussian, 1e-13 of the flux; the image half-size for :class:`ImagePSF`).  Stamps
 clipped to the array and added with :func:`numpy.add.at`.  Sources whose stamp misses the
 array entirely are skipped (nothing rendered, ``rendered = False`` in the table).
 
-Measured cost (2-core shared machine, best of 3; 1000 sources spread over a 2048 x
-2048 array): Gaussian ``fwhm = 2`` (R = 8) 0.03 s; :class:`ImagePSF` of 64 x 64 pixels
-at ``oversample = 4`` with R = 32 stamps 0.5 s; Airy ``radius = 2`` (``n = 5``) 0.8 s
-with R = 16 and 1.1 to 3 s with R = 32 (the spread is the load of the machine): about
-10 ns per quadrature node, so pass ``min_rate`` to keep Airy stamps small.
+Stamps are built in chunks of at most about 250 000 array elements (sources, and
+for the Airy pattern rows of a stamp), so the temporaries stay in cache; the chunking
+does not change the result.  Cost grows with the stamp area times the quadrature
+nodes per pixel (``n**2`` for Airy), so pass ``min_rate`` to keep Airy stamps small
+(timings: ``docs/VALIDATION_SCENE.md``).
 """
 
 import math
@@ -107,12 +106,15 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
+from astropy.io import fits
 from astropy.table import Table
+from photutils.aperture import CircularAperture
+from photutils.psf import AiryDiskPSF, CircularGaussianPRF
+from photutils.psf import ImagePSF as PhotutilsImagePSF
 from scipy.special import erf, j0, j1
 
 from noise.errors import FileFormatError, ParameterError
-
-from scenesim.detector.readout import _check_int
+from noise.validate import check_bool, check_float, check_int, check_shape
 
 __all__ = [
     "GaussianPSF",
@@ -132,17 +134,8 @@ _AIRY_QUAD_TOL = 1e-6
 #: Step in v = pi r / a of the tabulated Airy profile.
 _AIRY_TABLE_STEP = 5e-4
 #: Elements handled at once when building stamps: small enough that the temporaries
-#: stay in cache (4e6-element chunks ran 2.8x slower than 2.5e5 for the Airy pattern).
+#: stay in cache (see the module notes).
 _CHUNK_ELEMENTS = 250_000
-
-
-def _check_positive(name, value):
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ParameterError(f"{name!r} must be a positive real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value) or value <= 0:
-        raise ParameterError(f"{name!r} must be a finite number > 0, got {value!r}")
-    return value
 
 
 # ----------------------------------------------------------------------------- models
@@ -159,7 +152,8 @@ class GaussianPSF:
     fwhm: float
 
     def __post_init__(self):
-        object.__setattr__(self, "fwhm", _check_positive("fwhm", self.fwhm))
+        object.__setattr__(self, "fwhm",
+                           check_float("fwhm", self.fwhm, minimum=0.0, strict_min=True))
 
     @property
     def sigma(self):
@@ -172,7 +166,6 @@ class GaussianPSF:
         The photutils model is pixel-integrated too, so it evaluates to the values
         rendered here (useful for PSF photometry of simulated images).
         """
-        from photutils.psf import CircularGaussianPRF
         return CircularGaussianPRF(flux=flux, x_0=x_0, y_0=y_0, fwhm=self.fwhm)
 
     # private protocol used by render_point_sources --------------------------
@@ -213,7 +206,8 @@ class AiryPSF:
     radius: float
 
     def __post_init__(self):
-        object.__setattr__(self, "radius", _check_positive("radius", self.radius))
+        object.__setattr__(self, "radius", check_float("radius", self.radius, minimum=0.0,
+                                                       strict_min=True))
 
     @property
     def fwhm(self):
@@ -230,14 +224,15 @@ class AiryPSF:
         Note that the photutils model is *sampled* at pixel centres, not integrated
         over pixels.
         """
-        from photutils.psf import AiryDiskPSF
         return AiryDiskPSF(flux=flux, x_0=x_0, y_0=y_0, radius=self.radius)
 
     def _useful_radius(self):
         return math.inf
 
-    def _quad_order(self):
-        """Smallest Gauss-Legendre order meeting ``_AIRY_QUAD_TOL`` (see module notes)."""
+    @property
+    def quadrature_order(self):
+        """Gauss-Legendre nodes per pixel axis: the smallest order whose error bound
+        is below 1e-6 of the peak (module notes), at most 16."""
         k = 2.0 * math.pi / self._a
         for n in range(2, 17):
             bound = (math.lgamma(n + 1) * 4 - math.log(2 * n + 1)
@@ -248,7 +243,6 @@ class AiryPSF:
 
     def _profile_table(self, rmax):
         """Unit-flux surface brightness tabulated on ``r = 0 .. rmax`` (step in v)."""
-        from photutils.psf import AiryDiskPSF
         a = self._a
         step_r = _AIRY_TABLE_STEP * a / math.pi
         nstep = int(math.ceil(rmax / step_r)) + 2
@@ -269,7 +263,7 @@ class AiryPSF:
         step_r, table = self._profile_table(math.sqrt(2.0) * (rmax + 1.0) + 1.0)
         slope = np.append(np.diff(table), 0.0)
         inv_step = 1.0 / step_r
-        n = self._quad_order()
+        n = self.quadrature_order
         nodes, weights = np.polynomial.legendre.leggauss(n)
         nodes = 0.5 * nodes
         weights = 0.5 * weights
@@ -353,9 +347,8 @@ class ImagePSF:
     normalize: bool = True
 
     def __post_init__(self):
-        os_ = _check_int("oversample", self.oversample, 1)
-        if not isinstance(self.normalize, (bool, np.bool_)):
-            raise ParameterError(f"'normalize' must be True or False, got {self.normalize!r}")
+        os_ = check_int("oversample", self.oversample, minimum=1)
+        check_bool("normalize", self.normalize)
         try:
             data = np.array(self.data, dtype=np.float64, order="C", copy=True)
         except (TypeError, ValueError) as exc:
@@ -460,9 +453,8 @@ class ImagePSF:
         ParameterError
             ``oversample`` disagrees with ``OVERSAMP``, or the image is not a valid PSF.
         """
-        from astropy.io import fits
         if oversample is not None:
-            oversample = _check_int("oversample", oversample, 1)
+            oversample = check_int("oversample", oversample, minimum=1)
         path = os.fspath(path)
         if not os.path.isfile(path):
             raise FileFormatError(f"PSF file {path!r} does not exist")
@@ -508,7 +500,6 @@ class ImagePSF:
         spline, so the model equals :func:`render_point_sources` exactly where the
         sub-pixel centres fall on pixel centres, and approximately elsewhere.
         """
-        from photutils.psf import ImagePSF as PhotutilsImagePSF
         os_ = self.oversample
         if os_ % 2:
             kern = np.ones(os_)
@@ -598,14 +589,6 @@ def _ladder_round_up(r):
     return np.where(big, r, out)
 
 
-def _check_shape(shape):
-    try:
-        ny, nx = shape
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"'shape' must be (ny, nx), got {shape!r}") from exc
-    return (_check_int("shape[0] (ny)", ny, 1), _check_int("shape[1] (nx)", nx, 1))
-
-
 def _as_1d(name, value):
     try:
         arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
@@ -660,7 +643,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         Bad shape, non-finite position, negative or non-finite flux, unknown PSF
         type, or bad radius/rate settings (checked before any work).
     """
-    ny, nx = _check_shape(shape)
+    ny, nx = check_shape("shape", shape)
     if not isinstance(psf, _PSF_TYPES):
         raise ParameterError(
             f"'psf' must be a GaussianPSF, AiryPSF or ImagePSF, got {type(psf).__name__}")
@@ -682,12 +665,10 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         raise ParameterError(
             f"'flux' must be finite and >= 0 (e-/s); source index "
             f"{int(np.flatnonzero(bad)[0])} has flux={fl[bad][0]!r}")
-    if isinstance(min_rate, bool) or not isinstance(min_rate, numbers.Real) \
-            or not math.isfinite(min_rate) or min_rate < 0:
-        raise ParameterError(f"'min_rate' must be a finite number >= 0 (e-/s), got {min_rate!r}")
-    max_stamp_radius = _check_int("max_stamp_radius", max_stamp_radius, 0)
+    min_rate = check_float("min_rate", min_rate, minimum=0.0)
+    max_stamp_radius = check_int("max_stamp_radius", max_stamp_radius, minimum=0)
     if stamp_radius is not None:
-        stamp_radius = _check_int("stamp_radius", stamp_radius, 0)
+        stamp_radius = check_int("stamp_radius", stamp_radius, minimum=0)
 
     n = xs.size
     image = np.zeros((ny, nx), dtype=np.float64)
@@ -798,7 +779,6 @@ def encircled_energy(psf, radius):
         v = math.pi * r / psf._a
         out = 1.0 - j0(v) ** 2 - j1(v) ** 2
     else:
-        from photutils.aperture import CircularAperture
         ny, nx = psf.data.shape
         centre = ((nx - 1) / 2.0, (ny - 1) / 2.0)
         flat = r.ravel()

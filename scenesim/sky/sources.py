@@ -36,7 +36,6 @@ chosen uniformly, which has the same law as independent Bernoulli trials but cos
 """
 
 import math
-import numbers
 import os
 
 import numpy as np
@@ -44,7 +43,7 @@ from astropy import units as u
 from astropy.table import Table
 
 from noise.errors import ParameterError
-from noise.validate import check_shape
+from noise.validate import check_float, check_shape, is_real
 
 from scenesim.sky.tables import column_values, find_columns, read_table
 
@@ -160,14 +159,9 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
         Bad shape, fraction, rate or refmask (checked before drawing).
     """
     ny, nx = check_shape("shape", shape)
-    if isinstance(fraction, bool) or not isinstance(fraction, numbers.Real) \
-            or not (0.0 <= float(fraction) <= 1.0):
-        raise ParameterError(f"'fraction' must be a number in [0, 1], got {fraction!r}")
-    fraction = float(fraction)
-    if isinstance(rate, numbers.Real) and not isinstance(rate, bool):
-        lo = hi = float(rate)
-        if not math.isfinite(lo) or lo <= 0:
-            raise ParameterError(f"'rate' must be a finite rate > 0 (e-/s), got {rate!r}")
+    fraction = check_float("fraction", fraction, minimum=0.0, maximum=1.0)
+    if is_real(rate):
+        lo = hi = check_float("rate", rate, minimum=0.0, strict_min=True)
     else:
         try:
             lo, hi = (float(v) for v in rate)

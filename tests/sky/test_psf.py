@@ -177,7 +177,7 @@ def test_airy_pixel_values_match_independent_quadrature():
 
 
 def test_airy_quadrature_order_matches_documentation():
-    assert [AiryPSF(r)._quad_order() for r in (1.0, 2.0, 3.0, 6.0)] == [7, 5, 5, 4]
+    assert [AiryPSF(r).quadrature_order for r in (1.0, 2.0, 3.0, 6.0)] == [7, 5, 5, 4]
 
 
 def test_airy_flux_accounting_against_box_integral():
@@ -207,19 +207,32 @@ def test_airy_flux_accounting_against_box_integral():
         assert 1 - ee(math.sqrt(2) * (R + 1)) <= lost_true / 500 <= 1 - ee(R)
 
 
-def test_chunking_does_not_change_the_result(monkeypatch):
-    import scenesim.sky.psf as psf_module
+def test_chunking_does_not_change_the_result():
+    # Stamps are built in chunks of about 2.5e5 array elements: groups of sources,
+    # and for the Airy pattern blocks of stamp rows.  Enough sources to need several
+    # chunks give the image of the same sources rendered 20 at a time (one chunk
+    # each: at R = 6 a chunk holds ~1480 Gaussian, ~340 image or ~40 Airy sources).
     rng = np.random.default_rng(107)
-    x, y = rng.uniform(5, 35, 7), rng.uniform(5, 35, 7)
-    flux = rng.uniform(1, 100, 7)
     data = gaussian_subpixel_image(2.0, 4, npix=11)
-    for psf in (GaussianPSF(2.0), AiryPSF(1.5), ImagePSF(data, oversample=4)):
-        whole, _ = render_point_sources((40, 40), x, y, flux, psf, stamp_radius=6)
-        # 500 elements: one source per chunk, Airy stamps split into row blocks
-        monkeypatch.setattr(psf_module, "_CHUNK_ELEMENTS", 500)
-        pieces, _ = render_point_sources((40, 40), x, y, flux, psf, stamp_radius=6)
-        monkeypatch.undo()
+    for psf, n in ((GaussianPSF(2.0), 3000), (AiryPSF(1.5), 200),
+                   (ImagePSF(data, oversample=4), 1000)):
+        x, y = rng.uniform(5, 95, n), rng.uniform(5, 95, n)
+        flux = rng.uniform(1, 100, n)
+        whole, _ = render_point_sources((100, 100), x, y, flux, psf, stamp_radius=6)
+        pieces = sum(render_point_sources((100, 100), x[i:i + 20], y[i:i + 20],
+                                          flux[i:i + 20], psf, stamp_radius=6)[0]
+                     for i in range(0, n, 20))
         assert np.allclose(pieces, whole, rtol=1e-13, atol=1e-13)
+    # One Airy source with a 129 x 129 stamp is built in row blocks (129 rows x 36
+    # nodes per pixel exceed a chunk); its inner 17 x 17 pixels equal those of a
+    # 17 x 17 stamp, built in one block, to round-off.
+    psf = AiryPSF(1.5)
+    assert psf.quadrature_order == 6
+    big, _ = render_point_sources((140, 140), 70.3, 69.8, 1.0, psf, stamp_radius=64)
+    small, _ = render_point_sources((140, 140), 70.3, 69.8, 1.0, psf, stamp_radius=8)
+    inner = (slice(62, 79), slice(62, 79))
+    assert np.allclose(big[inner], small[inner], rtol=1e-13, atol=1e-13 * small.max())
+    assert not small[~np.pad(np.ones((17, 17), bool), ((62, 61), (62, 61)))].any()
 
 
 def test_airy_centroid():
