@@ -21,7 +21,8 @@ from scenesim.io.exposure import read_exposure, read_truth
 from scenesim.io.exposure import Exposure
 from scenesim.io.fitfile import FitResult, read_fit, write_fit
 from scenesim.rampfit import fit_ramps, model_chi2, optimal_variance
-from scenesim.calib.prepare import PreparedExposure, fit_exposure_file, prepare_exposure
+from scenesim.calib.prepare import (PreparedExposure, PrepareOptions, fit_exposure_file,
+                                    prepare_exposure)
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources
 from scenesim.detector.readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
@@ -40,7 +41,7 @@ __all__ = [
     "correct_reference", "measure_reference_correction", "white_noise_added",
     "fit_ramps", "FitResult", "read_fit", "write_fit",
     "optimal_variance", "model_chi2", "fit_exposure_file", "prepare_exposure",
-    "PreparedExposure", "Exposure",
+    "PreparedExposure", "PrepareOptions", "Exposure",
     "Report", "compare", "compare_files",
     "build_engine", "run_scene",
 ]

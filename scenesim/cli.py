@@ -87,15 +87,16 @@ def _run(args):
 
 
 def _fit(args):
-    from scenesim.calib.prepare import fit_exposure_file
+    from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 
     out = args.output or _default_fit_path(args.exposure, args.fitter)
     if args.fitter.lower().startswith("stcal-"):
         from scenesim.adapters.stcal import fit_exposure_stcal
         fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
-                           refpix=args.refpix)
+                           options=PrepareOptions(refpix=args.refpix))
     else:
-        fit_exposure_file(args.exposure, out, fitter=args.fitter, refpix=args.refpix,
+        fit_exposure_file(args.exposure, out, fitter=args.fitter,
+                          options=PrepareOptions(refpix=args.refpix),
                           jump_threshold=args.jump_threshold)
     print(f"wrote {out}")
     return 0

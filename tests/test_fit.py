@@ -14,6 +14,8 @@ import pytest
 
 from noise.errors import FileFormatError, ParameterError
 from scenesim.calib.noise_model import common_mode, measure_read_noise
+from scenesim.calib.prepare import PrepareOptions
+from scenesim.calib.saturation import SaturationOptions, saturation_flags
 from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
                                   SATURATED)
 from scenesim.io.fitfile import FitResult, read_fit, write_fit
@@ -554,8 +556,6 @@ def test_common_mode_leaves_read_noise_limited_slopes_unbiased(name):
 
 
 def test_saturation_flags_use_the_last_read_of_a_resultant():
-    from scenesim.calib.prepare import saturation_flags
-
     # Resultants of 8 reads (MEDIUM8-like: 8 read, 2 skipped), zero level 0, rate
     # f: read at frame k holds min(f k t_f, FW).  Resultant 3 averages frames
     # 31..38, i.e. 83700..102600 e- with frame 38 clipped at the 1e5 e- full well:
@@ -570,8 +570,8 @@ def test_saturation_flags_use_the_last_read_of_a_resultant():
     t_last = np.array([r[-1] for r in reads])
     # mean-based test (old behaviour): resultant 3 mean vs 0.97 FW
     assert e[0, 3, 0, 0] < 0.97 * fw
-    old = saturation_flags(e, tbar, fw, 1e9)
-    new = saturation_flags(e, tbar, fw, 1e9, t_last=t_last)
+    old = saturation_flags(e, tbar, SaturationOptions(fw, 1e9))
+    new = saturation_flags(e, tbar, SaturationOptions(fw, 1e9), t_last=t_last)
     # last read of resultant 3 (frame 38): f * 38 > FW -> saturated; resultant 2's
     # last read (frame 28): 75600 e- < 0.97 FW -> not.
     assert old[0, :, 0, 0].tolist() == [False, False, False, False, True]
@@ -579,12 +579,9 @@ def test_saturation_flags_use_the_last_read_of_a_resultant():
 
 
 @pytest.mark.parametrize("flag", ["remove_common_mode", "measure_noise"])
-def test_fit_exposure_file_checks_flags_first(tmp_path, flag):
-    from scenesim.calib.prepare import fit_exposure_file
-
+def test_prepare_options_check_flags_first(flag):
     with pytest.raises(ParameterError, match=flag):
-        fit_exposure_file(str(tmp_path / "missing.fits"), str(tmp_path / "out.fits"),
-                          **{flag: "yes"})
+        PrepareOptions(**{flag: "yes"})
 
 
 # ---------------------------------------------------------------- saturation

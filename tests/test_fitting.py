@@ -25,8 +25,9 @@ from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import Exposure, read_exposure
 from scenesim.run import write_exposure
 from scenesim.io.fitfile import read_fit
-from scenesim.calib.prepare import (PreparedExposure, exposure_readout, fit_exposure_file,
-                              load_exposure, prepare_exposure)
+from scenesim.calib.prepare import (PreparedExposure, PrepareOptions, fit_exposure_file,
+                                    load_exposure, prepare_exposure)
+from scenesim.io.header import exposure_readout, header_nonlinearity
 from scenesim.detector.readout import Readout
 from scenesim.calib.refpix import correct_reference
 from scenesim.run import run_scene
@@ -60,8 +61,9 @@ def test_prepare_without_data_driven_steps_is_dn_times_gain(tmp_path):
     write_exposure(_engine(), path)
     sci, hdr, _ = read_exposure(path)
     gain = float(hdr["GAIN"])
-    p = prepare_exposure(path, refpix="none", remove_common_mode=False,
-                         measure_noise=False)
+    p = prepare_exposure(path,
+                         options=PrepareOptions(refpix="none", remove_common_mode=False,
+                                                measure_noise=False))
     assert isinstance(p, PreparedExposure)
     assert p.electrons.dtype == np.float32 and p.electrons.shape == sci.shape
     np.testing.assert_array_equal(p.electrons,
@@ -88,8 +90,9 @@ def test_prepare_without_data_driven_steps_is_dn_times_gain(tmp_path):
     assert cards["IPCDECON"] is False and cards["IPCRNFAC"] == 1.0
     assert cards["IPC"] is False and "IPCKERN" not in cards
     # the reference correction is refpix.correct_reference on the e- cube
-    q = prepare_exposure(path, refpix="jwst", remove_common_mode=False,
-                         measure_noise=False)
+    q = prepare_exposure(path,
+                         options=PrepareOptions(refpix="jwst", remove_common_mode=False,
+                                                measure_noise=False))
     np.testing.assert_array_equal(
         q.electrons, correct_reference(p.electrons, p.detector, scheme="jwst"))
     np.testing.assert_array_equal(q.saturated, p.saturated)
@@ -170,7 +173,9 @@ def test_exposure_card_fits_for_a_long_path(tmp_path):
     out = str(tmp_path / "fit.fits")
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # also outside pytest's filter
-        fit_exposure_file(path, out, measure_noise=False, remove_common_mode=False)
+        fit_exposure_file(path, out,
+                          options=PrepareOptions(measure_noise=False,
+                                                 remove_common_mode=False))
         with fits.open(out) as hdul:
             hdr = hdul[0].header
             card = hdr.cards["EXPOSURE"]
@@ -193,10 +198,30 @@ def test_exposure_card_fits_for_a_long_path(tmp_path):
     (dict(measure_noise="no"), "'measure_noise'"),
     (dict(threads=0), "'threads'"),
     (dict(deconvolve_ipc=1), "'deconvolve_ipc'"),
+    (dict(linearize="no"), "'linearize'"),
 ])
-def test_prepare_checks_parameters_before_reading(tmp_path, kwargs, match):
+def test_prepare_options_are_checked_when_made(kwargs, match):
     with pytest.raises(ParameterError, match=match):
-        prepare_exposure(str(tmp_path / "missing.fits"), **kwargs)
+        PrepareOptions(**kwargs)
+
+
+def test_prepare_options_defaults_and_canonical_values(tmp_path):
+    # The defaults are those of the former keyword arguments; values come back in
+    # their canonical types; a non-options object is rejected before any reading.
+    o = PrepareOptions()
+    assert (o.refpix, o.read_noise, o.remove_common_mode, o.measure_noise, o.threads,
+            o.linearize, o.deconvolve_ipc) == ("jwst", None, True, True, None, True, True)
+    o = PrepareOptions(read_noise=np.float32(5), threads=np.int64(2))
+    assert type(o.read_noise) is float and type(o.threads) is int
+    assert hash(o) == hash(PrepareOptions(read_noise=5.0, threads=2))
+    with pytest.raises(ParameterError, match="'read_noise'.*None"):
+        PrepareOptions(read_noise=-1.0)
+    with pytest.raises(ParameterError, match="'options'.*PrepareOptions"):
+        prepare_exposure(str(tmp_path / "missing.fits"), options={"refpix": "none"})
+    with pytest.raises(ParameterError, match="'options'.*PrepareOptions"):
+        fit_exposure_file(str(tmp_path / "missing.fits"), str(tmp_path / "f.fits"),
+                          options=None)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_prepare_bad_exposure(tmp_path):
@@ -220,10 +245,7 @@ def test_linearize_resultants_inverts_the_recorded_nonlinearity():
     """Closed form: single-read resultants m_k = z + p(f t_k) with p(q) = q + c2 q^2
     + c3 q^3 and a zero level z; linearising gives z + f t_k back (to float32
     round-off of values ~5e4 e-, i.e. < 0.01 e-), and the header round-trips."""
-    from astropy.io import fits
-
     from scenesim.detector.nonlinearity import Nonlinearity
-    from scenesim.calib.prepare import header_nonlinearity
     from scenesim.detector.nonlinearity import linearize_resultants
     nl = Nonlinearity((-8e-7, -2e-12))
     t = (np.arange(6) + 1) * 10.0                       # s

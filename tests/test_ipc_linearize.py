@@ -33,7 +33,9 @@ from scenesim.io.exposure import read_exposure
 from scenesim.run import write_exposure
 from scenesim.detector.dq import SATURATED
 from scenesim.rampfit import fit_ramps
-from scenesim.calib.prepare import fit_exposure_file, header_ipc_kernel, prepare_exposure, saturation_flags
+from scenesim.calib.prepare import PrepareOptions, fit_exposure_file, prepare_exposure
+from scenesim.calib.saturation import SaturationOptions, saturation_flags
+from scenesim.io.header import header_ipc_kernel
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
@@ -195,8 +197,9 @@ def test_header_records_the_ipc_kernel(tmp_path, kernel):
     assert k.sum() == pytest.approx(1.0, abs=1e-15)
     mem = write_exposure(_small_engine(kernel), None)["exposure"]
     np.testing.assert_array_equal(header_ipc_kernel(mem.header), k)
-    fit_exposure_file(path, str(tmp_path / "f.fits"), measure_noise=False,
-                      remove_common_mode=False)
+    fit_exposure_file(path, str(tmp_path / "f.fits"),
+                      options=PrepareOptions(measure_noise=False,
+                                             remove_common_mode=False))
     with fits.open(tmp_path / "f.fits") as hdul:
         assert hdul[0].header["IPCDECON"] is True
         np.testing.assert_array_equal(header_ipc_kernel(hdul[0].header), k)
@@ -241,7 +244,7 @@ def test_noise_free_slopes_of_cores_and_neighbours_are_exact():
         rate[None] * tbar[:, None, None] >= FW, axis=0), -1)
     assert np.sum(first_full >= 0) >= 2               # some cores saturate
     d = undo_ipc(e, k, tolerance=1e-4)
-    sat = saturation_flags(d, tbar, FW, 1e9, nonlinearity=nl)
+    sat = saturation_flags(d, tbar, SaturationOptions(FW, 1e9, nonlinearity=nl))
     first = np.where(sat[0].any(axis=0), sat[0].argmax(axis=0), -1)
     # the level test (97 % of p(FW)) may flag the read before the full one; no
     # other pixel is flagged
@@ -331,8 +334,10 @@ def test_model_read_noise_includes_the_deconvolution_gain():
     # sd sqrt(2 / nu) / sqrt(N): 0.003 for N = 2812; allowed 5 of it.
     eng, centres = _star_engine(ipc_kernel(ALPHA), 5)
     mem = write_exposure(eng, None)["exposure"]
-    prep = prepare_exposure(mem, refpix="none", remove_common_mode=False,
-                            measure_noise=False)
+    prep = prepare_exposure(mem,
+                            options=PrepareOptions(refpix="none",
+                                                   remove_common_mode=False,
+                                                   measure_noise=False))
     g = ipc_noise_gain(ipc_kernel(ALPHA))
     assert prep.read_noise == pytest.approx(float(mem.header["RDNOISE"]) * g)
     assert dict((c[0], c[1]) for c in prep.cards)["IPCRNFAC"] == pytest.approx(g)
@@ -351,14 +356,19 @@ def test_opting_out_leaves_the_ramps_as_they_were():
     # undone, so their bend is hidden instead)
     eng, centres = _star_engine(ipc_kernel(ALPHA), 9, nints=1)
     mem = write_exposure(eng, None)["exposure"]
-    off = prepare_exposure(mem, refpix="none", remove_common_mode=False,
-                           measure_noise=False, linearize=False, deconvolve_ipc=False)
+    off = prepare_exposure(mem,
+                           options=PrepareOptions(refpix="none",
+                                                  remove_common_mode=False,
+                                                  measure_noise=False, linearize=False,
+                                                  deconvolve_ipc=False))
     np.testing.assert_array_equal(off.electrons,
                                   mem.sci.astype(np.float32) * np.float32(2.0))
     cards = dict((c[0], c[1]) for c in off.cards)
     assert cards["IPCDECON"] is False and cards["IPCRNFAC"] == 1.0
-    on = prepare_exposure(mem, refpix="none", remove_common_mode=False,
-                          measure_noise=False)
+    on = prepare_exposure(mem,
+                          options=PrepareOptions(refpix="none",
+                                                 remove_common_mode=False,
+                                                 measure_noise=False))
     assert dict((c[0], c[1]) for c in on.cards)["IPCDECON"] is True
     cy, cx = np.array(centres).T
     core_sat = on.saturated[0, -1, cy, cx]
@@ -367,4 +377,4 @@ def test_opting_out_leaves_the_ramps_as_they_were():
     assert off.saturated[0, -1, y - 1:y + 2, x - 1:x + 2].all()
     assert not on.saturated[0, -1, y, x + 1] and not on.saturated[0, -1, y + 1, x]
     with pytest.raises(ParameterError, match="deconvolve_ipc"):
-        prepare_exposure(mem, deconvolve_ipc="yes")
+        prepare_exposure(mem, options=PrepareOptions(deconvolve_ipc="yes"))

@@ -1,4 +1,5 @@
-"""Saturation flags of :func:`scenesim.calib.prepare.saturation_flags` against closed forms.
+"""Saturation flags of :func:`scenesim.calib.saturation.saturation_flags` against closed
+forms.
 
 The ramps are simulated here, independently of the simulator: each pixel's charge
 gets Poisson increments between consecutive reads at their exact times (rolling
@@ -30,7 +31,8 @@ from scenesim.detector.ipc import ipc_kernel
 from scenesim.detector.dq import BAD_VARIANCE, DO_NOT_USE, SATURATED
 from scenesim.rampfit import fit_ramps
 from scenesim.detector.nonlinearity import linearize_resultants
-from scenesim.calib.prepare import prepare_exposure, saturation_flags
+from scenesim.calib.prepare import PrepareOptions, prepare_exposure
+from scenesim.calib.saturation import SaturationOptions, saturation_flags
 
 FW = 8e4                      # e-, full well
 C2, C3 = -8e-7, -2e-12        # nonlinearity: p(FW) = 0.923 FW
@@ -84,9 +86,10 @@ def flags_for(e, times, *, nonlinear=True, grow=1, read_noise=SIGMA):
     tbar = np.array([t.mean() for t in times])
     t_last = np.array([t[-1] for t in times])
     nl = Nonlinearity((C2, C3)) if nonlinear else None
-    return saturation_flags(e, tbar, FW, CEILING, t_last=t_last,
-                            n_reads=[len(t) for t in times], read_noise=read_noise,
-                            nonlinearity=nl, grow=grow)
+    opts = SaturationOptions(FW, CEILING, read_noise=read_noise, nonlinearity=nl,
+                             grow=grow)
+    return saturation_flags(e, tbar, opts, t_last=t_last,
+                            n_reads=[len(t) for t in times])
 
 
 def first_flag(sat):
@@ -266,11 +269,13 @@ def test_reference_pixels_with_a_high_bias_are_not_saturated():
     e[:, :, ref] += 8000.0
     tbar = np.array([t.mean() for t in times])
     fw = 4000.0
-    assert saturation_flags(e, tbar, fw, CEILING)[:, :, ref].all()   # without refmask
-    sat = saturation_flags(e, tbar, fw, CEILING, refmask=ref)
+    opts = SaturationOptions(fw, CEILING)
+    assert saturation_flags(e, tbar, opts)[:, :, ref].all()   # without refmask
+    sat = saturation_flags(e, tbar, opts, refmask=ref)
     assert not sat.any()
     # the ADC ceiling still applies to them
-    assert saturation_flags(e, tbar, fw, 5000.0, refmask=ref)[:, :, ref].all()
+    assert saturation_flags(e, tbar, SaturationOptions(fw, 5000.0),
+                            refmask=ref)[:, :, ref].all()
 
 
 # ---------------------------------------------------------------- pipeline
@@ -303,7 +308,9 @@ def test_prepare_exposure_flags_engine_saturation_without_growth_once_ipc_undone
     # other pixel is flagged (formerly the 3 x 3 box was, from the core's onset).
     exp, truth = _engine_exposure()
     assert "IPCKERN" in exp.header and np.sum(truth >= 0) >= 1
-    prep = prepare_exposure(exp, remove_common_mode=False, measure_noise=False)
+    prep = prepare_exposure(exp,
+                            options=PrepareOptions(remove_common_mode=False,
+                                                   measure_noise=False))
     first = first_flag(prep.saturated)
     hit = truth >= 0
     assert np.all(np.abs(first[hit] - truth[hit]) <= 1)
@@ -319,10 +326,13 @@ def test_prepare_exposure_grows_flags_when_ipc_is_not_undone():
     old_header = exp.header.copy()
     del old_header["IPCKERN"]
     from scenesim.io.exposure import Exposure
-    for prep in (prepare_exposure(exp, remove_common_mode=False, measure_noise=False,
-                                  deconvolve_ipc=False),
+    for prep in (prepare_exposure(exp,
+                                  options=PrepareOptions(remove_common_mode=False,
+                                                         measure_noise=False,
+                                                         deconvolve_ipc=False)),
                  prepare_exposure(Exposure(exp.sci, old_header, exp.reads),
-                                  remove_common_mode=False, measure_noise=False)):
+                                  options=PrepareOptions(remove_common_mode=False,
+                                                         measure_noise=False))):
         first = first_flag(prep.saturated)
         hit = truth >= 0
         assert np.all(np.abs(first[hit] - truth[hit]) <= 1)
@@ -349,7 +359,8 @@ def test_adc_ceiling_is_judged_on_the_raw_ramps_and_grown_when_ipc_undone():
     sci = exp.sci.copy()
     sci[0, 6:, 8, 9] = 65535
     prep = prepare_exposure(Exposure(sci, exp.header, exp.reads),
-                            remove_common_mode=False, measure_noise=False)
+                            options=PrepareOptions(remove_common_mode=False,
+                                                   measure_noise=False))
     first = first_flag(prep.saturated)
     np.testing.assert_array_equal(first[0, 7:10, 8:11], 6)
     assert np.all(first[0, 5:13, 5:14][first[0, 5:13, 5:14] != 6] < 0)
@@ -369,6 +380,22 @@ def test_adc_ceiling_is_judged_on_the_raw_ramps_and_grown_when_ipc_undone():
     (dict(refmask=np.zeros((3, 3), bool)), "refmask"),
 ])
 def test_saturation_flags_rejects_bad_arguments(kwargs, match):
+    # Settings are checked when the options are made, the per-exposure arrays by
+    # saturation_flags; both before any work.
     e = np.zeros((1, 3, 4, 4), np.float32)
+    arrays = {k: kwargs.pop(k) for k in ("n_reads", "t_last", "refmask") if k in kwargs}
     with pytest.raises(ParameterError, match=match):
-        saturation_flags(e, [1.0, 2.0, 3.0], FW, CEILING, **kwargs)
+        saturation_flags(e, [1.0, 2.0, 3.0], SaturationOptions(FW, CEILING, **kwargs),
+                         **arrays)
+
+
+def test_saturation_flags_takes_its_settings_as_options():
+    e = np.zeros((1, 3, 4, 4), np.float32)
+    with pytest.raises(ParameterError, match="'options' must be a SaturationOptions"):
+        saturation_flags(e, [1.0, 2.0, 3.0], FW)
+    opts = SaturationOptions(FW, CEILING, fraction=1, floor=0.5, nsigma=3, grow=1)
+    assert opts.fraction == 1.0 and isinstance(opts.fraction, float)
+    assert opts.full_signal == FW       # no nonlinearity: p(FW) = FW
+    nl = Nonlinearity((C2, C3))
+    assert SaturationOptions(FW, CEILING, nonlinearity=nl).full_signal == \
+        pytest.approx(p(FW))

@@ -41,7 +41,8 @@ from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, REFERENCE_PIXEL,  # 
                                   SATURATED)
 from scenesim.io.fitfile import read_fit  # noqa: E402
 from scenesim.rampfit import model_chi2, ols_variance, optimal_variance  # noqa: E402
-from scenesim.calib.prepare import fit_exposure_file, prepare_exposure  # noqa: E402
+from scenesim.calib.prepare import (PrepareOptions, fit_exposure_file,  # noqa: E402
+                                    prepare_exposure)
 from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout  # noqa: E402
 from scenesim.adapters.stcal import (STCAL_ALGORITHMS, fit_exposure_stcal,  # noqa: E402
                                     stcal_read_noise)
@@ -67,8 +68,9 @@ def _noiseless_stcal_fit(tmp_path, det, ro, rate, gain, algorithm, **engine_kw):
     exp = str(tmp_path / "noiseless.fits")
     write_exposure(eng, exp)
     return fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                              read_noise=10.0, remove_common_mode=False,
-                              measure_noise=False)
+                              options=PrepareOptions(read_noise=10.0,
+                                                     remove_common_mode=False,
+                                                     measure_noise=False))
 
 
 def _white_exposure(tmp_path, det, ro, *, sigma, gain, rate=0.0, seed=7, name="w"):
@@ -235,8 +237,9 @@ def test_white_noise_scatter_and_reported_variance(tmp_path, algorithm, ro, gain
     # slopes of an output together (for the uneven table by up to ~0.5 sigma of one
     # pixel's slope on this 128 x 128 array).
     res = fit_exposure_stcal(exp, str(tmp_path / "fit.fits"), algorithm=algorithm,
-                             refpix="none", remove_common_mode=False,
-                             measure_noise=False)
+                             options=PrepareOptions(refpix="none",
+                                                    remove_common_mode=False,
+                                                    measure_noise=False))
     times = ro.read_times(T_FRAME)
     reg = ~det.reference_mask()
     clean = reg & (res.n_jumps == 0)
@@ -374,7 +377,9 @@ def test_exposure_card_fits_for_a_long_path(tmp_path):
                              name="exposure_" * 4)
     assert len(exp) > 120
     out = str(tmp_path / "fit.fits")
-    fit_exposure_stcal(exp, out, measure_noise=False, remove_common_mode=False)
+    fit_exposure_stcal(exp, out,
+                       options=PrepareOptions(measure_noise=False,
+                                              remove_common_mode=False))
     with fits.open(out) as hdul:
         hdr = hdul[0].header
         assert len(hdr.cards["EXPOSURE"].image) == 80
@@ -390,9 +395,11 @@ def test_unknown_algorithm_named_before_any_work(tmp_path):
     with pytest.raises(ParameterError, match="no separate Python 'OLS'"):
         fit_exposure_stcal(str(tmp_path / "missing.fits"), str(out), algorithm="OLS")
     with pytest.raises(ParameterError, match="'refpix'"):
-        fit_exposure_stcal(str(tmp_path / "missing.fits"), str(out), refpix="JWST")
+        fit_exposure_stcal(str(tmp_path / "missing.fits"), str(out),
+                           options=PrepareOptions(refpix="JWST"))
     with pytest.raises(ParameterError, match="'read_noise'"):
-        fit_exposure_stcal(str(tmp_path / "missing.fits"), str(out), read_noise=0.0)
+        fit_exposure_stcal(str(tmp_path / "missing.fits"), str(out),
+                           options=PrepareOptions(read_noise=0.0))
     assert list(tmp_path.iterdir()) == []
 
 

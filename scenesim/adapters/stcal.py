@@ -11,7 +11,7 @@ measured from the ramps --
 hands the resulting ramps (the e- cube divided by ``GAIN``, in DN) and that same
 read-noise map (converted with :func:`stcal_read_noise`) to
 ``stcal.ramp_fitting.ramp_fit.ramp_fit_data``, and writes the rates in scenesim's
-own slope-file layout (:func:`scenesim.rampfit.fit.write_fit`).  Both fitters therefore see
+own slope-file layout (:func:`scenesim.io.fitfile.write_fit`).  Both fitters therefore see
 identical data and noise model, so ``scenesim compare`` of the two slope files
 isolates the fitter.  ``remove_common_mode`` / ``measure_noise`` switch the two
 data-driven steps off for both alike.  stcal is an optional dependency
@@ -60,7 +60,7 @@ What stcal does with the read noise (from its source, stcal 1.20.0):
   (the adapter always passes a fresh array).  Its read-noise variance of a segment of
   ``N`` groups is the equal-weight least-squares value
   ``12 sigma^2 / (nframes t_group^2 (N^3 - N))``, which equals
-  :func:`scenesim.rampfit.fit.ols_variance` at rate 0 for a MULTIACCUM readout.
+  :func:`scenesim.rampfit.variance.ols_variance` at rate 0 for a MULTIACCUM readout.
 * ``LIKELY`` divides ``readnoise_2d`` by ``sqrt(2)``: ``sigma / GAIN`` DN per read, the
   read noise of Brandt (2024, PASP 136, 045004, eqs. 28-29) with per-resultant read
   counts taken from ``read_pattern``.
@@ -98,7 +98,7 @@ Algorithms
 
 Output
 ------
-The slope file has every extension of :meth:`scenesim.rampfit.fit.FitResult.to_hdul`, with
+The slope file has every extension of :meth:`scenesim.io.fitfile.FitResult.to_hdul`, with
 ``FITTER = 'stcal-OLS_C'`` or ``'stcal-LIKELY'``, ``STCALVER`` (stcal version), the
 conversion cards ``RNSTCAL`` (the median ``readnoise_2d`` value, DN CDS) and
 ``RNCONV``, and the pre-processing cards of :func:`scenesim.calib.prepare.prepare_exposure`
@@ -111,8 +111,8 @@ per-integration products.
 
 ``CHI2`` is *not* an stcal output (``OLS_C`` computes none; ``LIKELY``'s is per
 integration around per-integration rates).  To give every fitter the same
-diagnostic, it is computed here exactly as :mod:`scenesim.rampfit.fit` defines it, with
-:func:`scenesim.rampfit.fit.model_chi2`: the chi-square of the rate estimates
+diagnostic, it is computed here exactly as :mod:`scenesim.rampfit.fitter` defines it, with
+:func:`scenesim.rampfit.variance.model_chi2`: the chi-square of the rate estimates
 ``d_i = (R_{i+1} - R_i)/dt_i`` (in e-, the prepared cube) around stcal's combined
 rate ``f``, under the model covariance of Brandt (2024, eqs. 28-29) at ``max(f, 0)``
 with the read noise ``sigma`` handed to stcal, summed over integrations and divided
@@ -128,59 +128,25 @@ result) follow scenesim's rules: ``DO_NOT_USE``, slope 0, ``VAR_READ`` =
 ``REFERENCE_PIXEL | DO_NOT_USE``; ``SATURATED`` is set where any resultant is
 saturated.
 
-Measured behaviour
-------------------
-256 x 256 H2RG, 20 RAPID groups of 10.737 s, white read noise 10 e- per read (plus
-kTC and bias, which differencing removes), gain 3 e-/DN, ``refpix='jwst'``, five flux
-levels, about 12 000 pixels each (``std_opt`` = std(fit - truth)/sqrt(V_opt), standard
-error 0.006; ``chi2_rep`` = mean((fit - truth)^2 / V_reported), standard error
-~0.013; the 'jwst' correction itself adds ~1 % to ``std_opt`` at low flux):
-
-==========  ================  ================  ================  ================
-rate e-/s   scenesim gls      stcal OLS_C       stcal LIKELY      scenesim ols
-            std_opt/chi2_rep  std_opt/chi2_rep  std_opt/chi2_rep  std_opt/chi2_rep
-==========  ================  ================  ================  ================
-0.05        1.010 / 1.018     1.009 / 0.954     1.010 / 1.017     1.009 / 1.016
-0.5         1.007 / 1.027     1.006 / 1.229     1.008 / 1.027     1.012 / 1.025
-5           1.004 / 1.010     1.006 / 1.074     1.004 / 1.011     1.040 / 1.004
-50          1.001 / 1.003     1.002 / 1.017     1.002 / 1.004     1.062 / 0.997
-500         1.002 / 1.005     1.005 / 1.012     1.002 / 1.005     1.073 / 1.007
-==========  ================  ================  ================  ================
-
-(scenesim fits without jump detection.)  So OLS_C's power-law weights are near
-optimal in scatter, but its reported error is not calibrated (its Poisson term is
-that of the first-to-last difference, its read term that of equal weights, whatever
-the weights used): ``chi2_rep`` 1.23 at 0.5 e-/s (errors ~10 % too small), 0.95 at
-0.05 e-/s.  LIKELY matches scenesim's GLS.
-
-(This table was measured before the pre-processing was shared, with the header's
-white read noise and no common-mode removal; ``refpix='none'`` and the white-noise
-data of the table make both data-driven steps near no-ops.)
-
-Measured cost (2-core machine, one process), 2048 x 2048 x 20 groups: ``OLS_C`` 9.3 s
-(5.5 s inside stcal; reading, reference correction and the chi-square the rest),
-``LIKELY`` 56 s; peak memory 2.2-2.4 GB (the cube in e- and in DN, float32, plus
-masks).  scenesim's own GLS on the same file: 9.3 s with jump detection.  Measured
-before the common-mode and read-noise steps were added here.  With them, on the
-2048 x 2048 star field (MEDIUM8 x 10 groups): ``OLS_C`` 7.2 s in all, of which
-:func:`scenesim.calib.prepare.prepare_exposure` 2.4 s (1.3 s without the two data-driven
-steps) and :func:`scenesim.rampfit.fit.model_chi2` 0.4 s.
+Measured accuracy against scenesim's GLS and the cost are in
+``docs/VALIDATION_FIT.md``.
 """
 
 import inspect
 import math
+from dataclasses import replace
 
 import numpy as np
 
-from noise.validate import check_writable
 from noise.errors import ParameterError
+from noise.validate import check_array, check_writable
 
+from scenesim.calib.prepare import PrepareOptions, load_exposure, prepare_exposure
 from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
                                   SATURATED)
 from scenesim.io.fitfile import FitResult, write_fit
+from scenesim.io.header import exposure_read_noise, exposure_readout
 from scenesim.rampfit.variance import model_chi2
-from scenesim.calib.prepare import (REFPIX_SCHEMES, exposure_read_noise, exposure_readout,
-                      load_exposure, prepare_exposure)
 
 __all__ = ["STCAL_ALGORITHMS", "fit_exposure_stcal", "stcal_read_noise"]
 
@@ -190,9 +156,9 @@ STCAL_ALGORITHMS = ("OLS_C", "LIKELY")
 #: JWST data-quality bits handed to stcal (``RampData.set_dqflags``).
 _DQFLAGS = {
     "GOOD": 0,
-    "DO_NOT_USE": 2 ** 0,
-    "SATURATED": 2 ** 1,
-    "JUMP_DET": 2 ** 2,
+    "DO_NOT_USE": DO_NOT_USE,
+    "SATURATED": SATURATED,
+    "JUMP_DET": JUMP_DET,
     "PERSISTENCE": 2 ** 5,
     "CHARGELOSS": 2 ** 7,
     "NO_GAIN_VALUE": 2 ** 19,
@@ -204,6 +170,8 @@ _LIKELY_JUMP_SIGMA = math.sqrt(20.25)   # stcal's default one-omit threshold, si
 _F32 = np.float32
 _RAMP_FIT_ARGS = ("ramp_data", "save_opt", "readnoise_2d", "gain_2d", "algorithm",
                   "weighting", "max_cores")
+_NOISELESS_HINT = ("stcal divides by the read noise; pass read_noise > 0 (e- per "
+                   "read) in PrepareOptions for a noiseless exposure")
 
 
 def stcal_read_noise(read_noise, gain):
@@ -221,19 +189,18 @@ def stcal_read_noise(read_noise, gain):
     float or ndarray (float64)
         CDS read noise of two single frames in DN, ``sqrt(2) * read_noise / gain``.
     """
-    rn = np.asarray(read_noise, dtype=float)
-    g = np.asarray(gain, dtype=float)
-    if not np.all(np.isfinite(rn)) or np.any(rn < 0):
-        raise ParameterError(
-            f"'read_noise' must be finite and >= 0 (e- per read), got {read_noise!r}")
-    if not np.all(np.isfinite(g)) or np.any(g <= 0):
-        raise ParameterError(f"'gain' must be finite and > 0 (e-/DN), got {gain!r}")
+    rn = check_array("read_noise", read_noise, minimum=0.0, unit="e- per read")
+    g = check_array("gain", gain, minimum=0.0, strict_min=True, unit="e-/DN")
     out = math.sqrt(2.0) * rn / g
     return float(out) if out.ndim == 0 else out
 
 
 def _import_stcal():
-    """Import stcal's ramp fitting lazily; clear ImportError if missing/incompatible."""
+    """Import stcal's ramp fitting lazily; clear ImportError if missing/incompatible.
+
+    Lazy on purpose: stcal is an optional, heavy dependency, and importing this
+    adapter must not import it.
+    """
     try:
         import stcal
         from stcal.ramp_fitting.ramp_fit import ramp_fit_data
@@ -253,7 +220,8 @@ def _import_stcal():
     return ramp_fit_data, RampData, version
 
 
-def _check_args(algorithm, refpix, read_noise, remove_common_mode, measure_noise):
+def _check_algorithm(algorithm):
+    """The stcal name of ``algorithm`` (case-insensitive), or raise."""
     alg = algorithm.upper() if isinstance(algorithm, str) else None
     if alg not in STCAL_ALGORITHMS:
         hint = ""
@@ -263,21 +231,6 @@ def _check_args(algorithm, refpix, read_noise, remove_common_mode, measure_noise
         raise ParameterError(
             f"'algorithm' must be one of {list(STCAL_ALGORITHMS)} (stcal names), got "
             f"{algorithm!r}{hint}")
-    if refpix not in REFPIX_SCHEMES:
-        raise ParameterError(
-            f"'refpix' must be one of {list(REFPIX_SCHEMES)}, got {refpix!r}")
-    if read_noise is not None:
-        ok = (isinstance(read_noise, (int, float, np.floating, np.integer))
-              and not isinstance(read_noise, bool) and math.isfinite(read_noise)
-              and read_noise > 0)
-        if not ok:
-            raise ParameterError(
-                f"'read_noise' must be None (header RDNOISE) or a finite number > 0 "
-                f"(e- per read, not CDS), got {read_noise!r}")
-    for name, flag in (("remove_common_mode", remove_common_mode),
-                       ("measure_noise", measure_noise)):
-        if not isinstance(flag, bool):
-            raise ParameterError(f"{name!r} must be True or False, got {flag!r}")
     return alg
 
 
@@ -308,9 +261,8 @@ def _timing(ro, t_frame):
     return nframes, groupgap, float(ro.tgroup(t_frame)), first[0]
 
 
-def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
-                       read_noise=None, overwrite=True, remove_common_mode=True,
-                       measure_noise=True, threads=None):
+def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", overwrite=True,
+                       options=PrepareOptions()):
     """Fit the ramps of a scenesim exposure with stcal and write a scenesim slope file.
 
     Parameters
@@ -319,33 +271,25 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
         Exposure written by scenesim (``SCI`` uint16 DN (nints, ngroups, ny, nx) and
         ``READS`` table), or the same contents in memory.
     output : str or os.PathLike
-        Slope file to write (scenesim layout, :func:`scenesim.rampfit.fit.write_fit`,
+        Slope file to write (scenesim layout, :func:`scenesim.io.fitfile.write_fit`,
         written atomically).
     algorithm : {'OLS_C', 'LIKELY'}, keyword-only
         stcal ramp-fitting algorithm (case-insensitive); see the module notes.
         ``'OLS_C'`` needs evenly spaced, equal groups; ``'LIKELY'`` >= 4 resultants.
-    refpix : {'none', 'median', 'jwst'}, keyword-only
-        Reference-pixel correction applied before stcal, as in
-        :func:`scenesim.calib.prepare.fit_exposure_file`.
-    read_noise : float or None, keyword-only
-        Model white read noise of one read, e- (not CDS), > 0; default the header's
-        ``RDNOISE``.  With ``measure_noise`` it is rescaled per column from the
-        ramps (as for scenesim's fitters).  Passed to stcal as
-        ``sqrt(2) * read_noise / GAIN`` DN.  stcal divides by it, so a noiseless
-        exposure needs an explicit value here (any value > 0 gives a linear unbiased
-        fit).
     overwrite : bool, keyword-only
         Replace an existing ``output``.
-    remove_common_mode, measure_noise : bool, keyword-only
-        The data-driven pre-processing steps of
-        :func:`scenesim.calib.prepare.prepare_exposure` (default on, as for
-        :func:`scenesim.calib.prepare.fit_exposure_file`).
-    threads : int or None, keyword-only
-        Worker threads of those steps; stcal itself runs on one core.
+    options : scenesim.calib.prepare.PrepareOptions, keyword-only
+        The pre-processing, the very one of
+        :func:`scenesim.calib.prepare.fit_exposure_file` (same defaults).  Its
+        ``read_noise`` (e- per read, not CDS; default the header's ``RDNOISE``) is
+        passed to stcal as ``sqrt(2) * read_noise / GAIN`` DN, per column when
+        ``measure_noise``.  stcal divides by it, so a noiseless exposure needs an
+        explicit value > 0 (any value > 0 gives a linear unbiased fit).  Its
+        ``threads`` run the pre-processing; stcal itself runs on one core.
 
     Returns
     -------
-    scenesim.rampfit.fit.FitResult
+    scenesim.io.fitfile.FitResult
         ``fitter`` = ``'stcal-OLS_C'`` or ``'stcal-LIKELY'``; rates in e-/s,
         variances in (e-/s)^2, ``read_noise`` (median of the map handed to stcal)
         in e- per read.
@@ -353,7 +297,7 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
     Raises
     ------
     noise.errors.ParameterError
-        Unknown ``algorithm`` or ``refpix``, bad ``read_noise``, an unwritable
+        Unknown ``algorithm``, bad ``options``, a read noise of 0, an unwritable
         ``output``, or a readout the algorithm cannot fit (before any fitting).
     noise.errors.FileFormatError
         Missing or malformed exposure file.
@@ -361,39 +305,60 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
         stcal is not installed (``pip install 'scenesim[stcal]'``) or has an
         incompatible ``ramp_fit_data``.
     """
-    alg = _check_args(algorithm, refpix, read_noise, remove_common_mode, measure_noise)
-    if threads is not None and (isinstance(threads, bool) or not isinstance(
-            threads, (int, np.integer)) or threads < 1):
+    alg = _check_algorithm(algorithm)
+    if not isinstance(options, PrepareOptions):
         raise ParameterError(
-            f"'threads' must be an integer >= 1 or None, got {threads!r}")
+            f"'options' must be a scenesim.calib.prepare.PrepareOptions, got "
+            f"{type(options).__name__}")
+    if options.read_noise == 0:
+        raise ParameterError(f"'read_noise' must be > 0, got 0.0; {_NOISELESS_HINT}")
     ramp_fit_data, RampData, version = _import_stcal()
     check_writable("output", output, overwrite=overwrite)
     exp = load_exposure(exposure)
-    ro = exposure_readout(exp)
-    _check_readout(alg, ro)
-    rdn = exposure_read_noise(exp.header) if read_noise is None else float(read_noise)
+    _check_readout(alg, exposure_readout(exp))
+    rdn = exposure_read_noise(exp.header) if options.read_noise is None \
+        else options.read_noise
     if not (math.isfinite(rdn) and rdn > 0):
         raise ParameterError(
-            f"stcal divides by the read noise: header RDNOISE of {exp.name!r} is "
-            f"{rdn!r}; pass read_noise > 0 (e- per read) for a noiseless exposure")
+            f"header RDNOISE of {exp.name!r} is {rdn!r}; {_NOISELESS_HINT}")
 
     # ---- pre-processing: the one of scenesim.calib.prepare.fit_exposure_file (in e-)
-    prep = prepare_exposure(exp, refpix=refpix, read_noise=rdn,
-                            remove_common_mode=remove_common_mode,
-                            measure_noise=measure_noise, threads=threads)
-    e, sat, gain, t_frame = prep.electrons, prep.saturated, prep.gain, prep.t_frame
-    refmask = prep.refmask
-    ro = prep.readout
+    prep = prepare_exposure(exp, options=replace(options, read_noise=rdn))
+    rd, times = _ramp_data(RampData, prep, alg)
+    rn_dn = stcal_read_noise(prep.read_noise, prep.gain)
+    ny, nx = prep.electrons.shape[-2:]
+    # a fresh array: stcal scales it in place
+    readnoise_2d = np.empty((ny, nx), _F32)
+    readnoise_2d[...] = rn_dn
+    gain_2d = np.full((ny, nx), prep.gain, _F32)
+    image, integ, _ = ramp_fit_data(rd, False, readnoise_2d, gain_2d, alg, "optimal",
+                                    "none")
+    result = _to_fit_result(prep, rd, image, integ, times, alg)
+    cards = [("FITTER", f"stcal-{alg}", "stcal ramp_fit_data algorithm"),
+             ("STCALVER", version, "stcal version"),
+             ("JUMPTHR", _LIKELY_JUMP_SIGMA if alg == "LIKELY" else 0.0,
+              "[sigma] jump threshold, 0=off"),
+             ("RNSTCAL", float(np.median(rn_dn)),
+              "[DN] stcal readnoise_2d, median: sqrt2*RN/GAIN"),
+             ("CHI2DEF", "scenesim model", "CHI2: scenesim model chi2, not stcal's")]
+    cards += list(prep.cards)
+    write_fit(output, result, header_cards=cards, overwrite=overwrite)
+    return result
 
-    # ---- stcal inputs: DN float32 in the SCI layout, JWST DQ and metadata
-    nints, ngroups, ny, nx = e.shape
-    data = e / _F32(gain)
-    gdq = np.where(sat, np.uint8(_DQFLAGS["SATURATED"] | _DQFLAGS["DO_NOT_USE"]),
+
+def _ramp_data(RampData, prep, alg):
+    """stcal's ``RampData`` of the prepared exposure (DN float32 in the SCI layout,
+    JWST group DQ, MULTIACCUM metadata) and the rolling-reset read times."""
+    ro, t_frame = prep.readout, prep.t_frame
+    ny = prep.electrons.shape[-2]
+    data = prep.electrons / _F32(prep.gain)
+    gdq = np.where(prep.saturated, np.uint8(_DQFLAGS["SATURATED"] | _DQFLAGS["DO_NOT_USE"]),
                    np.uint8(0)).astype(np.uint8)
     nframes, groupgap, group_time, drop1 = _timing(ro, t_frame)
     times = ro.read_times(t_frame)          # rolling-reset times; see module notes
     rd = RampData()
-    rd.set_arrays(data, gdq, np.zeros((ny, nx), np.uint32), np.zeros((ny, nx), _F32))
+    rd.set_arrays(data, gdq, np.zeros(prep.electrons.shape[-2:], np.uint32),
+                  np.zeros(prep.electrons.shape[-2:], _F32))
     rd.set_meta(name=str(prep.header.get("DETECTOR", "HxRG")), frame_time=t_frame,
                 group_time=group_time, groupgap=groupgap, nframes=nframes,
                 drop_frames1=drop1)
@@ -404,16 +369,13 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
     rd.suppress_one_group_ramps = True
     if alg == "LIKELY":
         rd.read_pattern = [np.asarray(t, dtype=float) for t in times]
-    rn_dn = stcal_read_noise(prep.read_noise, gain)
-    # a fresh array: stcal scales it in place
-    readnoise_2d = np.empty((ny, nx), _F32)
-    readnoise_2d[...] = rn_dn
-    gain_2d = np.full((ny, nx), gain, _F32)
-    image, integ, _ = ramp_fit_data(rd, False, readnoise_2d, gain_2d, alg, "optimal",
-                                    "none")
-    del data
+    return rd, times
 
-    # ---- back to scenesim conventions (e-, e-/s)
+
+def _to_fit_result(prep, rd, image, integ, times, alg):
+    """stcal's products back in scenesim's conventions (e-, e-/s) as a FitResult."""
+    e, sat, gain = prep.electrons, prep.saturated, prep.gain
+    nints, _, ny, nx = e.shape
     g = _F32(gain)
     g2 = _F32(gain * gain)
     fgdq = np.asarray(rd.groupdq)
@@ -450,20 +412,9 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", refpix="jwst",
     dq = np.where(sat.any(axis=(0, 1)), SATURATED, 0).astype(np.uint32)
     dq[n_jumps > 0] |= np.uint32(JUMP_DET)
     dq[~measured] |= np.uint32(DO_NOT_USE)
-    dq[refmask] |= np.uint32(REFERENCE_PIXEL | DO_NOT_USE)
-    result = FitResult(slope=slope, var_read=var_read, var_poisson=var_pois, chi2=chi2,
-                       dof=dof, dq=dq, slope_ints=slope_ints, var_ints=var_ints,
-                       n_jumps=n_jumps, gain=gain,
-                       read_noise=float(np.median(prep.read_noise)),
-                       fitter=f"stcal-{alg}")
-
-    cards = [("FITTER", f"stcal-{alg}", "stcal ramp_fit_data algorithm"),
-             ("STCALVER", version, "stcal version"),
-             ("JUMPTHR", _LIKELY_JUMP_SIGMA if alg == "LIKELY" else 0.0,
-              "[sigma] jump threshold, 0=off"),
-             ("RNSTCAL", float(np.median(rn_dn)),
-              "[DN] stcal readnoise_2d, median: sqrt2*RN/GAIN"),
-             ("CHI2DEF", "scenesim model", "CHI2: scenesim model chi2, not stcal's")]
-    cards += list(prep.cards)
-    write_fit(output, result, header_cards=cards, overwrite=overwrite)
-    return result
+    dq[prep.refmask] |= np.uint32(REFERENCE_PIXEL | DO_NOT_USE)
+    return FitResult(slope=slope, var_read=var_read, var_poisson=var_pois, chi2=chi2,
+                     dof=dof, dq=dq, slope_ints=slope_ints, var_ints=var_ints,
+                     n_jumps=n_jumps, gain=gain,
+                     read_noise=float(np.median(prep.read_noise)),
+                     fitter=f"stcal-{alg}")

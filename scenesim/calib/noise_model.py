@@ -28,7 +28,7 @@ Two data-driven corrections, used by :func:`scenesim.calib.prepare.prepare_expos
   (exactly 1 for a right model; the median is robust to the ramps with jumps):
   ``sigma_eff = k sigma``, ``k^2 = median(chi2 / med_nu)``, corrected to first
   order for the Poisson share and refined by a second fit at ``sigma_eff``.  Near
-  zero rate it reads up to ~1 % low: the fit's covariance uses the clipped fitted
+  zero rate it reads slightly low: the fit's covariance uses the clipped fitted
   rate, above the true one half of the time, so its ``chi2`` is slightly low.
 
 A pixel is *read-noise dominated* when the Poisson variance of every difference, at
