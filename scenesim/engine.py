@@ -60,7 +60,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise.validate import check_float
+from noise.validate import check_float, check_int, check_map
 from noise.errors import ParameterError
 from noise import streams
 from noise.adc import ADC
@@ -274,25 +274,18 @@ class ChargeEngine:
         self.readout = readout
         shape = detector.shape
         self.refmask = detector.reference_mask()
-        rate = _per_pixel("rate", rate, shape).copy()
-        if not np.all(np.isfinite(rate)) or np.any(rate < 0):
-            bad = rate[~np.isfinite(rate) | (rate < 0)].ravel()[0]
-            raise ParameterError(
-                f"'rate' must be finite and >= 0 e-/s everywhere, found {bad!r}")
-        rate[self.refmask] = 0.0
-        self.rate = rate
+        # reference pixels collect no charge
+        self.rate = np.array(np.broadcast_to(check_map("rate", rate, shape), shape))
+        self.rate[self.refmask] = 0.0
         self.variable = [self._check_variable(v) for v in variable_sources]
         cr = cosmic_rays if cosmic_rays is not None else CosmicRayHits.empty()
         if cr.index.size:
-            keep = ~self.refmask.reshape(-1)[cr.index]   # reference pixels collect none
+            keep = ~self.refmask.reshape(-1)[cr.index]
             cr = CosmicRayHits(cr.time[keep], cr.index[keep], cr.charge[keep])
         self.cosmic_rays = cr
         self.gain = check_float("gain", gain, minimum=0.0, strict_min=True)
-        if isinstance(adc_bits, bool) or not isinstance(adc_bits, (int, np.integer)) \
-                or not 1 <= adc_bits <= 16:
-            raise ParameterError(f"'adc_bits' must be an integer in [1, 16] (the "
-                                 f"resultants are uint16), got {adc_bits!r}")
-        self.adc_bits = int(adc_bits)
+        # resultants are stored as uint16: at most 16 bits
+        self.adc_bits = check_int("adc_bits", adc_bits, minimum=1, maximum=16)
         self.adc = ADC(self.gain, self.adc_bits)
         self.full_well = None if full_well is None else FullWell(full_well, shape)
         self.nonlinearity = nonlinearity if (nonlinearity is not None
@@ -310,30 +303,7 @@ class ChargeEngine:
             self.noise = NoiseGenerator(
                 detector, noise_params, threads=self.threads,
                 rng=np.random.SeedSequence(self.entropy, spawn_key=self.key + streams.NOISE))
-        # Poisson stream chunks: row ranges fixed by the detector; a chunk draws every
-        # pixel (lambda = 0 where there is no charge) when most of it has charge, else
-        # only its pixels with charge (idx: flat indices within the chunk)
-        has = self.rate > 0
-        for v in self.variable:
-            has.ravel()[v.index] = True
-        self._has_charge = bool(has.any()) or self.cosmic_rays.time.size > 0
-        self._npix_charged = int(np.count_nonzero(has))
-        nx = detector.nx
-        self._chunk_rows = max(_ROWS, -(-_CHUNK_PIXELS // nx))
-        self._chunks, self._chunk_rate = [], []
-        for c0 in range(0, detector.ny, self._chunk_rows):
-            c1 = min(c0 + self._chunk_rows, detector.ny)
-            sub = has[c0:c1].reshape(-1)
-            n = int(np.count_nonzero(sub))
-            if n == 0:
-                continue
-            idx = None if n >= _DENSE * sub.size else np.flatnonzero(sub)
-            flat_rate = rate[c0:c1].reshape(-1)
-            self._chunks.append((c0, c1, idx))
-            self._chunk_rate.append(flat_rate if idx is None else flat_rate[idx])
-        sizes = [r.size for r in self._chunk_rate]
-        # reads drawn at once per chunk (fewer calls for small frames; fixed layout)
-        self._group = max(1, _GROUP_DRAWS // max(sizes)) if sizes else 1
+        self._plan_chunks()
         # per-integration invariants of the light-curve sources and cosmic rays
         self._var_tpix = [self._pixel_time_flat(v.index) for v in self.variable]
         if self.variable:
@@ -346,6 +316,32 @@ class ChargeEngine:
         self._scale = None        # per-pixel N / lambda_total of the '2d' shortcut
         self._gens = None         # per-chunk Poisson generators of the integration
         self._drawn = None        # per-chunk draws of the current group of reads
+
+    def _plan_chunks(self):
+        """The Poisson stream chunks: row ranges fixed by the detector; a chunk draws
+        every pixel (lambda = 0 where there is no charge) when most of it has charge,
+        else only its pixels with charge (``idx``: flat indices within the chunk)."""
+        det = self.detector
+        has = self.rate > 0
+        for v in self.variable:
+            has.ravel()[v.index] = True
+        self._has_charge = bool(has.any()) or self.cosmic_rays.time.size > 0
+        self._npix_charged = int(np.count_nonzero(has))
+        self._chunk_rows = max(_ROWS, -(-_CHUNK_PIXELS // det.nx))
+        self._chunks, self._chunk_rate = [], []
+        for c0 in range(0, det.ny, self._chunk_rows):
+            c1 = min(c0 + self._chunk_rows, det.ny)
+            sub = has[c0:c1].reshape(-1)
+            n = int(np.count_nonzero(sub))
+            if n == 0:
+                continue
+            idx = None if n >= _DENSE * sub.size else np.flatnonzero(sub)
+            flat_rate = self.rate[c0:c1].reshape(-1)
+            self._chunks.append((c0, c1, idx))
+            self._chunk_rate.append(flat_rate if idx is None else flat_rate[idx])
+        sizes = [r.size for r in self._chunk_rate]
+        # reads drawn at once per chunk (fewer calls for small frames; fixed layout)
+        self._group = max(1, _GROUP_DRAWS // max(sizes)) if sizes else 1
 
     # ----------------------------------------------------------------- checks
     def _check_variable(self, v):
@@ -736,17 +732,6 @@ def _mean_dn(dn_sum, count, maxdn, out):
     np.clip(m, 0, maxdn, out=m)
     np.copyto(out, m, casting="unsafe")
     return out
-
-
-def _per_pixel(name, value, shape):
-    """``value`` as float64, a scalar or an array broadcastable to ``shape``."""
-    arr = np.asarray(value, dtype=np.float64)
-    try:
-        return arr if arr.ndim == 0 and name != "rate" else np.broadcast_to(arr, shape)
-    except ValueError as exc:
-        raise ParameterError(
-            f"{name!r} must be a scalar or an array of the image shape {shape}, got "
-            f"shape {arr.shape}") from exc
 
 
 def _poisson_or_gauss(g, lam, threshold):
