@@ -793,7 +793,7 @@ class NoiseGenerator:
         the bias pattern is on), made by :meth:`_level_task`.
         """
         det, p = self.detector, self.params
-        ny, ncol, rs, L = det.ny, det.ncols_out, det.row_samples, self._L
+        ny = det.ny
         m = len(batch)
         slots = np.array([s for *_, s in batch])
         # white noise (drawn into img by _small_white), times sigma
@@ -802,17 +802,7 @@ class NoiseGenerator:
                 np.multiply(img[:, r0:r1], vec, out=img[:, r0:r1])
         # reset level, per run of frames of one integration
         if self._level_map:
-            j0 = 0
-            while j0 < m:
-                i = batch[j0][0]
-                j1 = j0 + 1
-                while j1 < m and batch[j1][0] == i:
-                    j1 += 1
-                if self._sig_runs:
-                    np.add(img[j0:j1], levels[i], out=img[j0:j1])
-                else:
-                    img[j0:j1] = levels[i]
-                j0 = j1
+            self._small_levels(batch, img, levels)
         elif not self._sig_runs:
             img.fill(0.0)
         groups = self._small_groups(slots)
@@ -833,9 +823,39 @@ class NoiseGenerator:
         else:
             for j in nonzero.tolist():
                 img[j] += scalar[j]
-        # 1/f time lines (made per group by _small_line_tasks): summed per output in
-        # scan order per run of consecutive slots, added once (mirrored on reversed
-        # outputs)
+        if lines is not None:
+            self._small_add_lines(img, scratch, slots, groups, lines[1])
+        # random telegraph pixels, advanced over the requested slots in order
+        if self._rtn_idx is not None:
+            for j, slot in enumerate(slots.tolist()):
+                self._advance_rtn(slot)
+                img[j].reshape(-1)[self._rtn_idx] += \
+                    np.float32(p.rtn_amp) * self._rtn_state
+        return img
+
+    def _small_levels(self, batch, img, levels):
+        """Add (or, without white noise, set) each frame's reset level in ``img``,
+        per run of frames of one integration."""
+        m = len(batch)
+        j0 = 0
+        while j0 < m:
+            i = batch[j0][0]
+            j1 = j0 + 1
+            while j1 < m and batch[j1][0] == i:
+                j1 += 1
+            if self._sig_runs:
+                np.add(img[j0:j1], levels[i], out=img[j0:j1])
+            else:
+                img[j0:j1] = levels[i]
+            j0 = j1
+
+    def _small_add_lines(self, img, scratch, slots, groups, lines):
+        """Add the 1/f time lines (made per group by :meth:`_small_line_tasks` into
+        ``lines``) to the frames ``img``: summed per output in scan order per run of
+        consecutive slots, added once (mirrored on reversed outputs)."""
+        det = self.detector
+        ny, ncol, rs, L = det.ny, det.ncols_out, det.row_samples, self._L
+        m = len(slots)
         owners = []
         if self._common is not None:
             owners.append(None)
@@ -843,8 +863,8 @@ class NoiseGenerator:
             owners += [o] * ((self._u_pink[o] is not None) + (self._acn[o] is not None))
         tmp_buf = scratch.reshape(-1)[:m * ny * ncol].reshape(m, ny, ncol)
         off = 0
-        for g0, g1, s0, span in groups if lines is not None else []:
-            store = lines[1][:, off * L:(off + span) * L]
+        for g0, g1, s0, span in groups:
+            store = lines[:, off * L:(off + span) * L]
             off += span
             rel = slots[g0:g1] - s0
             brk = np.flatnonzero(np.diff(rel) != 1) + 1
@@ -864,13 +884,6 @@ class NoiseGenerator:
                         tmp = views[0]
                     sec = img[g0 + q0:g0 + q1, :, o * ncol:(o + 1) * ncol]
                     np.add(sec, tmp[..., ::-1] if det.output_reversed(o) else tmp, out=sec)
-        # random telegraph pixels, advanced over the requested slots in order
-        if self._rtn_idx is not None:
-            for j, slot in enumerate(slots.tolist()):
-                self._advance_rtn(slot)
-                img[j].reshape(-1)[self._rtn_idx] += \
-                    np.float32(p.rtn_amp) * self._rtn_state
-        return img
 
     def cube(self, nframes, *, nints=1):
         """All frames at once, shape (nints, nframes, ny, nx), float32, e-.
