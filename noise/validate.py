@@ -19,7 +19,8 @@ from noise.errors import FileFormatError, ParameterError
 
 __all__ = ["suggest", "is_sequence", "is_real", "check_int", "check_float",
            "check_bool", "check_str", "check_choice", "check_shape", "check_map",
-           "check_image", "check_writable", "check_existing_file", "check_array"]
+           "check_image", "check_writable", "check_existing_file", "check_array",
+           "check_mask"]
 
 
 def _num(v):
@@ -228,4 +229,15 @@ def check_array(name, value, *, minimum=None, strict_min=False, unit=""):
         rule = f" and {'>' if strict_min else '>='} {_num(minimum)}"
     if bad.any():
         raise ParameterError(f"{name!r} must be finite{rule}{what}, got {value!r}")
+    return arr
+
+
+def check_mask(name, value, shape):
+    """``value`` as a bool ndarray of exactly ``shape`` (e.g. a reference-pixel mask);
+    other dtypes are refused rather than cast (0/1 floats are not a mask)."""
+    arr = np.asarray(value)
+    if arr.dtype != bool or arr.shape != tuple(shape):
+        raise ParameterError(
+            f"{name!r} must be a bool array of shape {tuple(shape)}, got {arr.dtype} "
+            f"{arr.shape}")
     return arr

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
-from noise.validate import check_choice, check_float, check_int, check_shape
+from noise.validate import check_choice, check_float, check_int, check_mask, check_shape
 from noise.errors import ParameterError
 
 __all__ = ["CosmicRayModel", "draw_cosmic_rays"]
@@ -163,6 +163,18 @@ class CosmicRayModel:
         return np.rint(q).astype(np.int64)
 
 
+def _split_charge(model, total, rng):
+    """Footprint offsets ``dy``, ``dx`` (flattened kernel order) and the multinomial
+    split of each hit's whole-electron ``total`` over them, shape (n, kernel size)."""
+    kern = np.asarray(model.footprint)
+    half = kern.shape[0] // 2
+    dy, dx = np.mgrid[-half:half + 1, -half:half + 1]
+    dy, dx = dy.ravel(), dx.ravel()
+    if not total.size:
+        return dy, dx, np.zeros((0, dy.size), int)
+    return dy, dx, rng.multinomial(total, kern.ravel())
+
+
 def draw_cosmic_rays(model, shape, pixel_pitch_um, t_start, t_stop, *, rng,
                      refmask=None):
     """Draw the cosmic-ray deposits of one time span.
@@ -207,11 +219,7 @@ def draw_cosmic_rays(model, shape, pixel_pitch_um, t_start, t_stop, *, rng,
         raise ParameterError(
             f"'t_stop' ({t_stop!r} s) must be >= 't_start' ({t_start!r} s)")
     if refmask is not None:
-        refmask = np.asarray(refmask)
-        if refmask.shape != (ny, nx) or refmask.dtype != bool:
-            raise ParameterError(
-                f"'refmask' must be a bool array of shape {(ny, nx)}, got "
-                f"{refmask.dtype} {refmask.shape}")
+        refmask = check_mask("refmask", refmask, (ny, nx))
 
     rng = np.random.default_rng(rng)
     area = ny * nx * (pitch * 1e-4) ** 2
@@ -220,12 +228,7 @@ def draw_cosmic_rays(model, shape, pixel_pitch_um, t_start, t_stop, *, rng,
     hy = rng.integers(0, ny, size=n)
     hx = rng.integers(0, nx, size=n)
     total = model.draw_charge(n, rng=rng)
-
-    kern = np.asarray(model.footprint)
-    half = kern.shape[0] // 2
-    dy, dx = np.mgrid[-half:half + 1, -half:half + 1]
-    dy, dx = dy.ravel(), dx.ravel()
-    split = rng.multinomial(total, kern.ravel()) if n else np.zeros((0, dy.size), int)
+    dy, dx, split = _split_charge(model, total, rng)
 
     ys = hy[:, None] + dy[None, :]
     xs = hx[:, None] + dx[None, :]

@@ -599,6 +599,46 @@ def _as_1d(name, value):
     return arr
 
 
+def _source_arrays(x, y, flux):
+    """``x``, ``y``, ``flux`` broadcast to float64 1-D arrays and checked."""
+    xs, ys, fl = (_as_1d("x", x), _as_1d("y", y), _as_1d("flux", flux))
+    try:
+        xs, ys, fl = (np.array(a, dtype=np.float64) for a in np.broadcast_arrays(xs, ys, fl))
+    except ValueError as exc:
+        raise ParameterError(
+            f"'x', 'y' and 'flux' must have matching lengths, got {xs.size}, {ys.size}, "
+            f"{fl.size}") from exc
+    for name, arr in (("x", xs), ("y", ys)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            raise ParameterError(
+                f"{name!r} must be finite; source index {int(np.flatnonzero(bad)[0])} has "
+                f"{name}={arr[bad][0]!r}")
+    bad = ~np.isfinite(fl) | (fl < 0)
+    if bad.any():
+        raise ParameterError(
+            f"'flux' must be finite and >= 0 (e-/s); source index "
+            f"{int(np.flatnonzero(bad)[0])} has flux={fl[bad][0]!r}")
+    return xs, ys, fl
+
+
+def _stamp_radii(psf, fl, stamp_radius, min_rate, max_stamp_radius):
+    """Stamp radius per source: fixed, or adaptive (module notes), as intp."""
+    n = fl.size
+    if stamp_radius is not None:
+        return np.full(n, stamp_radius, dtype=np.intp)
+    cap = int(min(max_stamp_radius, psf._useful_radius()))
+    radius = np.full(n, cap, dtype=np.intp)
+    if min_rate > 0 and n:
+        env = psf._envelope(cap)            # non-increasing, length cap + 1
+        # smallest R with flux * env(R) <= min_rate
+        with np.errstate(divide="ignore"):
+            thresh = np.where(fl > 0, min_rate / fl, np.inf)
+        need = np.searchsorted(-env, -thresh, side="left")
+        radius = np.minimum(_ladder_round_up(need), cap).astype(np.intp)
+    return radius
+
+
 def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=0.0,
                          max_stamp_radius=64):
     """Render point sources as pixel-integrated PSFs, conserving flux.
@@ -647,24 +687,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     if not isinstance(psf, _PSF_TYPES):
         raise ParameterError(
             f"'psf' must be a GaussianPSF, AiryPSF or ImagePSF, got {type(psf).__name__}")
-    xs, ys, fl = (_as_1d("x", x), _as_1d("y", y), _as_1d("flux", flux))
-    try:
-        xs, ys, fl = (np.array(a, dtype=np.float64) for a in np.broadcast_arrays(xs, ys, fl))
-    except ValueError as exc:
-        raise ParameterError(
-            f"'x', 'y' and 'flux' must have matching lengths, got {xs.size}, {ys.size}, "
-            f"{fl.size}") from exc
-    for name, arr in (("x", xs), ("y", ys)):
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            raise ParameterError(
-                f"{name!r} must be finite; source index {int(np.flatnonzero(bad)[0])} has "
-                f"{name}={arr[bad][0]!r}")
-    bad = ~np.isfinite(fl) | (fl < 0)
-    if bad.any():
-        raise ParameterError(
-            f"'flux' must be finite and >= 0 (e-/s); source index "
-            f"{int(np.flatnonzero(bad)[0])} has flux={fl[bad][0]!r}")
+    xs, ys, fl = _source_arrays(x, y, flux)
     min_rate = check_float("min_rate", min_rate, minimum=0.0)
     max_stamp_radius = check_int("max_stamp_radius", max_stamp_radius, minimum=0)
     if stamp_radius is not None:
@@ -675,20 +698,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     on_frac = np.zeros(n)
     stamp_frac = np.zeros(n)
     rendered = np.zeros(n, dtype=bool)
-
-    # ---- stamp radius per source
-    if stamp_radius is not None:
-        radius = np.full(n, stamp_radius, dtype=np.intp)
-    else:
-        cap = int(min(max_stamp_radius, psf._useful_radius()))
-        radius = np.full(n, cap, dtype=np.intp)
-        if min_rate > 0 and n:
-            env = psf._envelope(cap)            # non-increasing, length cap + 1
-            # smallest R with flux * env(R) <= min_rate
-            with np.errstate(divide="ignore"):
-                thresh = np.where(fl > 0, min_rate / fl, np.inf)
-            need = np.searchsorted(-env, -thresh, side="left")
-            radius = np.minimum(_ladder_round_up(need), cap).astype(np.intp)
+    radius = _stamp_radii(psf, fl, stamp_radius, min_rate, max_stamp_radius)
 
     ix0 = np.floor(xs + 0.5)
     iy0 = np.floor(ys + 0.5)

@@ -43,7 +43,7 @@ from astropy import units as u
 from astropy.table import Table
 
 from noise.errors import ParameterError
-from noise.validate import check_float, check_shape, is_real
+from noise.validate import check_float, check_mask, check_shape, is_real
 
 from scenesim.sky.tables import column_values, find_columns, read_table
 
@@ -176,11 +176,7 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
         candidates = None
         n_regular = ny * nx
     else:
-        refmask = np.asarray(refmask)
-        if refmask.shape != (ny, nx) or refmask.dtype != bool:
-            raise ParameterError(
-                f"'refmask' must be a bool array of shape {(ny, nx)}, got "
-                f"{refmask.dtype} {refmask.shape}")
+        refmask = check_mask("refmask", refmask, (ny, nx))
         candidates = np.flatnonzero(~refmask)
         n_regular = candidates.size
 
