@@ -666,3 +666,45 @@ def test_starfield_catalogue_matches_its_generator():
     flux = np.asarray(stored["flux"])
     assert flux.min() >= 0.3 * (1 - 5e-4) and flux.max() <= 3000 * (1 + 5e-4)
     assert np.log10(flux.max() / flux.min()) > 3.5       # spans ~4 decades
+
+
+def test_every_scene_key_is_documented():
+    # The scenesim.scene docstring is the reference the README points to: every key
+    # the parser accepts appears in it (as ``key`` or ``key = default``; tables as
+    # their [header]).
+    import re
+
+    import scenesim.scene
+    from noise.params import NoiseParams
+
+    doc = scenesim.scene.__doc__
+    tables = {"subarray": "[detector.subarray]", "psf": "[sources.psf]",
+              "stars": "[[sources.stars]]", "light_curves": "[sources.light_curves.NAME]"}
+    for cls in (Detector, Subarray, NoiseParams, ReadoutConfig, SourcesConfig, PSFConfig,
+                StarConfig, LightCurveConfig, EffectsConfig, OutputConfig):
+        for f in dataclasses.fields(cls):
+            if f.name in tables:
+                assert tables[f.name] in doc, f.name
+            else:
+                assert re.search(rf"``{f.name}( = [^`]+)?``", doc), (cls.__name__, f.name)
+    for key in ("seed", "description", "preset"):
+        assert f"``{key}``" in doc
+
+
+def test_replace_reads_no_file_and_check_files_reads_them(full_scene_dir):
+    # Files are read once, when the scene is loaded.  Before, the dataclasses'
+    # __post_init__ re-read the catalogue, the light-curve file, the PSF image and the
+    # maps' headers on every dataclasses.replace; now replacing only re-checks values.
+    from scenesim.scene import check_files
+
+    scene = load_scene(full_scene_dir / "scene.toml")
+    for name in ("cat.ecsv", "lc.ecsv", "psf.fits", "window.fits", "full.fits"):
+        (full_scene_dir / "data" / name).write_text("not a table or an image\n")
+    assert scene.replace(seed=3).seed == 3
+    assert dataclasses.replace(scene.sources, hot_pixel_fraction=0.5).catalogue == \
+        scene.sources.catalogue
+    assert dataclasses.replace(scene.effects, gain=2.0).full_well == scene.effects.full_well
+    with pytest.raises(FileFormatError, match=r"\[noise\] 'pca0_file' file .*full.fits"):
+        check_files(scene)
+    with pytest.raises(FileFormatError):
+        load_scene(full_scene_dir / "scene.toml")
