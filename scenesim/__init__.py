@@ -26,7 +26,8 @@ from scenesim.calib.prepare import (PreparedExposure, PrepareOptions, fit_exposu
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources
 from scenesim.detector.readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
-from scenesim.calib.refpix import correct_reference, measure_reference_correction, white_noise_added
+from scenesim.calib.refpix import correct_reference
+from scenesim.validate.refpix_study import measure_reference_correction, white_noise_added
 from scenesim.run import build_engine, run_scene, write_exposure
 from scenesim.scene import Scene, load_scene, parse_scene
 

@@ -41,7 +41,7 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from noise.errors import ParameterError
-from noise.validate import check_int, check_map, is_sequence
+from noise.validate import check_int, check_map, check_mask, is_sequence
 
 from scenesim.detector.dq import DO_NOT_USE
 from scenesim.rampfit.covariance import RampCovariance
@@ -269,19 +269,9 @@ def _check_first_pass_args(resultants, groups, max_rows, read_noise, saturated,
     rn = check_map("read_noise", read_noise, (ny, nx), minimum=0.0)
     sat = None
     if saturated is not None:
-        sat = np.asarray(saturated)
-        if sat.dtype != bool or sat.shape != res.shape:
-            raise ParameterError(
-                f"'saturated' must be a bool array of the shape of 'resultants' "
-                f"{res.shape}, got {sat.dtype} {sat.shape}")
+        sat = check_mask("saturated", saturated, res.shape)
         sat = sat if sat.ndim == 4 else sat[None]
-    ref = None
-    if refmask is not None:
-        ref = np.asarray(refmask)
-        if ref.dtype != bool or ref.shape != (ny, nx):
-            raise ParameterError(
-                f"'refmask' must be a bool array of shape {(ny, nx)}, got "
-                f"{ref.dtype} {ref.shape}")
+    ref = None if refmask is None else check_mask("refmask", refmask, (ny, nx))
     return res, gr, max_rows, rn, sat, ref
 
 

@@ -86,7 +86,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import check_float, check_int
+from noise.validate import check_float, check_int, check_mask
 
 from scenesim.detector.nonlinearity import Nonlinearity
 
@@ -199,7 +199,7 @@ def saturation_flags(e, tbar, options, *, t_last=None, n_reads=None, refmask=Non
     if not isinstance(options, SaturationOptions):
         raise ParameterError(f"'options' must be a SaturationOptions, got "
                              f"{type(options).__name__}")
-    tbar, t_last, n_reads = _check_ramp_args(e, tbar, t_last, n_reads, refmask)
+    tbar, t_last, n_reads, refmask = _check_ramp_args(e, tbar, t_last, n_reads, refmask)
     nres = e.shape[1]
     if nres < 2:
         last, slope = e, None
@@ -217,7 +217,8 @@ def saturation_flags(e, tbar, options, *, t_last=None, n_reads=None, refmask=Non
 
 
 def _check_ramp_args(e, tbar, t_last, n_reads, refmask):
-    """Validate the per-exposure arrays; return (tbar, t_last, n_reads) float64."""
+    """Validate the per-exposure arrays; return (tbar, t_last, n_reads) float64 and
+    the reference mask (bool ndarray or None)."""
     if not isinstance(e, np.ndarray) or e.ndim != 4 or e.dtype.kind != "f":
         raise ParameterError(
             f"'e' must be a float array of shape (nints, nres, ny, nx), got "
@@ -236,21 +237,17 @@ def _check_ramp_args(e, tbar, t_last, n_reads, refmask):
     t_last = tbar if t_last is None else times("t_last", t_last)
     if nres >= 2 and np.any(np.diff(tbar) <= 0):
         raise ParameterError(f"'tbar' must increase strictly, got {tbar.tolist()!r}")
-    if refmask is not None and (not isinstance(refmask, np.ndarray)
-                                or refmask.dtype != bool
-                                or refmask.shape != e.shape[2:]):
-        raise ParameterError(
-            f"'refmask' must be None or a bool array of shape {e.shape[2:]}, got "
-            f"{type(refmask).__name__} {getattr(refmask, 'shape', '')}")
+    if refmask is not None:
+        refmask = check_mask("refmask", refmask, e.shape[2:])
     if n_reads is None:
-        return tbar, t_last, np.ones(nres)
+        return tbar, t_last, np.ones(nres), refmask
     n_reads = np.asarray(n_reads, dtype=np.float64)
     if n_reads.shape != (nres,) or np.any(n_reads < 1) \
             or np.any(n_reads != np.round(n_reads)):
         raise ParameterError(
             f"'n_reads' must be {nres} integers >= 1 (reads per resultant), got "
             f"{n_reads!r}")
-    return tbar, t_last, n_reads
+    return tbar, t_last, n_reads, refmask
 
 
 def _full_well_flags(e, last, slope, sat, tbar, n_reads, refmask, options):

@@ -91,7 +91,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import check_choice, check_float, check_int, check_map
+from noise.validate import check_choice, check_float, check_int, check_map, check_mask
 
 from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
                                   SATURATED)
@@ -185,7 +185,7 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     thr = None if jump_threshold is None else check_float(
         "jump_threshold", jump_threshold, minimum=0.0, strict_min=True)
     n_iter = check_int("n_iter", n_iter, minimum=1)
-    refmask = _check_refmask(refmask, (ny, nx))
+    refmask = None if refmask is None else check_mask("refmask", refmask, (ny, nx))
     if zero_point is not None:
         zero_point = check_map("zero_point", zero_point, (ny, nx), minimum=None)
     variance_rate = _check_variance_rate(variance_rate, (ny, nx))
@@ -234,26 +234,8 @@ def _check_resultants(resultants, saturated):
                              f"{resultants.shape}")
     if saturated is None:
         return res4, None
-    sat = np.asarray(saturated)
-    if sat.dtype != bool:
-        raise ParameterError(f"'saturated' must be a bool array, got dtype "
-                             f"{sat.dtype}")
-    if sat.shape != resultants.shape:
-        raise ParameterError(
-            f"'saturated' must have the shape of 'resultants' {resultants.shape}, "
-            f"got {sat.shape}")
+    sat = check_mask("saturated", saturated, resultants.shape)
     return res4, sat if sat.ndim == 4 else sat[None]
-
-
-def _check_refmask(refmask, shape):
-    if refmask is None:
-        return None
-    refmask = np.asarray(refmask)
-    if refmask.dtype != bool or refmask.shape != shape:
-        raise ParameterError(
-            f"'refmask' must be a bool array of shape {shape}, got "
-            f"{refmask.dtype} {refmask.shape}")
-    return refmask
 
 
 def _check_variance_rate(variance_rate, shape):

@@ -24,7 +24,7 @@ in e-/s and read times in seconds from reset; variances are in (e-/s)^2.
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import check_array, check_float, check_int, check_map
+from noise.validate import check_array, check_float, check_int, check_map, check_mask
 
 from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
 from scenesim.rampfit.solver import ldl_pass, row_chunks
@@ -269,11 +269,7 @@ def _check_chi2_args(resultants, read_times, rate, read_noise, valid, ddof):
     if valid is None:
         valid4 = np.ones((nints, nres - 1, ny, nx), bool)
     else:
-        valid4 = np.asarray(valid)
-        if valid4.dtype != bool or valid4.shape != dshape:
-            raise ParameterError(
-                f"'valid' must be a bool array of shape {dshape} (one flag per "
-                f"difference), got {valid4.dtype} {valid4.shape}")
+        valid4 = check_mask("valid", valid, dshape)    # one flag per difference
         valid4 = valid4 if valid4.ndim == 4 else valid4[None]
     ddof = check_int("ddof", ddof, minimum=0)
     if res.dtype.kind == "f":

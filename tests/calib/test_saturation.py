@@ -399,3 +399,26 @@ def test_saturation_flags_takes_its_settings_as_options():
     nl = Nonlinearity((C2, C3))
     assert SaturationOptions(FW, CEILING, nonlinearity=nl).full_signal == \
         pytest.approx(p(FW))
+
+
+def test_saturation_flags_use_the_last_read_of_a_resultant():
+    # Resultants of 8 reads (MEDIUM8-like: 8 read, 2 skipped), zero level 0, rate
+    # f: read at frame k holds min(f k t_f, FW).  Resultant 3 averages frames
+    # 31..38, i.e. 83700..102600 e- with frame 38 clipped at the 1e5 e- full well:
+    # its mean, 92825 e- (92.8 % FW), is below the 97 % threshold although the ramp
+    # is bent.  Its last read, estimated from the initial slope (2700 e-/s) as
+    # 92825 + 2700 (38 - 34.5) = 102275 e-, is above it.
+    tf, fw, f = 1.0, 1e5, 2700.0
+    reads = [np.arange(10 * g + 1, 10 * g + 9) * tf for g in range(5)]
+    e = np.array([np.minimum(f * r, fw).mean() for r in reads], np.float32)
+    e = e[None, :, None, None]
+    tbar = np.array([r.mean() for r in reads])
+    t_last = np.array([r[-1] for r in reads])
+    # mean-based test (old behaviour): resultant 3 mean vs 0.97 FW
+    assert e[0, 3, 0, 0] < 0.97 * fw
+    old = saturation_flags(e, tbar, SaturationOptions(fw, 1e9))
+    new = saturation_flags(e, tbar, SaturationOptions(fw, 1e9), t_last=t_last)
+    # last read of resultant 3 (frame 38): f * 38 > FW -> saturated; resultant 2's
+    # last read (frame 28): 75600 e- < 0.97 FW -> not.
+    assert old[0, :, 0, 0].tolist() == [False, False, False, False, True]
+    assert new[0, :, 0, 0].tolist() == [False, False, False, True, True]

@@ -6,9 +6,9 @@ time ``dt`` is stretched so that one frame lasts about 10 s (as on a full H2RG):
 
 * noiseless ramps: any linear unbiased fit returns the rate up to the ADC rounding;
 * white read noise, rate 0: the scatter of the slopes and stcal's reported read-noise
-  variance against the closed forms :func:`scenesim.rampfit.fit.ols_variance` /
-  :func:`scenesim.rampfit.fit.optimal_variance`.  The reported variance depends only on the
-  read noise, gain and timing handed to stcal, so it pins the unit conversion
+  variance against the closed forms :func:`scenesim.rampfit.variance.ols_variance` /
+  :func:`scenesim.rampfit.variance.optimal_variance`.  The reported variance depends
+  only on the read noise, gain and timing handed to stcal, so it pins the unit conversion
   (per-read e- -> CDS DN): a factor sqrt(2), a gain or an NFRAMES mistake fails.
 
 These closed-form checks hand stcal the model read noise and skip the common-mode

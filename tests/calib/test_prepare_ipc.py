@@ -1,5 +1,7 @@
 """Undoing IPC before the nonlinearity is inverted (:mod:`scenesim.calib.prepare`).
 
+The inverse itself is tested in ``tests/detector/test_ipc_inverse.py``.
+
 The engine makes every read ``F * K(p(q))``: the charge ``q`` since reset, the
 classical nonlinearity ``p(q) = q + c2 q^2 + c3 q^3``, the 3x3 IPC convolution ``K``
 (charge whose target is off the array stays in its pixel), the flat ``F`` (none
@@ -25,6 +27,7 @@ from astropy.io import fits
 
 import noise
 from noise.clock import preset
+from ipc_theory import ipc_matrix
 from noise.errors import FileFormatError, ParameterError
 from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.ipc import ipc_kernel
@@ -40,6 +43,7 @@ from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
 
+
 C2, C3 = -8e-7, -2e-12          # nonlinearity of the bright-star scene (e-^-1, e-^-2)
 FW = 8e4                        # e-
 ALPHA = 0.015
@@ -51,23 +55,6 @@ GENERAL = np.array([[0.002, 0.012, 0.003],
 
 def p(q):
     return q + C2 * q ** 2 + C3 * q ** 3
-
-
-def ipc_matrix(k, ny, nx):
-    """Dense (ny nx, ny nx) IPC operator from the rule, written out."""
-    n = ny * nx
-    m = np.zeros((n, n))
-    for y in range(ny):
-        for x in range(nx):
-            src = y * nx + x
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    ty, tx = y + dy, x + dx
-                    if 0 <= ty < ny and 0 <= tx < nx:
-                        m[ty * nx + tx, src] += k[1 + dy, 1 + dx]
-                    else:
-                        m[src, src] += k[1 + dy, 1 + dx]
-    return m
 
 
 def star(shape, centres, core):
@@ -90,83 +77,6 @@ def core_and_neighbours(centres):
     return np.array(ys), np.array(xs)
 
 
-# ------------------------------------------------------------------ the inverse
-@pytest.mark.parametrize("kernel",
-                         [ipc_kernel(ALPHA), ipc_kernel(0.02, 0.004), GENERAL],
-                         ids=["alpha", "diagonal", "asymmetric"])
-def test_undo_ipc_is_the_inverse_of_the_dense_operator(kernel):
-    # A 9 x 11 image with a 1e5 contrast (bright pixels on the edges and corners,
-    # where the kept charge makes the operator differ from a convolution).  The
-    # iteration's error bound is the tolerance: checked at 1e-3 and 1e-8 (float64).
-    rng = np.random.default_rng(31)
-    ny, nx = 9, 11
-    x = rng.normal(5000.0, 300.0, (2, ny, nx))
-    x[:, 4, 5] += 9e4
-    x[:, 0, 3] += 5e4
-    x[:, -1, -1] += 7e4
-    m = ipc_matrix(kernel, ny, nx)
-    s = (m @ x.reshape(2, -1).T).T.reshape(x.shape)
-    for tol in (1e-3, 1e-8):
-        out = undo_ipc(s, kernel, tolerance=tol)
-        assert out.dtype == np.float64 and out.shape == x.shape
-        assert np.max(np.abs(out - x)) <= tol
-    # float32: the same to float32 round-off of ~1e5 e- values (ulp 0.0078 e-)
-    out32 = undo_ipc(s.astype(np.float32), kernel, tolerance=1e-3)
-    assert out32.dtype == np.float32
-    assert np.max(np.abs(out32 - x)) < 0.05
-    # the identity kernel changes nothing
-    identity = np.array([[0, 0, 0], [0, 1.0, 0], [0, 0, 0]])
-    np.testing.assert_array_equal(undo_ipc(s, identity), s)
-
-
-def test_row_blocks_give_the_same_result_as_one_block(monkeypatch):
-    # A 300-row frame is done in row blocks with halos; forcing 8-pixel blocks (one
-    # row per block, shorter than the halo) must give the same bits as one block.
-    import scenesim.detector.ipc as ipc_module
-    rng = np.random.default_rng(5)
-    s = rng.normal(1e4, 2e3, (2, 300, 8)).astype(np.float32)
-    s[0, 150, 4] += 7e4
-    one = undo_ipc(s, GENERAL, tolerance=1e-3)
-    identity = np.array([[0, 0, 0], [0, 1.0, 0], [0, 0, 0]])
-    monkeypatch.setattr(ipc_module, "_DECONV_BLOCK", 8)
-    np.testing.assert_array_equal(undo_ipc(s, GENERAL, tolerance=1e-3), one)
-    np.testing.assert_array_equal(undo_ipc(s, GENERAL, tolerance=1e-3, threads=2), one)
-    np.testing.assert_array_equal(undo_ipc(s, identity), s)
-
-
-@pytest.mark.parametrize("kernel", [ipc_kernel(ALPHA), GENERAL], ids=["alpha", "asym"])
-def test_noise_gain_matches_the_fourier_integral(kernel):
-    # g^2 = (2 pi)^-2 int |1 / K(w)|^2 d^2w, K(w) = sum_d k_d exp(-i w.d); on a
-    # 256 x 256 grid the aliasing error is ~rho^256 (rho = 0.07): exact to round-off.
-    n = 256
-    w = 2 * np.pi * np.fft.fftfreq(n)
-    wy, wx = np.meshgrid(w, w, indexing="ij")
-    kw = sum(kernel[1 + dy, 1 + dx] * np.exp(-1j * (wy * dy + wx * dx))
-             for dy in (-1, 0, 1) for dx in (-1, 0, 1))
-    g = np.sqrt(np.mean(1.0 / np.abs(kw) ** 2))
-    assert ipc_noise_gain(kernel) == pytest.approx(g, rel=1e-9)
-    assert g > 1.0
-
-
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(kernel=ipc_kernel(0.13)), "centre"),          # 1 - 4a = 0.48: no contraction
-    (dict(kernel=np.ones((2, 2)) / 4), "3x3"),
-    (dict(kernel=GENERAL * 2), "sum to 1"),
-    (dict(tolerance=0.0), "tolerance"),
-    (dict(tolerance=float("nan")), "tolerance"),
-    (dict(threads=0), "threads"),
-    (dict(image=np.zeros(5)), "image"),
-    (dict(image=np.full((3, 3), np.nan)), "image"),
-])
-def test_undo_ipc_rejects_bad_arguments(kwargs, match):
-    args = dict(image=np.zeros((4, 4)), kernel=ipc_kernel(ALPHA))
-    args.update(kwargs)
-    image, kernel = args.pop("image"), args.pop("kernel")
-    with pytest.raises(ParameterError, match=match):
-        undo_ipc(image, kernel, **args)
-
-
-# ------------------------------------------------------------------ header
 def _small_engine(kernel, **kw):
     det = preset("H2RG", naxis1=32, naxis2=32)
     ro = Readout.multiaccum(1, 4, name="RAPID")
@@ -219,7 +129,6 @@ def test_header_without_a_usable_kernel():
             header_ipc_kernel(fits.Header([("IPC", True), ("IPCKERN", bad)]))
 
 
-# ------------------------------------------------------------------ noise-free ramps
 def test_noise_free_slopes_of_cores_and_neighbours_are_exact():
     # 9 stars (cores 1e4-4.5e4 e-/s, the brightest reaching FW mid-ramp), RAPID x 20
     # at 0.18 s, bias 5000 e-, no noise: resultants S = bias + K p(min(q, FW)).
@@ -268,7 +177,6 @@ def test_noise_free_slopes_of_cores_and_neighbours_are_exact():
     assert np.max(np.abs(old.slope[nb] - k_rate[nb])) > 1.0
 
 
-# ------------------------------------------------------------------ engine, noisy
 def _star_engine(kernel, seed, *, nints=4):
     """64 x 64 H2RG (4-pixel reference border), RAPID x 20, 36 stars on 2 e-/s:
     cores from 0.55 to 1.1 x the rate ``f`` that fills FW at read 10 (so all but

@@ -1,5 +1,5 @@
-"""Tests of :mod:`scenesim.calib.prepare`: the shared pre-processing, fits of in-memory
-exposures, and the header of the slope file.
+"""Tests of :mod:`scenesim.calib.prepare`: the options, the shared pre-processing, fits
+of in-memory exposures, and the header of the slope file.
 
 * ``prepare_exposure`` with every data-driven step off is exactly DN x GAIN (then the
   reference correction of :mod:`scenesim.calib.refpix`), with the header's read noise;
@@ -258,3 +258,9 @@ def test_linearize_resultants_inverts_the_recorded_nonlinearity():
     hdr = fits.Header([("NONLIN", True), ("NLCOEFF", "-8e-07,-2e-12")])
     assert header_nonlinearity(hdr) == nl
     assert header_nonlinearity(fits.Header([("NONLIN", False)])) is None
+
+
+@pytest.mark.parametrize("flag", ["remove_common_mode", "measure_noise"])
+def test_prepare_options_check_flags_first(flag):
+    with pytest.raises(ParameterError, match=flag):
+        PrepareOptions(**{flag: "yes"})
