@@ -12,18 +12,26 @@ Errors in the input are reported in one line (exit status 2) before any work sta
 """
 
 import argparse
+import dataclasses
+import os
 import sys
 import time
 
+import noise
 from noise.errors import ScenesimError
 from noise.fast.memory import keep_freed_memory
+from scenesim.adapters.stcal import fit_exposure_stcal
+from scenesim.bench import main as bench_main
+from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
+from scenesim.engine import EngineOptions
+from scenesim.run import progress_bar, run_scene
+from scenesim.scene import load_scene
+from scenesim.validate.compare import compare_files
 
 __all__ = ["main"]
 
 
 def _noise(args):
-    import noise
-
     det = noise.preset(args.preset)
     changes = {}
     if args.naxis:
@@ -31,7 +39,6 @@ def _noise(args):
     if args.n_out:
         changes["n_out"] = args.n_out
     if changes:
-        import dataclasses
         det = dataclasses.replace(det, **changes)
     params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
         rd_noise=5.2)
@@ -41,8 +48,7 @@ def _noise(args):
     cb = None
     total = args.frames * args.nints
     if not args.quiet and total >= 3:
-        from scenesim.run import _progress_bar
-        bar = _progress_bar(total, "frame", "noise")
+        bar = progress_bar(total, "frame", "noise")
 
         def cb(n):
             bar.update(n - bar.n)          # drawn at most every 0.1 s
@@ -61,10 +67,6 @@ def _noise(args):
 
 
 def _run(args):
-    from scenesim.engine import EngineOptions
-    from scenesim.run import run_scene
-    from scenesim.scene import load_scene
-
     scene = load_scene(args.scene)
     options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
                             arrivals=args.arrivals)
@@ -87,11 +89,8 @@ def _run(args):
 
 
 def _fit(args):
-    from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
-
     out = args.output or _default_fit_path(args.exposure, args.fitter)
     if args.fitter.lower().startswith("stcal-"):
-        from scenesim.adapters.stcal import fit_exposure_stcal
         fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
                            options=PrepareOptions(refpix=args.refpix))
     else:
@@ -103,16 +102,11 @@ def _fit(args):
 
 
 def _default_fit_path(path, fitter):
-    import os
     stem, ext = os.path.splitext(path)
     return f"{stem}_{fitter}{ext or '.fits'}"
 
 
 def _compare(args):
-    import os
-
-    from scenesim.validate.compare import compare_files
-
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     report = compare_files(args.fit, args.truth, plots=args.plots,
@@ -122,8 +116,6 @@ def _compare(args):
 
 
 def _bench(args):
-    from scenesim.bench import main as bench_main
-
     return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
                       threads=args.threads)
 

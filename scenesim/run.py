@@ -24,23 +24,28 @@ rays, hot pixels), so changing one part of a scene does not shift the draws of t
 others.
 """
 
+import contextlib
+import dataclasses
 import os
 import time
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm import tqdm
 
 from noise import streams
 from noise.clock import exposure_slots
 from noise.errors import ParameterError
-
+from noise.validate import check_writable
+from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import psf_cards
+from scenesim.validate.compare import compare_files
 from scenesim.sky.maps import load_map
 from scenesim.sky.rates import cosmic_ray_hits, scene_rates
 
-__all__ = ["build_engine", "run_scene", "write_exposure", "RunResult"]
+__all__ = ["build_engine", "run_scene", "write_exposure", "RunResult", "progress_bar"]
 
 
 @dataclass
@@ -55,15 +60,15 @@ class RunResult:
     engine: ChargeEngine
 
 
-def _progress_bar(total, unit, desc):
+def progress_bar(total, unit, desc):
     """A tqdm bar refreshed by our callbacks, without tqdm's monitor thread.
 
     The monitor only matters for bars that stop being updated; ours are updated after
-    every read (and drawn at most every 0.1 s).  Without it the process keeps a single thread, so small frames may use the
+    every read (and drawn at most every 0.1 s).  Without it the process keeps a single
+    thread, so small frames may use the
     forked helper of :mod:`noise.fast.producer` (which refuses to fork a multi-threaded
     process).
     """
-    from tqdm import tqdm
     interval = tqdm.monitor_interval
     tqdm.monitor_interval = 0
     try:
@@ -147,6 +152,41 @@ def build_engine(scene, *, options=EngineOptions()):
     return engine, rendered
 
 
+def _output_config(cfg, **overrides):
+    """The scene's ``[output]`` with the non-None ``overrides`` (``path`` from
+    ``output``, ``fit``, ``refpix``, ``compare``) applied."""
+    changes = {("path" if k == "output" else k): (os.fspath(v) if k == "output" else v)
+               for k, v in overrides.items() if v is not None}
+    return dataclasses.replace(cfg, **changes) if changes else cfg
+
+
+def _output_paths(cfg):
+    """``(exposure, truth, fit)`` paths of a run (None: not written), checked before
+    any work.  Slopes only (``ramp = false``): no ramp file at all."""
+    exp_path = cfg.path if cfg.ramp else None
+    if not cfg.ramp and not cfg.fit and not cfg.truth:
+        raise ParameterError("nothing to write: set [output] ramp, truth or fit")
+    truth_path = cfg.truth_path if cfg.truth else None
+    fit_path = None
+    if cfg.fit:
+        stem, ext = os.path.splitext(cfg.path)
+        fit_path = check_writable("fit path", f"{stem}_{cfg.fit}{ext or '.fits'}")
+    return exp_path, truth_path, fit_path
+
+
+@contextlib.contextmanager
+def _progress(nreads, enabled):
+    """A progress callback (reads done) drawing a bar on long runs, or None."""
+    if not enabled or nreads < 20:
+        yield None
+        return
+    bar = progress_bar(nreads, "read", "simulate")
+    try:
+        yield lambda n: bar.update(n - bar.n)          # drawn at most every 0.1 s
+    finally:
+        bar.close()
+
+
 def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progress=True,
               fit=None, refpix=None, compare=None, plots=None):
     """Run ``scene``: simulate, write the exposure and truth, then fit and compare.
@@ -169,69 +209,33 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     -------
     RunResult
     """
-    import dataclasses
-
     t0 = time.perf_counter()
-    out_cfg = scene.output
-    changes = {}
-    if output is not None:
-        changes["path"] = os.fspath(output)
-    if fit is not None:
-        changes["fit"] = fit
-    if refpix is not None:
-        changes["refpix"] = refpix
-    if compare is not None:
-        changes["compare"] = compare
-    if changes:
-        out_cfg = dataclasses.replace(out_cfg, **changes)
+    out_cfg = _output_config(scene.output, output=output, fit=fit, refpix=refpix,
+                             compare=compare)
     if seed is not None:
         scene = scene.replace(seed=seed)
     scene = scene.ensure_seed().replace(output=out_cfg)
     if plots is not None:
         os.makedirs(plots, exist_ok=True)
     engine, rendered = build_engine(scene, options=options)
-    ro = engine.readout
-    # file names decided (and checked) before any work.  Slopes only (ramp = false):
-    # no ramp file at all; the resultants stay in memory and are fitted from there.
-    keep_ramp = out_cfg.ramp
-    exp_path = out_cfg.path if keep_ramp else None
-    if not keep_ramp and not out_cfg.fit and not out_cfg.truth:
-        raise ParameterError("nothing to write: set [output] ramp, truth or fit")
-    truth_path = out_cfg.truth_path if out_cfg.truth else None
-    fit_path = None
-    if out_cfg.fit:
-        from noise.validate import check_writable
-        stem, ext = os.path.splitext(out_cfg.path)
-        fit_path = check_writable("fit path", f"{stem}_{out_cfg.fit}{ext or '.fits'}")
+    exp_path, truth_path, fit_path = _output_paths(out_cfg)
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf)
-    nreads = ro.nints * len(ro.needed_reads)
-    bar = None
-    cb = None
-    if progress and nreads >= 20:
-        bar = _progress_bar(nreads, "read", "simulate")
-
-        def cb(n, bar=bar):
-            bar.update(n - bar.n)          # drawn at most every 0.1 s
-    try:
+    ro = engine.readout
+    with _progress(ro.nints * len(ro.needed_reads), progress) as cb:
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
                                  save_charge=out_cfg.save_charge,
                                  save_noise=out_cfg.save_noise, sources=rendered,
                                  progress=cb)
-    finally:
-        if bar is not None:
-            bar.close()
     report = None
     if out_cfg.fit:
-        from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
-        exposure = exp_path if keep_ramp else written["exposure"]
+        # slopes only (ramp = false): the resultants were kept in memory
+        exposure = exp_path if exp_path is not None else written["exposure"]
         del written
         fit_exposure_file(exposure, fit_path, fitter=out_cfg.fit,
                           options=PrepareOptions(refpix=out_cfg.refpix))
         del exposure
         if out_cfg.compare and truth_path is not None:
-            from scenesim.validate.compare import compare_files
-            report = compare_files(fit_path, truth_path, plots=plots,
-                                   exposure=exp_path if keep_ramp else None)
+            report = compare_files(fit_path, truth_path, plots=plots, exposure=exp_path)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,
                      engine)
 
