@@ -220,9 +220,9 @@ def test_progress_bar_starts_no_thread():
     may still fork) and leaves tqdm's own setting as it was."""
     from tqdm import tqdm
 
-    from scenesim.run import _progress_bar
+    from scenesim.run import progress_bar
     before = tqdm.monitor_interval
-    bar = _progress_bar(100, "read", "test")
+    bar = progress_bar(100, "read", "test")
     try:
         assert threading.active_count() == 1 and available()
         assert tqdm.monitor_interval == before
