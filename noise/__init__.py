@@ -16,7 +16,7 @@ from noise.clock import PRESETS, Detector, Subarray, preset
 from noise.errors import FileFormatError, ParameterError, ScenesimError
 from noise.adc import ADC, from_dn, to_dn
 from noise.fitsio import atomic_path, package_version, write_noise_fits
-from noise.generator import NoiseGenerator
+from noise.generator import Layout, NoiseGenerator
 from noise.streams import NOISE_COMPONENTS, root_seed
 from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
 from noise.pink import (PinkSeries, measure_psd_error, pink_psd_shape, realised_psd,
@@ -26,7 +26,7 @@ from noise.template import synthetic_template, template_for
 __all__ = [
     "Detector", "Subarray", "PRESETS", "preset",
     "NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE",
-    "NoiseGenerator", "NOISE_COMPONENTS", "root_seed",
+    "NoiseGenerator", "Layout", "NOISE_COMPONENTS", "root_seed",
     "write_noise_fits", "atomic_path", "package_version", "ADC", "to_dn", "from_dn",
     "PinkSeries", "pink_psd_shape", "realised_psd", "unit_frame_variance",
     "measure_psd_error",

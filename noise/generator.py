@@ -26,7 +26,7 @@ normal per pixel plus one per kept 1/f sample (about 14 million for a full-frame
 with 4 outputs, 9 of them for the 1/f series).  Beyond the draws, a frame costs the
 overlap-save FFTs of the 1/f series (~5 ns per sample) and a few passes over each row
 chunk while it is in cache.  The work runs in the worker threads as independent tasks,
-in bands of ``_BAND_ROWS`` rows with one barrier per band:
+in bands of ``Layout.band_rows`` rows with one barrier per band:
 
 * the 1/f lines of band ``k + 1`` (one task per series: white-noise groups drawn
   straight into the FFT layout, coarse levels, FFTs, written scaled into a band
@@ -40,9 +40,9 @@ in bands of ``_BAND_ROWS`` rows with one barrier per band:
   frame is written once; with ``dn_gain`` the rows are converted to uint16 DN in the
   same task.
 
-Small frames (fewer than ``_POOL_MIN_PIXELS`` pixels: windows, time series) are made
+Small frames (fewer than ``Layout.pool_min_pixels`` pixels: windows, time series) are made
 without the thread pool, ``K`` requested frames at a time (``K * ny * nx <=
-_BATCH_PIXELS``, ``K <= _BATCH_FRAMES``), because there the per-frame Python overhead
+batch_pixels``, ``K <= batch_frames``), because there the per-frame Python overhead
 (band planning, one :meth:`PinkSeries.plan` per series, a dozen small numpy calls) was
 comparable to the arithmetic.  The batch path draws the same streams (white per
 ``(slot, chunk)``, pedestal per block of slots, kTC per integration and chunk, RTN per
@@ -75,6 +75,7 @@ import math
 import numbers
 import os
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -90,21 +91,46 @@ from noise.streams import NOISE_COMPONENTS, generator, root_seed
 from noise.fast.normal import standard_normal, standard_normal_rows
 from noise.template import template_for
 
-__all__ = ["NoiseGenerator"]
-
-#: Frames with fewer pixels than this are generated without the thread pool.
-_POOL_MIN_PIXELS = 1 << 16
+__all__ = ["NoiseGenerator", "Layout"]
 
 _WHITE_ROWS = 64      # rows per white-noise / reset-level stream (fixed: chunk-independent)
 _SUB_ROWS = 64        # rows processed at once (one stream chunk; fits in L2 cache;
                       # _small_batch relies on _SUB_ROWS == _WHITE_ROWS)
-_BAND_ROWS = 512      # rows per band of the 1/f pipeline (a multiple of _WHITE_ROWS)
 _NSETS = 2            # band buffer sets (the lines of band k+1 while the rows of k run)
-_BATCH_PIXELS = 1 << 17   # small frames: pixels per batch (K frames made at once)
-_BATCH_FRAMES = 64        # ... and at most this many frames per batch
 _PED_BLOCK = 1024          # pedestal: slots per stream
 _AHEAD = 2                # small frames: batches whose 1/f lines are made ahead
 _FORK_MIN_BATCHES = 4     # ... by a forked process, if at least this many batches
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How a generator cuts its work into pieces.  The frames never depend on it (the
+    streams are keyed by what is drawn, not by the pieces): it trades speed only.
+
+    Parameters
+    ----------
+    pool_min_pixels : int
+        Frames of at least this many pixels are made one at a time on the thread
+        pool, in bands; smaller ones (windows, time series) in batches.
+    band_rows : int
+        Rows per band of a large frame (a multiple of 64).
+    batch_pixels, batch_frames : int
+        Small frames are made ``K`` at a time, ``K * ny * nx <= batch_pixels`` and
+        ``K <= batch_frames``.
+    """
+
+    pool_min_pixels: int = 1 << 16
+    band_rows: int = 512
+    batch_pixels: int = 1 << 17
+    batch_frames: int = 64
+
+    def __post_init__(self):
+        for name in ("pool_min_pixels", "batch_pixels", "batch_frames"):
+            check_int(name, getattr(self, name), minimum=0 if name[0] == "p" else 1)
+        check_int("band_rows", self.band_rows, minimum=_WHITE_ROWS)
+        if self.band_rows % _WHITE_ROWS:
+            raise ParameterError(f"'band_rows' must be a multiple of {_WHITE_ROWS}, got "
+                                 f"{self.band_rows!r}")
 
 
 def _call(task):
@@ -146,6 +172,9 @@ class NoiseGenerator:
         Root of every random stream.
     threads : int, optional
         Worker threads (default: all cores).  Results do not depend on it.
+    layout : Layout, optional
+        How the work is cut into pieces (default :class:`Layout()`).  Results do not
+        depend on it.
 
     Notes
     -----
@@ -162,7 +191,11 @@ class NoiseGenerator:
     >>> for i, k, frame in gen.frames(nreads=5): ...      # doctest: +SKIP
     """
 
-    def __init__(self, detector=None, params=None, *, rng=None, threads=None):
+    def __init__(self, detector=None, params=None, *, rng=None, threads=None,
+                 layout=None):
+        self.layout = layout if layout is not None else Layout()
+        if not isinstance(self.layout, Layout):
+            raise ParameterError(f"'layout' must be a noise.generator.Layout, got {layout!r}")
         self.detector = detector if detector is not None else Detector()
         self.params = params if params is not None else NoiseParams()
         if not isinstance(self.detector, Detector):
@@ -282,7 +315,7 @@ class NoiseGenerator:
             return self._lines
         det = self.detector
         L, ncol, rs = self._L, det.ncols_out, det.row_samples
-        rows = min(_BAND_ROWS, det.ny)
+        rows = min(self.layout.band_rows, det.ny)
         jobs = []
         if self._common is not None:
             jobs.append((self._common, rs, L, None))
@@ -518,7 +551,8 @@ class NoiseGenerator:
         if self._rtn_idx is not None:
             self._advance_rtn(slot)
         jobs, sets = self._line_buffers()
-        bands = [(ra, min(ra + _BAND_ROWS, det.ny)) for ra in range(0, det.ny, _BAND_ROWS)]
+        band = self.layout.band_rows
+        bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
 
         def lines(k):
             """Tasks making the 1/f lines of band ``k`` (ACN pairs, the largest, first)."""
@@ -606,7 +640,7 @@ class NoiseGenerator:
         # small frames (windows) run inline: dispatching their tiny tasks to threads
         # costs more than it saves (results do not depend on it); they are made a
         # batch at a time (same values as frame(), see _small_batch)
-        big = self.detector.ny * self.detector.nx >= _POOL_MIN_PIXELS
+        big = self.detector.ny * self.detector.nx >= self.layout.pool_min_pixels
         if not big:
             yield from self._frames_small(nreads, reads, ints, dn_gain, nbuf)
             return
@@ -628,10 +662,10 @@ class NoiseGenerator:
 
     # ------------------------------------------------------- small frames, batched
     def _frames_small(self, nreads, reads, ints, dn_gain, nbuf):
-        """:meth:`_frames` for frames of fewer than ``_POOL_MIN_PIXELS`` pixels.
+        """:meth:`_frames` for frames of fewer than ``Layout.pool_min_pixels`` pixels.
 
         The requested frames are made ``K`` at a time (``K * ny * nx <=
-        _BATCH_PIXELS``) by :meth:`_small_batch` into one internal float32 buffer,
+        batch_pixels``) by :meth:`_small_batch` into one internal float32 buffer,
         then copied out one by one into a fresh array (``nbuf == 0``) or into the
         ``nbuf`` rotating arrays, so ``reuse`` means exactly what it does for large
         frames.  The copy (a few us per frame) is far cheaper than the per-frame
@@ -648,7 +682,8 @@ class NoiseGenerator:
         """
         det = self.detector
         order = [(i, k, frame_slot(i, k, nreads)) for i in ints for k in reads]
-        K = max(1, min(_BATCH_FRAMES, _BATCH_PIXELS // (det.ny * det.nx), len(order)))
+        lay = self.layout
+        K = max(1, min(lay.batch_frames, lay.batch_pixels // (det.ny * det.nx), len(order)))
         batches = [order[j0:j0 + K] for j0 in range(0, len(order), K)]
         work = np.empty((K,) + det.shape, dtype=np.float32)
         scratch = np.empty_like(work)
