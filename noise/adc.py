@@ -3,7 +3,8 @@
 ``DN = rint(e / gain)`` (round half to even) of the signal in electrons, clipped to
 ``[0, 2**bits - 1]``: the charge engine's reads, noise-only ramps written in DN
 (:func:`noise.write_noise_fits`, ``NoiseGenerator.frames(dn_gain=...)``) and
-:func:`to_dn` all go through :meth:`ADC.codes`.  Quantisation adds a variance of
+:func:`to_dn` all go through :meth:`ADC.codes`.  A resultant that averages several
+reads on board is the rounded mean of their codes (:meth:`ADC.mean_codes`).  Quantisation adds a variance of
 ``1/12`` DN**2 for signals spanning many DN.
 
 The quotient is the float64 one, ``rint(float64(e) / gain)``.  When ``gain`` is a
@@ -91,6 +92,28 @@ class ADC:
         np.rint(q, out=q)
         np.clip(q, 0.0, self.top, out=q)
         return q
+
+    def mean_codes(self, code_sum, count, *, out):
+        """``out[:] =`` the rounded mean of ``count`` codes (on-board averaging of the
+        reads of a resultant): ``clip(rint(code_sum / count), 0, top)``.
+
+        ``code_sum`` is the exact integer (uint32) sum of the codes.  For ``count <=
+        128`` the mean is taken in float32, which gives the same result as float64:
+        the sum (< 128 * 65536 = 2**23) is exact in float32, the quotient is off by at
+        most half an ulp (<= 2**-9 below 65536), while a quotient that is not exactly
+        a half-integer is at least ``1 / (2 count) >= 2**-8`` away from one, so
+        rounding (half to even, as in float64 for exact halves) cannot change.  Larger
+        counts use float64.  Returns ``out``.
+        """
+        if count == 1:
+            np.copyto(out, code_sum, casting="unsafe")
+            return out
+        dt = np.float32 if count <= 128 else np.float64
+        m = np.divide(code_sum, dt(count), dtype=dt)
+        np.rint(m, out=m)
+        np.clip(m, 0, self.top, out=m)
+        np.copyto(out, m, casting="unsafe")
+        return out
 
     def to_dn(self, e, *, out=None, scratch=None):
         """Digitise ``e`` (e-) into ``out`` (a new array of :attr:`dtype` if None).

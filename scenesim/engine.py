@@ -635,7 +635,7 @@ class ChargeEngine:
             out_dn = rr.dn_sum
         else:
             out_dn = np.empty(self.detector.shape, dtype=np.uint16)
-            run.each(lambda b: _mean_dn(rr.dn_sum[b], rr.count, self.adc.top, out_dn[b]))
+            run.each(lambda b: self.adc.mean_codes(rr.dn_sum[b], rr.count, out=out_dn[b]))
         ch = (rr.charge_sum / rr.count).astype(np.float32) if save_charge else None
         nz = (rr.noise_sum / rr.count).astype(np.float32) if save_noise else None
         return Resultant(i, r_index, out_dn, ch, nz)
@@ -711,27 +711,6 @@ class ChargeEngine:
         if self.ipc_kernel is not None:
             out = apply_ipc(out, self.ipc_kernel)
         return out
-
-
-def _mean_dn(dn_sum, count, maxdn, out):
-    """``out[:] =`` uint16 resultant: the rounded mean of ``count`` digitised reads.
-
-    ``dn_sum`` is the exact uint32 sum.  For ``count <= 128`` the mean is taken in
-    float32, which gives the same result as float64: the sum (< 128 * 65536 = 2**23) is
-    exact in float32, the quotient is off by at most half an ulp (<= 2**-9 below
-    65536), while a quotient that is not exactly a half-integer is at least
-    ``1 / (2 count) >= 2**-8`` away from one, so rounding (half to even, as in float64
-    for exact halves) cannot change.  Larger counts use float64.
-    """
-    if count == 1:
-        np.copyto(out, dn_sum, casting="unsafe")
-        return out
-    dt = np.float32 if count <= 128 else np.float64
-    m = np.divide(dn_sum, dt(count), dtype=dt)
-    np.rint(m, out=m)
-    np.clip(m, 0, maxdn, out=m)
-    np.copyto(out, m, casting="unsafe")
-    return out
 
 
 def _poisson_or_gauss(g, lam, threshold):

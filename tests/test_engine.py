@@ -499,22 +499,6 @@ def test_multichunk_results_threads_independent(case):
     assert np.all(c1[:, :, det.reference_mask()] == 0)
 
 
-@pytest.mark.parametrize("count", [2, 3, 7, 44, 127, 128, 129, 300])
-def test_mean_dn_rounds_like_float64(count):
-    """The resultant mean of uint32 DN sums: float32 arithmetic (count <= 128) must
-    give exactly the float64 rounding, half to even included.  Checked on every sum
-    within +-count of the half-integer boundaries of the 512 highest DN (where the
-    float32 ulp is largest) and of the lowest 64 DN."""
-    from scenesim.engine import _mean_dn
-    k = np.r_[np.arange(64), np.arange(65535 - 512, 65535)]
-    off = np.arange(-count, count + 1)
-    s = (k[:, None] * count + count // 2 + off[None, :]).ravel()
-    s = s[(s >= 0) & (s <= 65535 * count)].astype(np.uint32)
-    expected = np.clip(np.rint(s / count), 0, 65535).astype(np.uint16)
-    out = np.empty(s.size, np.uint16)
-    np.testing.assert_array_equal(_mean_dn(s, count, np.float32(65535), out), expected)
-
-
 @pytest.mark.parametrize("bits", [0, 17, 32, 12.5, True])
 def test_adc_bits_must_fit_the_uint16_resultants(bits):
     """Resultants are uint16: more than 16 ADC bits would wrap, so they are refused."""

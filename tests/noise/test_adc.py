@@ -132,3 +132,18 @@ def test_adc_rejects_bad_gain_and_bits_at_construction():
         ADC(1.0, bits=0)
     with pytest.raises(ParameterError, match="'electrons' must be an array of real"):
         to_dn("abc", 1.0)
+
+
+@pytest.mark.parametrize("count", [2, 3, 7, 44, 127, 128, 129, 300])
+def test_mean_codes_rounds_like_float64(count):
+    """The resultant mean of uint32 DN sums: float32 arithmetic (count <= 128) must
+    give exactly the float64 rounding, half to even included.  Checked on every sum
+    within +-count of the half-integer boundaries of the 512 highest DN (where the
+    float32 ulp is largest) and of the lowest 64 DN."""
+    k = np.r_[np.arange(64), np.arange(65535 - 512, 65535)]
+    off = np.arange(-count, count + 1)
+    s = (k[:, None] * count + count // 2 + off[None, :]).ravel()
+    s = s[(s >= 0) & (s <= 65535 * count)].astype(np.uint32)
+    expected = np.clip(np.rint(s / count), 0, 65535).astype(np.uint16)
+    out = np.empty(s.size, np.uint16)
+    np.testing.assert_array_equal(ADC(1.0).mean_codes(s, count, out=out), expected)
