@@ -92,7 +92,7 @@ float64 element per new array), so allocations are kept few.
 
 Inversion is faster than numpy's PTRS up to means of ~20; the default ``small = 10``
 keeps numpy's branch for every mean where numpy itself switches to it.  Arrays of
-fewer than ``_NUMPY_BELOW = 2048`` means go to ``g.poisson`` whole (there the per-call
+fewer than ``NUMPY_BELOW = 2048`` means go to ``g.poisson`` whole (there the per-call
 overhead of the passes dominates).  ``python -m noise.fast.poisson`` prints ns per
 draw of both samplers on this machine (the measured table is in BENCHMARKS.md).
 """
@@ -107,7 +107,7 @@ from scipy.special import pdtr
 
 from noise.errors import ParameterError
 
-__all__ = ["poisson"]
+__all__ = ["poisson", "guide_table", "k_max", "k_max_exact", "GUIDE_BITS", "NUMPY_BELOW"]
 
 #: Largest mean ``Generator.poisson`` accepts (numpy's ``POISSON_LAM_MAX``).
 _LAM_MAX = float(np.iinfo(np.int64).max - np.sqrt(np.iinfo(np.int64).max) * 10)
@@ -126,10 +126,10 @@ _FEW_LAM = 1.0
 #: Arrays with fewer elements go to ``g.poisson`` whole: there numpy's per-element loop
 #: beats the per-pass overhead of the search (measured: 256 means 9 vs 17-44 us, 1024
 #: means 26-58 vs 29-132 us, 2048 means 30-107 vs 43-148 us; equal near 4096).
-_NUMPY_BELOW = 2048
+NUMPY_BELOW = 2048
 
 
-def _k_max(lam_max):
+def k_max(lam_max):
     """A cap ``k`` with ``P(X > k) < 1e-15`` for ``X ~ Poisson(lam_max)``.
 
     Evaluated (and cached) at ``lam_max`` rounded up to a multiple of 1/64: the tail
@@ -137,11 +137,11 @@ def _k_max(lam_max):
     """
     if lam_max <= 0.0:
         return 0
-    return _k_max_exact(math.ceil(lam_max * 64.0) / 64.0)
+    return k_max_exact(math.ceil(lam_max * 64.0) / 64.0)
 
 
 @functools.lru_cache(maxsize=4096)
-def _k_max_exact(lam_max):
+def k_max_exact(lam_max):
     """Smallest ``k`` with ``P(X > k) < 1e-15`` for ``X ~ Poisson(lam_max)``.
 
     Uses ``P(X > k) <= p_{k+1} / (1 - lam / (k + 2))`` for ``k + 2 > lam`` (the
@@ -173,7 +173,7 @@ def _inversion(g, lam, out):
     n = lam.size
     if n == 0:
         return out
-    k_max = _k_max(float(lam.max()))
+    limit = k_max(float(lam.max()))
     resid = out.view(np.float64)
     g.random(out=resid)                      # U, one per element, in array order
     p = np.empty(n)
@@ -189,7 +189,7 @@ def _inversion(g, lam, out):
     k = 0
     since = 1
     while True:
-        if n_act < _COMPRESS * active.size or n_act == 0 or k == k_max or since == 255:
+        if n_act < _COMPRESS * active.size or n_act == 0 or k == limit or since == 255:
             sel = active.nonzero()[0]
             if idx is None:
                 # R is no longer needed where it lives: keep the active R's, then
@@ -206,7 +206,7 @@ def _inversion(g, lam, out):
             if n_act == 0:
                 return out
             lam_a = lam_a[sel]
-            if k == k_max:
+            if k == limit:
                 # Guard: tail mass < 1e-15 (or rounding saturation); redraw exactly.
                 out[idx] = g.poisson(lam_a)
                 return out
@@ -231,11 +231,11 @@ _SHARED_MIN = 4096
 #: Largest common mean drawn from a guide table (larger ones straddle more buckets).
 _SHARED_MAX = 100.0
 #: Guide-table resolution: buckets of width 2**-16 of the uniform.
-_GUIDE_BITS = 16
+GUIDE_BITS = 16
 
 
 @functools.lru_cache(maxsize=64)
-def _guide(lam):
+def guide_table(lam):
     """Guide table and CDF of Poisson(``lam``), ``0 < lam <= _SHARED_MAX``.
 
     ``guide[b]`` is the value ``X(u) = min{k : u < F(k)}`` shared by every ``u`` of
@@ -244,8 +244,8 @@ def _guide(lam):
     ``F(k)`` is scipy's regularised incomplete gamma ``pdtr`` (relative error ~1e-15)
     up to ``k_max`` (the same ``P(X > k_max) < 1e-15`` cap as the inversion).
     """
-    m = 1 << _GUIDE_BITS
-    cdf = pdtr(np.arange(_k_max(lam) + 1, dtype=np.float64), lam)
+    m = 1 << GUIDE_BITS
+    cdf = pdtr(np.arange(k_max(lam) + 1, dtype=np.float64), lam)
     edges = np.arange(m + 1, dtype=np.float64) / m
     lo = np.searchsorted(cdf, edges[:-1], side="right")
     hi = np.searchsorted(cdf, np.nextafter(edges[1:], 0.0), side="right")
@@ -268,7 +268,7 @@ def _shared(g, lam, n, out):
     if lam == 0.0:
         out[:] = 0
         return
-    guide, cdf = _guide(lam)
+    guide, cdf = guide_table(lam)
     # 16-bit buckets: the four 16-bit slices of each raw 64-bit output of the bit
     # generator (PCG64's output bits are all uniform and independent)
     b = g.bit_generator.random_raw(-(-n // 4)).view(np.uint16)[:n]
@@ -276,7 +276,7 @@ def _shared(g, lam, n, out):
     s = (k == 255).nonzero()[0]
     out[:] = k
     if s.size:
-        u = (b[s] + g.random(s.size)) * (1.0 / (1 << _GUIDE_BITS))
+        u = (b[s] + g.random(s.size)) * (1.0 / (1 << GUIDE_BITS))
         ks = np.searchsorted(cdf, u, side="right")
         beyond = ks >= cdf.size
         if beyond.any():
@@ -364,7 +364,7 @@ def poisson(g, lam, *, small=10.0):
                 if other.size:
                     out[other] = poisson(g, flat[other], small=small)
                 return out.reshape(lam.shape)
-    if flat.size and (lo > small or flat.size < _NUMPY_BELOW):
+    if flat.size and (lo > small or flat.size < NUMPY_BELOW):
         return g.poisson(flat).astype(np.int64, copy=False).reshape(lam.shape)
     out = np.empty(flat.size, np.int64)
     is_large = None

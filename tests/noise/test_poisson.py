@@ -7,7 +7,8 @@ import pytest
 from scipy import stats
 
 from noise.errors import ParameterError
-from noise.fast.poisson import _GUIDE_BITS, _guide, _k_max, _k_max_exact, poisson
+from noise.fast.poisson import (GUIDE_BITS, NUMPY_BELOW, guide_table, k_max, k_max_exact,
+                               poisson)
 
 N = 200_000
 
@@ -60,11 +61,11 @@ def test_pmf_chi_square(lam, path):
 def test_guard_tail_below_1e15():
     # The inversion stops after k_max passes; what is left must have mass < 1e-15.
     for lam in (1e-3, 0.1, 1.0, 3.0, 9.9, 10.0, 50.0):
-        k = _k_max(lam)
+        k = k_max(lam)
         assert stats.poisson(lam).sf(k) < 1e-15
         # the exact bound is not wasteful: two passes fewer would leave more than
         # 1e-15; the cached cap (mean rounded up to 1/64) is never below it
-        k0 = _k_max_exact(lam)
+        k0 = k_max_exact(lam)
         assert k0 < 2 or stats.poisson(lam).sf(k0 - 2) > 1e-15
         assert k >= k0 and stats.poisson(np.ceil(lam * 64) / 64).sf(k) < 1e-15
 
@@ -217,8 +218,8 @@ def test_routing_keeps_values_in_place():
 def test_guide_table_is_the_inverse_cdf(lam):
     """Every bucket [b, b+1)/M of the uniform either maps to the one k that the exact
     inverse CDF (scipy) gives at both of its ends, or is marked as straddling."""
-    guide, cdf = _guide(lam)
-    m = 1 << _GUIDE_BITS
+    guide, cdf = guide_table(lam)
+    m = 1 << GUIDE_BITS
     exact = stats.poisson(lam).cdf(np.arange(cdf.size))
     np.testing.assert_allclose(cdf, exact, rtol=0, atol=1e-14)
     lo = np.searchsorted(exact, np.arange(m) / m, side="right")
@@ -253,12 +254,11 @@ def test_shared_mean_among_others_and_zero_background():
 
 
 def test_small_arrays_are_numpy_stream():
-    """Fewer than _NUMPY_BELOW means: g.poisson whole (faster there); at the threshold
+    """Fewer than NUMPY_BELOW means: g.poisson whole (faster there); at the threshold
     the search takes over (a different stream)."""
-    from noise.fast.poisson import _NUMPY_BELOW
-    lam = np.linspace(0.01, 5.0, _NUMPY_BELOW - 1)
+    lam = np.linspace(0.01, 5.0, NUMPY_BELOW - 1)
     a = poisson(np.random.default_rng(11), lam)
     np.testing.assert_array_equal(a, np.random.default_rng(11).poisson(lam))
-    lam = np.linspace(0.01, 5.0, _NUMPY_BELOW)
+    lam = np.linspace(0.01, 5.0, NUMPY_BELOW)
     assert not np.array_equal(poisson(np.random.default_rng(11), lam),
                               np.random.default_rng(11).poisson(lam))
