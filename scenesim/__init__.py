@@ -1,15 +1,24 @@
 """scenesim: HxRG scenes injected read by read into noise ramps, and their slope fits.
 
-Modules, one per stage: :mod:`scenesim.detector.readout` (readout patterns),
-:mod:`scenesim.scene` (TOML scene files), :mod:`scenesim.sky.psf`,
-:mod:`scenesim.sky.sources`, :mod:`scenesim.sky.lightcurve`, :mod:`scenesim.sky.cosmic` (rates
-and events), :mod:`scenesim.engine` (charge read by read), :mod:`scenesim.detector.effects`
-(saturation, nonlinearity, IPC, flat, ADC), :mod:`scenesim.io.exposure` (uncal and truth
-files), :mod:`scenesim.calib.refpix`, :mod:`scenesim.rampfit`, :mod:`scenesim.calib.prepare`
-(reference correction and slopes), :mod:`scenesim.validate.compare` (fit vs truth),
-:mod:`scenesim.run` (the orchestrator) and :mod:`scenesim.bench`;
-:mod:`scenesim.adapters.stcal` runs the JWST library stcal's ramp fitting on our
-exposures (optional ``[stcal]`` extra, imported only when used).
+One subpackage per stage, one implementation of each physical step:
+
+* :mod:`scenesim.scene`: scene files (TOML) validated into frozen dataclasses;
+* :mod:`scenesim.sky`: what falls on the detector (rate maps, PSFs, light curves,
+  catalogues, cosmic rays; :mod:`scenesim.sky.rates` builds the engine's input);
+* :mod:`scenesim.detector`: the readout (patterns, resultant times) and each effect on
+  charge with its inverse (saturation, nonlinearity, IPC, flat; the ADC is
+  :mod:`noise.adc`, the clock :mod:`noise.clock`);
+* :mod:`scenesim.engine`: charge read by read, at each pixel's own read time;
+* :mod:`scenesim.run`: the orchestrator (engine -> files, then fit and compare);
+* :mod:`scenesim.io`: the files (uncal exposure, truth, slopes) and the one header
+  contract that writes and reads their cards;
+* :mod:`scenesim.calib`: preparing an exposure for a fitter (reference pixels,
+  saturation flags, linearisation, IPC undone, common mode, read noise);
+* :mod:`scenesim.rampfit`: up-the-ramp fitting (CDS, OLS, optimal GLS, jumps);
+* :mod:`scenesim.validate`: grading fits against the truth;
+* :mod:`scenesim.adapters`: other libraries (stcal) run on our files;
+* :mod:`scenesim.bench`: run time against the random-number floor.
+
 The noise model lives in the sibling package :mod:`noise`.
 """
 

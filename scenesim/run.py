@@ -1,22 +1,22 @@
 """Orchestrator: a validated :class:`~scenesim.scene.Scene` in, files out.
 
+The one loop of a simulation (:func:`write_exposure`): the engine
+(:meth:`scenesim.engine.ChargeEngine.simulate`) is the source, the files
+(:class:`scenesim.io.exposure.ExposureWriter`) the sink; resultants are pulled from
+the one and pushed to the other, so the sink never drives the source.
+:func:`run_scene` builds the engine from a scene (:func:`build_engine`: the sky of
+:mod:`scenesim.sky.rates`, the effects of :mod:`scenesim.detector`, the noise of
+:mod:`noise`), runs that loop, then optionally fits the slopes
+(:func:`scenesim.calib.prepare.fit_exposure_file`) and compares them with the truth
+(:func:`scenesim.validate.compare.compare_files`).
+
 Only the outputs asked for are made: with ``[output] ramp = false`` (slopes only) no
 ramp file is written at all -- the resultants are kept in memory
 (``write_exposure(engine, None)``) and fitted from there
 (:func:`scenesim.calib.prepare.prepare_exposure` takes an in-memory
 :class:`~scenesim.io.exposure.Exposure` whose header and read table are those the file
 would have had, so the slopes equal those of a fit of the written file, bit for
-bit; checked on the 2048 x 2048 star field).  What it saves there
-(``scenes/h2rg_starfield.toml`` with ``fit = "gls"``, 10 resultants, an 84 MB ramp,
-2-core machine): the ramp file's write, 0.1-0.26 s, and its read-back, 0.04 s, and
-the 84 MB on disk -- about 1 % of the ~26 s run, below the run-to-run scatter of
-the end-to-end time (25-30 s on a quiet machine).
-
-Stages, each in its own module: rates (:mod:`scenesim.sky.sources`, :mod:`scenesim.sky.psf`,
-:mod:`scenesim.sky.lightcurve`), discrete events (:mod:`scenesim.sky.cosmic`), charge and
-effects read by read (:mod:`scenesim.engine`, :mod:`scenesim.detector.effects`), noise
-(:mod:`noise`), files (:mod:`scenesim.io.exposure`), then optionally fitting
-(:mod:`scenesim.rampfit.fit`) and the comparison with truth (:mod:`scenesim.validate.compare`).
+bit).  Every output path is checked before any work starts.
 
 Random streams: the scene seed is the root ``SeedSequence``; every part draws from
 its own stream of the registry :mod:`noise.streams` (engine, noise, Poisson, cosmic

@@ -1,3 +1,14 @@
-"""Files: the exposure (uncal), truth and slope files, written and read."""
+"""Files: the exposure (uncal), truth and slope files, written and read.
 
-__all__ = []
+:mod:`~scenesim.io.exposure` (exposure and truth files, :class:`ExposureWriter`),
+:mod:`~scenesim.io.fitfile` (slope files, ours and JWST rate files) and
+:mod:`~scenesim.io.header` (the one header contract: every card written, and how it
+is read back).
+"""
+
+from scenesim.io.exposure import (Exposure, ExposureWriter, read_exposure, read_truth,
+                                  truth_path_for)
+from scenesim.io.fitfile import FitResult, read_fit, read_slopes, write_fit
+
+__all__ = ["Exposure", "ExposureWriter", "read_exposure", "read_truth", "truth_path_for",
+           "FitResult", "read_fit", "write_fit", "read_slopes"]

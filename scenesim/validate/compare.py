@@ -10,7 +10,7 @@ The report has three parts, each in its own module:
 
 and optional figures (:mod:`scenesim.validate.plots`).
 
-Fit files: the scenesim layout (:func:`scenesim.rampfit.fit.read_fit`, e-/s) or a JWST rate
+Fit files: the scenesim layout (:func:`scenesim.io.fitfile.read_fit`, e-/s) or a JWST rate
 file (``SCI`` in DN/s, ``DQ``, ``VAR_POISSON`` and ``VAR_RNOISE`` in (DN/s)^2, or
 ``ERR``), converted to e- with the truth header's ``GAIN`` (e-/DN).  The layout is
 detected from the extension names.
@@ -147,7 +147,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     Parameters
     ----------
     fit : FitResult or dict
-        A :class:`scenesim.rampfit.fit.FitResult`, or a dict with ``slope`` (e-/s), ``var``
+        A :class:`scenesim.io.fitfile.FitResult`, or a dict with ``slope`` (e-/s), ``var``
         ((e-/s)^2, reported), ``dq`` (uint32) of shape (ny, nx), optionally ``chi2`` and
         ``read_noise`` (e- per read).
     truth : dict

@@ -15,7 +15,7 @@ not flagged ``DO_NOT_USE``.  For each bin, with ``r = fit - truth``:
   136, 045004, eqs. 28-29; integrations are independent, so their optimal combination
   divides it by ``nints``).  ``std_opt`` = 1 for an optimal fitter; an equal-weight
   fitter reaches ``sqrt(V_ols / V_opt)`` (``ols_ratio``, the bin mean, from
-  :func:`scenesim.rampfit.fit.ols_variance`).  Its standard error is about
+  :func:`scenesim.rampfit.variance.ols_variance`).  Its standard error is about
   ``std_opt / sqrt(2 n)``;
 * ``chi2_fit``: mean reported ``CHI2`` (when the file has it);
 * ``frac_flagged``: fraction of the bin's regular pixels with any DQ bit set.
