@@ -316,33 +316,14 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
     gain, t_frame = cfg["gain"], cfg["t_frame"]
     rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
     e = exp.sci.astype(np.float32) * np.float32(gain)
-    ceiling = (2 ** cfg["adc_bits"] - 1) * gain
     tbar = ro.mean_times(t_frame)
-    t_last = np.array([t[-1] for t in ro.read_times(t_frame)])
-    n_reads = np.asarray(ro.n_per_resultant)
+    refmask = det.reference_mask()
     kernel = header_ipc_kernel(hdr)          # None: no IPC, identity or not recorded
     decon = options.deconvolve_ipc and kernel is not None
-    rn_gain, ceiling_flags = 1.0, None
-    if decon:
-        # the ADC clip is not linear: judged on the raw ramps, and grown to the 3 x 3
-        # box (undoing IPC spreads a clipped pixel's error into its neighbours)
-        if np.any(t_last > tbar) or float(e.max()) >= ceiling:
-            ceiling_flags = saturation_flags(
-                e, tbar, SaturationOptions(0.0, ceiling, grow=1), t_last=t_last,
-                n_reads=n_reads)
-        _undo_recorded_ipc(e, kernel, exp.name, rdn, gain, options.threads)
-        rn_gain = ipc_noise_gain(kernel)
+    sat, rn_gain = _undo_ipc_and_flag_saturation(e, exp.name, hdr, cfg, ro, tbar,
+                                                 kernel, decon, rdn, refmask,
+                                                 options.threads)
     rdn_model = rdn * rn_gain
-    # growth hides the bend that a saturating pixel puts in its neighbours through
-    # IPC; not needed once IPC is undone
-    grow = 1 if not decon and (kernel is not None or cfg["ipc_unrecorded"]) else 0
-    refmask = det.reference_mask()
-    sat = saturation_flags(
-        e, tbar, SaturationOptions(cfg["full_well"], ceiling, read_noise=rdn_model,
-                                   nonlinearity=header_nonlinearity(hdr), grow=grow),
-        t_last=t_last, n_reads=n_reads, refmask=refmask)
-    if ceiling_flags is not None:
-        sat |= ceiling_flags
     if options.refpix != "none" and refmask.any():
         e = np.asarray(correct_reference(e, det, scheme=options.refpix),
                        dtype=np.float32)
@@ -361,6 +342,36 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
         t_frame=t_frame, electrons=e, saturated=sat, read_times=times,
         read_noise=rn_fit, read_noise_model=float(rdn_model), refmask=refmask,
         cards=cards)
+
+
+def _undo_ipc_and_flag_saturation(e, name, hdr, cfg, ro, tbar, kernel, decon, rdn,
+                                  refmask, threads):
+    """Steps 2-3 on ``e`` (in place): IPC undone when ``decon``, then the saturation
+    flags; returns the flags and the read-noise factor of the deconvolution."""
+    gain = cfg["gain"]
+    ceiling = (2 ** cfg["adc_bits"] - 1) * gain
+    t_last = np.array([t[-1] for t in ro.read_times(cfg["t_frame"])])
+    n_reads = np.asarray(ro.n_per_resultant)
+    rn_gain, ceiling_flags = 1.0, None
+    if decon:
+        # the ADC clip is not linear: judged on the raw ramps, and grown to the 3 x 3
+        # box (undoing IPC spreads a clipped pixel's error into its neighbours)
+        if np.any(t_last > tbar) or float(e.max()) >= ceiling:
+            ceiling_flags = saturation_flags(
+                e, tbar, SaturationOptions(0.0, ceiling, grow=1), t_last=t_last,
+                n_reads=n_reads)
+        _undo_recorded_ipc(e, kernel, name, rdn, gain, threads)
+        rn_gain = ipc_noise_gain(kernel)
+    # growth hides the bend that a saturating pixel puts in its neighbours through
+    # IPC; not needed once IPC is undone
+    grow = 1 if not decon and (kernel is not None or cfg["ipc_unrecorded"]) else 0
+    sat = saturation_flags(
+        e, tbar, SaturationOptions(cfg["full_well"], ceiling, read_noise=rdn * rn_gain,
+                                   nonlinearity=header_nonlinearity(hdr), grow=grow),
+        t_last=t_last, n_reads=n_reads, refmask=refmask)
+    if ceiling_flags is not None:
+        sat |= ceiling_flags
+    return sat, rn_gain
 
 
 def _undo_recorded_ipc(e, kernel, name, read_noise, gain, threads):

@@ -98,6 +98,7 @@ __all__ = [
     "ROMAN_LIKE_TABLE",
     "ROMAN_LIKE_SKIP_TABLE",
     "RESET_MODES",
+    "resultant_moments",
 ]
 
 #: Reset modes accepted by :class:`Readout`.
@@ -511,14 +512,10 @@ class Readout:
         times = self._broadcast(self._needed_base_times(t_frame), pix)
         return np.split(times, np.cumsum(self.n_per_resultant)[:-1], axis=0)
 
-    def _per_resultant(self, t_frame, weights_fn):
+    def _moments(self, t_frame):
+        """:func:`resultant_moments` of the resultants of a pixel at clock offset 0."""
         base = self._needed_base_times(t_frame)
-        out = np.empty(self.ngroups)
-        start = 0
-        for r, n in enumerate(self.n_per_resultant):
-            out[r] = weights_fn(int(n)) @ base[start:start + n]
-            start += n
-        return out
+        return resultant_moments(np.split(base, np.cumsum(self.n_per_resultant)[:-1]))
 
     def mean_times(self, t_frame, pixel_time=0.0):
         """Mean read time ``t_bar`` of each resultant, from the pixel's reset.
@@ -536,8 +533,7 @@ class Readout:
         """
         t_frame = _check_t_frame(t_frame)
         pix = _check_pixel_time(pixel_time)
-        base = self._per_resultant(t_frame, lambda n: np.full(n, 1.0 / n))
-        return self._broadcast(base, pix)
+        return self._broadcast(self._moments(t_frame)[1], pix)
 
     def tau(self, t_frame, pixel_time=0.0):
         """Brandt (2024) ``tau`` of each resultant: Poisson variance per unit rate.
@@ -559,13 +555,7 @@ class Readout:
         """
         t_frame = _check_t_frame(t_frame)
         pix = _check_pixel_time(pixel_time)
-
-        def weights(n):
-            k = np.arange(1, n + 1)
-            return (2 * n - 2 * k + 1) / float(n * n)
-
-        base = self._per_resultant(t_frame, weights)
-        return self._broadcast(base, pix)
+        return self._broadcast(self._moments(t_frame)[2], pix)
 
     def tgroup(self, t_frame):
         """Time between the starts of consecutive groups, seconds (float).
@@ -761,3 +751,46 @@ class Readout:
                        nskip=meta.get("DROPFRM1", 0))
         except ParameterError as exc:
             raise FileFormatError(f"'table' describes an invalid readout: {exc}") from exc
+
+
+def resultant_moments(read_times):
+    """Reads, mean read time and Brandt's ``tau`` of every resultant (module notes).
+
+    The one implementation of the resultant time moments: :meth:`Readout.mean_times`
+    and :meth:`Readout.tau` use it, and so does the ramp fitter
+    (:class:`scenesim.rampfit.covariance.RampCovariance`).
+
+    Parameters
+    ----------
+    read_times : sequence of 1-D array_like, seconds
+        Sorted read times of each resultant, one array (>= 1 read) per resultant.
+
+    Returns
+    -------
+    n : ndarray, shape (nres,), float64
+        Reads averaged into each resultant, ``N``.
+    tbar : ndarray, shape (nres,), float64, s
+        Mean read time ``(1/N) sum_k t_k``.
+    tau : ndarray, shape (nres,), float64, s
+        ``(1/N^2) sum_{k=1}^{N} (2N - 2k + 1) t_k``: the Poisson variance of the
+        resultant per unit rate (e-^2 per e-/s).
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        An entry that is not a non-empty 1-D array of times.
+    """
+    nres = len(read_times)
+    n, tbar, tau = np.empty(nres), np.empty(nres), np.empty(nres)
+    for r, t in enumerate(read_times):
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        if t.ndim != 1 or t.size == 0:
+            raise ParameterError(
+                f"'read_times'[{r}] must be a non-empty 1-D array of read times (s), "
+                f"got shape {t.shape}")
+        m = t.size
+        k = np.arange(1, m + 1)
+        n[r] = m
+        tbar[r] = np.full(m, 1.0 / m) @ t
+        tau[r] = ((2 * m - 2 * k + 1) / float(m * m)) @ t
+    return n, tbar, tau

@@ -37,6 +37,8 @@ Where ``sigma = 0`` the covariance is evaluated at a rate of at least
 
 import numpy as np
 
+from scenesim.detector.readout import resultant_moments
+
 __all__ = ["RampCovariance", "RATE_FLOOR"]
 
 #: Least rate (e-/s) of the covariance where the read noise is 0.
@@ -55,7 +57,9 @@ class RampCovariance:
     Attributes
     ----------
     n, tbar, tau : ndarray, shape (nres,), float64
-        Reads per resultant, mean read time (s) and Brandt's ``tau`` (s).
+        Reads per resultant, mean read time (s) and Brandt's ``tau`` (s), from
+        :func:`scenesim.detector.readout.resultant_moments` (the one implementation,
+        also behind ``Readout.mean_times`` and ``Readout.tau``).
     dt : ndarray, shape (nres - 1,), s
         ``tbar_{i+1} - tbar_i``.
     Ar, Ap : ndarray, shape (nres - 1,)
@@ -65,9 +69,7 @@ class RampCovariance:
     """
 
     def __init__(self, read_times):
-        self.n = np.array([t.size for t in read_times], dtype=float)
-        self.tbar = np.array([t.mean() for t in read_times])
-        self.tau = np.array([_tau(t) for t in read_times])
+        self.n, self.tbar, self.tau = resultant_moments(read_times)
         self.dt = np.diff(self.tbar)
         n, tb, tau, dt = self.n, self.tbar, self.tau, self.dt
         self.Ar = (1 / n[:-1] + 1 / n[1:]) / dt ** 2
@@ -88,10 +90,3 @@ class RampCovariance:
         """
         return ((self.Ar.tolist(), self.Ap.tolist()),
                 (self.Br.tolist(), self.Bp.tolist()))
-
-
-def _tau(t):
-    """Brandt (2024) tau: ``(1/N^2) sum_k (2N - 2k + 1) t_k``, k = 1..N, t sorted."""
-    n = t.size
-    k = np.arange(1, n + 1)
-    return float(np.dot(2 * n - 2 * k + 1, t)) / n ** 2

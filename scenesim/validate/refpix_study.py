@@ -131,6 +131,20 @@ def white_noise_added(detector, params=NIRSPEC_DEFAULTS, *, scheme="jwst", side_
 
     ngrp = 2 * nout
     group = 2 * col_out + (np.arange(nx) % ncol) % 2             # output/parity of a column
+    var = _jwst_variance(ny, sr2, group, ngrp, (bottom, top, side), side_window, sigma)
+    onehot = (group[:, None] == np.arange(ngrp)[None, :]).astype(float)
+    counts = reg.astype(float) @ onehot                          # (ny, G) regular pixels
+    return float(np.sum(counts * var) / counts.sum() / sig2)
+
+
+def _jwst_variance(ny, sr2, group, ngrp, edges, side_window, sigma):
+    """``Var(e)`` (ny, G) of the ``'jwst'`` estimate per row and output/parity group.
+
+    ``sr2`` (nout,) reference-pixel white variance per output, ``group`` (nx,) the
+    group of every column, ``edges`` the bottom rows, top rows and side columns
+    (:func:`scenesim.calib.refpix.reference_edges`); formulas in the module notes.
+    """
+    bottom, top, side = edges
     grp_out = np.arange(ngrp) // 2
     ncols_g = np.bincount(group, minlength=ngrp)                 # columns per group
     halves = [h for h in (bottom, top) if h.size]
@@ -149,7 +163,7 @@ def white_noise_added(detector, params=NIRSPEC_DEFAULTS, *, scheme="jwst", side_
     if side.size:
         lo, hi = window_bounds(ny, side_window)
         weff = (hi - lo).astype(float)
-        s2 = np.sum(sr2[col_out[side]]) / side.size ** 2         # one row's side mean
+        s2 = np.sum(sr2[group[side] // 2]) / side.size ** 2      # one row's side mean
         var += (s2 / weff)[:, None]
         if halves:
             # Corner pixels are in both m_h and the side rows of the window.
@@ -162,9 +176,7 @@ def white_noise_added(detector, params=NIRSPEC_DEFAULTS, *, scheme="jwst", side_
                                         / (len(halves) * h.size))[None, :]
             cov /= (side.size * weff)[:, None]
             var += 2 * cov @ alpha.T
-    onehot = (group[:, None] == np.arange(ngrp)[None, :]).astype(float)
-    counts = reg.astype(float) @ onehot                          # (ny, G) regular pixels
-    return float(np.sum(counts * var) / counts.sum() / sig2)
+    return var
 
 
 def _regular(detector):

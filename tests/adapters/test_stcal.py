@@ -29,6 +29,8 @@ import pytest
 
 stcal = pytest.importorskip("stcal")
 
+import scenesim  # noqa: E402
+
 from astropy.io import fits  # noqa: E402
 
 from noise.clock import preset  # noqa: E402
@@ -97,8 +99,6 @@ def test_stcal_read_noise_convention():
 
 
 def test_importing_the_adapter_does_not_import_stcal():
-    import scenesim
-
     root = os.path.dirname(os.path.dirname(os.path.abspath(scenesim.__file__)))
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))

@@ -28,6 +28,7 @@ from scenesim.io.fitfile import read_fit
 from scenesim.calib.prepare import (PreparedExposure, PrepareOptions, fit_exposure_file,
                                     load_exposure, prepare_exposure)
 from scenesim.io.header import exposure_readout, header_nonlinearity
+from scenesim.detector.nonlinearity import Nonlinearity, linearize_resultants
 from scenesim.detector.readout import Readout
 from scenesim.calib.refpix import correct_reference
 from scenesim.run import run_scene
@@ -245,8 +246,6 @@ def test_linearize_resultants_inverts_the_recorded_nonlinearity():
     """Closed form: single-read resultants m_k = z + p(f t_k) with p(q) = q + c2 q^2
     + c3 q^3 and a zero level z; linearising gives z + f t_k back (to float32
     round-off of values ~5e4 e-, i.e. < 0.01 e-), and the header round-trips."""
-    from scenesim.detector.nonlinearity import Nonlinearity
-    from scenesim.detector.nonlinearity import linearize_resultants
     nl = Nonlinearity((-8e-7, -2e-12))
     t = (np.arange(6) + 1) * 10.0                       # s
     f = np.array([[10.0, 300.0], [1000.0, 800.0]])      # e-/s, up to 6e4 e-

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 from scipy.signal import convolve2d
 
+import noise
 from noise.clock import preset
 from noise.errors import ParameterError
 from scenesim.detector.nonlinearity import Nonlinearity
@@ -33,6 +34,10 @@ from scenesim.rampfit import fit_ramps
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.calib.prepare import PrepareOptions, prepare_exposure
 from scenesim.calib.saturation import SaturationOptions, saturation_flags
+from scenesim.detector.readout import Readout
+from scenesim.engine import ChargeEngine, EngineOptions
+from scenesim.io.exposure import Exposure
+from scenesim.run import write_exposure
 
 FW = 8e4                      # e-, full well
 C2, C3 = -8e-7, -2e-12        # nonlinearity: p(FW) = 0.923 FW
@@ -283,11 +288,6 @@ def _engine_exposure():
     """An engine exposure of the star above (RAPID: read = resultant; FW reached at
     read 12) with IPC and nonlinearity in the header, and the engine's record of the
     first read at FW per pixel."""
-    import noise
-    from scenesim.engine import ChargeEngine, EngineOptions
-    from scenesim.run import write_exposure
-    from scenesim.detector.readout import Readout
-
     det = preset("H2RG", naxis1=32, naxis2=32)
     ro = Readout.multiaccum(1, 20, name="RAPID")
     rate = star(det.shape, [(15, 16)], [3.5e4 * T_FRAME / det.frame_time])
@@ -325,7 +325,6 @@ def test_prepare_exposure_grows_flags_when_ipc_is_not_undone():
     exp, truth = _engine_exposure()
     old_header = exp.header.copy()
     del old_header["IPCKERN"]
-    from scenesim.io.exposure import Exposure
     for prep in (prepare_exposure(exp,
                                   options=PrepareOptions(remove_common_mode=False,
                                                          measure_noise=False,
@@ -354,7 +353,6 @@ def test_adc_ceiling_is_judged_on_the_raw_ramps_and_grown_when_ipc_undone():
     # (alpha times the clipped signal) into its neighbours, so with IPC undone the
     # ceiling is tested on the raw ramps and its flags grown to the 3 x 3 box.
     # Here one dark pixel is set to the 16-bit ceiling from resultant 6 on.
-    from scenesim.io.exposure import Exposure
     exp, truth = _engine_exposure()
     sci = exp.sci.copy()
     sci[0, 6:, 8, 9] = 65535

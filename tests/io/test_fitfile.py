@@ -9,6 +9,7 @@ import os
 
 import numpy as np
 import pytest
+from astropy.io import fits
 
 from noise.errors import FileFormatError, ParameterError
 from ramp_sim import SIGMA, jwst_times, simulate
@@ -17,8 +18,6 @@ from scenesim.rampfit import fit_ramps
 
 
 def test_write_read_roundtrip(tmp_path):
-    from astropy.io import fits
-
     times = jwst_times(4)
     rng = np.random.default_rng(17)
     res = simulate(rng, 3.0, times, SIGMA, (6, 5), nints=2)
