@@ -359,7 +359,7 @@ def _ramp_data(RampData, prep, alg):
     rd = RampData()
     rd.set_arrays(data, gdq, np.zeros(prep.electrons.shape[-2:], np.uint32),
                   np.zeros(prep.electrons.shape[-2:], _F32))
-    rd.set_meta(name=str(prep.header.get("DETECTOR", "HxRG")), frame_time=t_frame,
+    rd.set_meta(name=prep.detector.name, frame_time=t_frame,
                 group_time=group_time, groupgap=groupgap, nframes=nframes,
                 drop_frames1=drop1)
     rd.algorithm = alg
