@@ -164,16 +164,12 @@ def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
 
     Parameters
     ----------
-    resultants, read_times, saturated, refmask :
-        As in :func:`scenesim.rampfit.fit_ramps`.
+    resultants, read_times, saturated, refmask, max_rows, threads :
+        As in :func:`measure_read_noise`.
     read_noise : float or ndarray (ny, nx), e- per read (not CDS), >= 0
         Model read noise (selects read-noise dominated pixels).
     groups : ndarray of int, shape (ny, nx)
         Group label (>= 0) of every pixel, e.g. the output index of its column.
-    max_rows : int
-        Rows used (>= 1): every ``ceil(ny / max_rows)``-th row.
-    threads : int or None
-        As in :func:`scenesim.rampfit.fit_ramps`.
 
     Returns
     -------

@@ -3,9 +3,8 @@ Carlo ramps: efficiency and calibrated errors of every fitter, the reported vari
 several integrations, saturation and short ramps, invariances, null limits and input
 checks.
 
-The ramps are simulated by the shared helper ``tests/ramp_sim.py``, independently of the
-simulator, and the reference variances come from a dense covariance of the resultants
-computed from the read times themselves, not from the module's formulas.
+Ramps and reference variances come from ``tests/ramp_sim.py`` (built from the read
+times alone, independently of the simulator and of the package's formulas).
 """
 
 import numpy as np

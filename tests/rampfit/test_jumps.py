@@ -2,9 +2,8 @@
 jumps, hits are found and excluded, and the split ramps give unbiased slopes with
 calibrated errors.
 
-The ramps are simulated by the shared helper ``tests/ramp_sim.py``, independently of the
-simulator, and the reference variances come from a dense covariance of the resultants
-computed from the read times themselves, not from the module's formulas.
+Ramps and reference variances come from ``tests/ramp_sim.py`` (built from the read
+times alone, independently of the simulator and of the package's formulas).
 """
 
 import numpy as np
