@@ -96,9 +96,9 @@ from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
 from scenesim.io.exposure import Exposure
 from scenesim.io.fitfile import write_fit
-from scenesim.io.header import (COPIED_KEYS, card, exposure_card, exposure_read_noise,
-                                exposure_readout, header_ipc_kernel,
-                                header_nonlinearity)
+from scenesim.io.header import (exposure_read_noise, exposure_readout,
+                                exposure_settings, header_ipc_kernel, header_nonlinearity,
+                                preparation_cards)
 from scenesim.rampfit.fitter import FITTERS, fit_ramps
 
 __all__ = ["PrepareOptions", "PreparedExposure", "prepare_exposure", "load_exposure",
@@ -268,20 +268,6 @@ def _check_options(options):
     return options
 
 
-def _exposure_settings(header):
-    """The exposure's scalar cards the preparation needs, read in one place.
-
-    Returns a dict: ``gain`` (``GAIN``, e-/DN), ``t_frame`` (``TFRAME``, s),
-    ``adc_bits`` (``ADCBITS``, default 16), ``full_well`` (``FULLWELL``, e-, default
-    0: unknown) and ``ipc_unrecorded`` (``IPC`` true but no ``IPCKERN``: the kernel
-    is unknown).
-    """
-    return {"gain": float(header["GAIN"]), "t_frame": float(header["TFRAME"]),
-            "adc_bits": int(header.get("ADCBITS", 16)),
-            "full_well": float(header.get("FULLWELL", 0.0)),
-            "ipc_unrecorded": bool(header.get("IPC", False)) and "IPCKERN" not in header}
-
-
 def prepare_exposure(exposure, *, options=PrepareOptions()):
     """Read an exposure and make its ramps ready for a fitter (module notes).
 
@@ -312,7 +298,7 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
     ro = exposure_readout(exp)
     hdr = exp.header
     det = detector_from_header(hdr)
-    cfg = _exposure_settings(hdr)
+    cfg = exposure_settings(hdr)
     gain, t_frame = cfg["gain"], cfg["t_frame"]
     rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
     e = exp.sci.astype(np.float32) * np.float32(gain)
@@ -335,7 +321,7 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
     else:
         times = ro.read_times(t_frame)
     e, rn_fit = _noise_from_data(e, times, det, sat, refmask, rdn_model, options)
-    cards = _preparation_cards(exp.name, hdr, options, rdn_model, decon, rn_gain,
+    cards = preparation_cards(exp.name, hdr, options, rdn_model, decon, rn_gain,
                                nl is not None)
     return PreparedExposure(
         name=exp.name, header=hdr, detector=det, readout=ro, gain=gain,
@@ -401,25 +387,6 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
     return e, measure_read_noise(e, times, read_noise=rdn_model, groups=columns,
                                  saturated=sat, refmask=refmask,
                                  threads=options.threads)
-
-
-def _preparation_cards(name, hdr, options, rdn_model, decon, rn_gain, linearized):
-    """Cards recording the exposure and the preparation, then the copied keys."""
-    cards = [exposure_card(name),
-             ("REFPIX", options.refpix, "reference-pixel correction"),
-             ("RNCONV", "per read", "read noise convention: per read, not CDS"),
-             ("RNMODEL", float(rdn_model), "[e-] model white read noise per read"),
-             ("RNSOURCE", "measured" if options.measure_noise else "model",
-              "RNOISE: per-column measured or model"),
-             ("CMREMOVE", bool(options.remove_common_mode),
-              "per-output common mode removed"),
-             ("IPCDECON", bool(decon), "IPC kernel (IPCKERN) deconvolved"),
-             ("IPCRNFAC", float(rn_gain), "read noise x this by the IPC deconvolution"),
-             ("LINCORR", linearized, "classical nonlinearity inverted (NLCOEFF)")]
-    for key in COPIED_KEYS:
-        if key in hdr:
-            cards.append(card(key, hdr[key], hdr.comments[key]))
-    return tuple(cards)
 
 
 def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,

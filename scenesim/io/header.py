@@ -44,7 +44,8 @@ from scenesim.sky.psf import AiryPSF, GaussianPSF
 __all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
            "printable", "exposure_card", "exposure_read_noise", "exposure_readout",
            "readout_from_header", "readout_from_table", "header_nonlinearity", "header_ipc_kernel",
-           "header_psf"]
+           "header_psf", "exposure_settings", "preparation_cards",
+           "header_ipc_deconvolved"]
 
 
 #: Exposure header keywords copied into the header of a fit.
@@ -278,6 +279,66 @@ def readout_from_header(header):
                                   name=str(header.get("READPATT", "CUSTOM")))
     except ParameterError as exc:
         raise FileFormatError(f"truth header describes an invalid readout: {exc}") from exc
+
+
+def exposure_settings(header):
+    """The scalar cards of an exposure or truth header, read in one place.
+
+    Returns
+    -------
+    dict
+        ``gain`` (``GAIN``, e-/DN, None if absent), ``t_frame`` (``TFRAME``, s, None
+        if absent), ``nints`` (``NINTS``, default 1), ``adc_bits`` (``ADCBITS``,
+        default 16), ``full_well`` (``FULLWELL``, e-, default 0: none or unknown),
+        ``ipc`` (``IPC``: IPC was applied) and ``ipc_unrecorded`` (``IPC`` true but
+        no ``IPCKERN``: the kernel is unknown).
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        A card that is present has a value of the wrong type.
+    """
+    try:
+        return {"gain": float(header["GAIN"]) if "GAIN" in header else None,
+                "t_frame": float(header["TFRAME"]) if "TFRAME" in header else None,
+                "nints": int(header.get("NINTS", 1)),
+                "adc_bits": int(header.get("ADCBITS", 16)),
+                "full_well": float(header.get("FULLWELL", 0.0)),
+                "ipc": bool(header.get("IPC", False)),
+                "ipc_unrecorded": bool(header.get("IPC", False)) and "IPCKERN" not in header}
+    except (TypeError, ValueError) as exc:
+        raise FileFormatError(f"header card has a value of the wrong type: {exc}") from exc
+
+
+def preparation_cards(name, hdr, options, rdn_model, decon, rn_gain, linearized):
+    """Cards of a fit file recording the exposure and its preparation
+    (:func:`scenesim.calib.prepare.prepare_exposure`), then the exposure's
+    :data:`COPIED_KEYS`.
+
+    ``EXPOSURE`` (its path), ``REFPIX``, ``RNCONV`` (read noise per read, not CDS),
+    ``RNMODEL`` (e-), ``RNSOURCE``, ``CMREMOVE``, ``IPCDECON`` (IPC undone, read back
+    by :func:`header_ipc_deconvolved`), ``IPCRNFAC`` and ``LINCORR``.
+    """
+    cards = [exposure_card(name),
+             ("REFPIX", options.refpix, "reference-pixel correction"),
+             ("RNCONV", "per read", "read noise convention: per read, not CDS"),
+             ("RNMODEL", float(rdn_model), "[e-] model white read noise per read"),
+             ("RNSOURCE", "measured" if options.measure_noise else "model",
+              "RNOISE: per-column measured or model"),
+             ("CMREMOVE", bool(options.remove_common_mode),
+              "per-output common mode removed"),
+             ("IPCDECON", bool(decon), "IPC kernel (IPCKERN) deconvolved"),
+             ("IPCRNFAC", float(rn_gain), "read noise x this by the IPC deconvolution"),
+             ("LINCORR", linearized, "classical nonlinearity inverted (NLCOEFF)")]
+    for key in COPIED_KEYS:
+        if key in hdr:
+            cards.append(card(key, hdr[key], hdr.comments[key]))
+    return tuple(cards)
+
+
+def header_ipc_deconvolved(header):
+    """True when a fit file's header says the fit undid IPC (``IPCDECON``)."""
+    return bool(header.get("IPCDECON", False))
 
 
 def psf_cards(psf):

@@ -34,7 +34,8 @@ from noise.errors import FileFormatError, ParameterError
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.readout import Readout
 from scenesim.io.exposure import read_truth
-from scenesim.io.header import (exposure_read_noise, header_ipc_kernel, header_psf,
+from scenesim.io.header import (exposure_read_noise, exposure_settings,
+                                header_ipc_deconvolved, header_ipc_kernel, header_psf,
                                 readout_from_header, readout_from_table)
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.io.fitfile import fit_arrays, read_slopes
@@ -198,7 +199,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     if read_times is None:
         readout, read_times = _read_times(hdr, readout, notes)
     if nints is None:
-        nints = int(hdr.get("NINTS", 1))
+        nints = exposure_settings(hdr)["nints"]
 
     dq = f["dq"]
     regular = (dq & np.uint32(REFERENCE_PIXEL)) == 0
@@ -283,14 +284,15 @@ def _read_noise(read_noise, hdr, f, kernel):
 
 def _read_times(hdr, readout, notes):
     """``(readout, read_times)`` from the readout given, else the truth header."""
-    if "TFRAME" not in hdr:
+    t_frame = exposure_settings(hdr)["t_frame"]
+    if t_frame is None:
         raise FileFormatError("truth header lacks 'TFRAME'; pass 'read_times' or the "
                               "exposure file")
     if readout is None:
         readout = readout_from_header(hdr)
         notes.append("read times rebuilt as MULTIACCUM from the truth header (exact "
                      "for MULTIACCUM patterns only; pass the exposure for others)")
-    return readout, readout.read_times(float(hdr["TFRAME"]))
+    return readout, readout.read_times(t_frame)
 
 
 def _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes):
@@ -300,19 +302,20 @@ def _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes):
         notes.append("jumps: truth has no CRS table with X, Y, CHARGE, SEEN: skipped")
         return {}
     hdr = truth["header"]
+    settings = exposure_settings(hdr)
     windows = None
-    if readout is None and "TFRAME" in hdr and "NGROUPS" in hdr:
+    if readout is None and settings["t_frame"] is not None and "NGROUPS" in hdr:
         try:
             readout = readout_from_header(hdr)
         except FileFormatError:
             readout = None
-    if readout is not None and "TFRAME" in hdr:
-        windows = ramp_windows(truth, readout, float(hdr["TFRAME"]))
+    if readout is not None and settings["t_frame"] is not None:
+        windows = ramp_windows(truth, readout, settings["t_frame"])
     if windows is None:
         notes.append("jumps: no detector cards or readout in the truth: every seen "
                      "deposit counts as a hit, even one before the first read")
     return jump_stats(dq, crs, dq.shape, read_noise, cr_sigma, regular,
-                      windows=windows, ipc=bool(hdr.get("IPC", False)))
+                      windows=windows, ipc=settings["ipc"])
 
 
 def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
@@ -338,16 +341,17 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     """
     truth = read_truth(os.fspath(truth_path))
     hdr = truth["header"]
-    gain = float(hdr["GAIN"]) if "GAIN" in hdr else None
+    gain = exposure_settings(hdr)["gain"]
     fit = read_slopes(fit_path, gain=gain)
     notes = [f"fit layout: {fit['layout']}"]
-    ipc_deconvolved = bool(fits.getheader(os.fspath(fit_path)).get("IPCDECON", False))
+    ipc_deconvolved = header_ipc_deconvolved(fits.getheader(os.fspath(fit_path)))
     read_times = nints = ro = None
     if exposure is not None:
         ro, ehdr = _readout_from_exposure(exposure)
-        if "TFRAME" not in ehdr:
+        t_frame = exposure_settings(ehdr)["t_frame"]
+        if t_frame is None:
             raise FileFormatError(f"exposure {exposure!r} lacks header keyword 'TFRAME'")
-        read_times = ro.read_times(float(ehdr["TFRAME"]))
+        read_times = ro.read_times(t_frame)
         nints = ro.nints
         notes.append("read times from the exposure's READS table")
     return compare(fit, truth, read_times=read_times, nints=nints, psf=psf,
