@@ -317,6 +317,22 @@ class ChargeEngine:
         self._gens = None         # per-chunk Poisson generators of the integration
         self._drawn = None        # per-chunk draws of the current group of reads
 
+    @property
+    def poisson_layout(self):
+        """The layout of the Poisson streams (module notes), fixed by the detector, the
+        readout and the rates, never by the threads.
+
+        Returns
+        -------
+        dict
+            ``chunks``: one ``(row0, row1, sparse)`` per stream chunk with charge
+            (``sparse``: only its charged pixels are drawn); ``reads_per_call``: reads
+            drawn at once per chunk; ``charged_pixels``: pixels with a rate or a
+            light-curve source.
+        """
+        return {"chunks": [(c0, c1, idx is not None) for c0, c1, idx in self._chunks],
+                "reads_per_call": self._group, "charged_pixels": self._npix_charged}
+
     def _plan_chunks(self):
         """The Poisson stream chunks: row ranges fixed by the detector; a chunk draws
         every pixel (lambda = 0 where there is no charge) when most of it has charge,

@@ -444,8 +444,9 @@ def test_sparse_chunk_grouped_reads_poisson_and_independent():
     eng = ChargeEngine(det, ro, rate=np.where(on, lam / det.frame_time, 0.0), rng=99)
     # the layout this test is about: one chunk drawing only its charged pixels, all
     # reads of an integration in one group
-    assert len(eng._chunks) == 1 and eng._chunks[0][2] is not None
-    assert eng._group >= nreads
+    layout = eng.poisson_layout
+    assert len(layout["chunks"]) == 1 and layout["chunks"][0][2]       # sparse
+    assert layout["reads_per_call"] >= nreads
     charge, _ = _collect(eng)
     cum = charge[:, :, on]                                   # (nints, nreads, npix)
     inc = np.diff(np.concatenate([np.zeros_like(cum[:, :1]), cum], axis=1), axis=1)
@@ -487,8 +488,9 @@ def test_multichunk_results_threads_independent(case):
     def run(threads):
         eng = ChargeEngine(det, ro, rate=rate, variable_sources=[src], rng=5,
                            options=EngineOptions(threads=threads, **opts))
-        assert len(eng._chunks) == 4 and eng._npix_charged > 65536   # pool is used
-        assert eng._group == (2 if case == "sparse" else 1)
+        layout = eng.poisson_layout
+        assert len(layout["chunks"]) == 4 and layout["charged_pixels"] > 65536  # pool
+        assert layout["reads_per_call"] == (2 if case == "sparse" else 1)
         charge, _ = _collect(eng)
         return charge, write_exposure(eng, None)["sci"]
 

@@ -109,6 +109,11 @@ class ForkedProducer:
         self._pid, self._ready, self._free = pid, ready_r, free_w
         self._next = 0
 
+    @property
+    def pid(self):
+        """Process id of the helper, or None once it has been reaped."""
+        return self._pid
+
     def get(self, j):
         """Wait for result ``j`` (in order: 0, 1, ...) and return its arrays (views).
 

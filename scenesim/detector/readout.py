@@ -82,7 +82,6 @@ longest); they are not official Roman MA tables.
 """
 
 import difflib
-import math
 import numbers
 from dataclasses import dataclass
 
@@ -91,6 +90,7 @@ from astropy.table import Table
 
 from noise.clock import frame_slot
 from noise.errors import FileFormatError, ParameterError
+from noise.validate import check_choice, check_float, check_int, check_str, is_sequence
 
 __all__ = [
     "Readout",
@@ -130,33 +130,16 @@ ROMAN_LIKE_SKIP_TABLE = ((0, 1), (1, 1), (3, 2), (8, 4), (16, 4), (28, 8))
 
 
 # ---------------------------------------------------------------------- validators
-def _check_int(name, value, minimum):
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ParameterError(f"{name!r} must be an integer >= {minimum}, got {value!r}")
-    if value < minimum:
-        raise ParameterError(f"{name!r} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def _check_reset_mode(value):
-    if value not in RESET_MODES:
-        raise ParameterError(
-            f"'reset_mode' must be one of {list(RESET_MODES)}, got {value!r}")
-    return value
+    return check_choice("reset_mode", value, RESET_MODES)
 
 
 def _check_name(value):
-    if not isinstance(value, str) or not value:
-        raise ParameterError(f"'name' must be a non-empty string, got {value!r}")
-    return value
+    return check_str("name", value, nonempty=True)
 
 
 def _check_t_frame(value):
-    if (isinstance(value, bool) or not isinstance(value, numbers.Real)
-            or not math.isfinite(value) or value <= 0):
-        raise ParameterError(
-            f"'t_frame' must be a finite number of seconds > 0, got {value!r}")
-    return float(value)
+    return check_float("t_frame", value, minimum=0.0, strict_min=True)
 
 
 def _check_pixel_time(value):
@@ -175,14 +158,14 @@ def _check_pixel_time(value):
 
 def _check_resultants(name, value):
     """Normalise ``value`` to a tuple of tuples of int and check the read order."""
-    if isinstance(value, (str, bytes)) or not _is_sequence(value):
+    if isinstance(value, (str, bytes)) or not is_sequence(value):
         raise ParameterError(
             f"{name!r} must be a non-empty sequence of read-index sequences, "
             f"got {value!r}")
     out = []
     previous = -1
     for r, res in enumerate(value):
-        if isinstance(res, (str, bytes)) or not _is_sequence(res):
+        if isinstance(res, (str, bytes)) or not is_sequence(res):
             raise ParameterError(
                 f"{name!r}: resultant {r} must be a sequence of read indices, "
                 f"got {res!r}")
@@ -211,15 +194,6 @@ def _check_resultants(name, value):
     if not out:
         raise ParameterError(f"{name!r} must contain >= 1 resultant, got {value!r}")
     return tuple(out)
-
-
-def _is_sequence(value):
-    try:
-        len(value)
-        iter(value)
-    except TypeError:
-        return False
-    return True
 
 
 def _multiaccum_reads(nframes, ngroups, groupgap, nskip):
@@ -279,19 +253,19 @@ class Readout:
     def __post_init__(self):
         res = _check_resultants("resultants", self.resultants)
         object.__setattr__(self, "resultants", res)
-        object.__setattr__(self, "nints", _check_int("nints", self.nints, 1))
+        object.__setattr__(self, "nints", check_int("nints", self.nints, minimum=1))
         _check_reset_mode(self.reset_mode)
         _check_name(self.name)
-        object.__setattr__(self, "nskip", _check_int("nskip", self.nskip, 0))
+        object.__setattr__(self, "nskip", check_int("nskip", self.nskip, minimum=0))
         if (self.nframes is None) != (self.groupgap is None):
             raise ParameterError(
                 f"'nframes' and 'groupgap' are MULTIACCUM metadata and must be both "
                 f"set or both None, got nframes={self.nframes!r}, "
                 f"groupgap={self.groupgap!r}")
         if self.nframes is not None:
-            object.__setattr__(self, "nframes", _check_int("nframes", self.nframes, 1))
+            object.__setattr__(self, "nframes", check_int("nframes", self.nframes, minimum=1))
             object.__setattr__(self, "groupgap",
-                               _check_int("groupgap", self.groupgap, 0))
+                               check_int("groupgap", self.groupgap, minimum=0))
             expected = _multiaccum_reads(self.nframes, len(res), self.groupgap,
                                          self.nskip)
             if res != expected:
@@ -333,10 +307,10 @@ class Readout:
             Group ``g`` averages reads ``nskip + g*(nframes+groupgap)`` to
             ``nskip + g*(nframes+groupgap) + nframes - 1``.
         """
-        nframes = _check_int("nframes", nframes, 1)
-        ngroups = _check_int("ngroups", ngroups, 1)
-        groupgap = _check_int("groupgap", groupgap, 0)
-        nskip = _check_int("nskip", nskip, 0)
+        nframes = check_int("nframes", nframes, minimum=1)
+        ngroups = check_int("ngroups", ngroups, minimum=1)
+        groupgap = check_int("groupgap", groupgap, minimum=0)
+        nskip = check_int("nskip", nskip, minimum=0)
         return cls(_multiaccum_reads(nframes, ngroups, groupgap, nskip), nints=nints,
                    reset_mode=reset_mode, name=name, nframes=nframes,
                    groupgap=groupgap, nskip=nskip)
@@ -389,20 +363,20 @@ class Readout:
         -------
         Readout
         """
-        if isinstance(table, (str, bytes)) or not _is_sequence(table) or len(table) == 0:
+        if isinstance(table, (str, bytes)) or not is_sequence(table) or len(table) == 0:
             raise ParameterError(
                 f"'table' must be a non-empty sequence of (first_read, nreads) pairs, "
                 f"got {table!r}")
         reads = []
         previous_last = -1
         for r, entry in enumerate(table):
-            if isinstance(entry, (str, bytes)) or not _is_sequence(entry) \
+            if isinstance(entry, (str, bytes)) or not is_sequence(entry) \
                     or len(entry) != 2:
                 raise ParameterError(
                     f"'table' entry {r} must be a (first_read, nreads) pair, "
                     f"got {entry!r}")
-            first = _check_int(f"table[{r}] first_read", entry[0], 0)
-            n = _check_int(f"table[{r}] nreads", entry[1], 1)
+            first = check_int(f"table[{r}] first_read", entry[0], minimum=0)
+            n = check_int(f"table[{r}] nreads", entry[1], minimum=1)
             if first <= previous_last:
                 raise ParameterError(
                     f"'table' has non-increasing reads: entry {r} starts at read "
@@ -721,7 +695,7 @@ class Readout:
         noise.errors.FileFormatError
             If the table lacks ``READS`` or describes an invalid readout.
         """
-        nints = _check_int("nints", nints, 1)
+        nints = check_int("nints", nints, minimum=1)
         _check_reset_mode(reset_mode)
         _check_name(name)
         try:

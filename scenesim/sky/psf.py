@@ -98,6 +98,11 @@ for the Airy pattern rows of a stamp), so the temporaries stay in cache; the chu
 does not change the result.  Cost grows with the stamp area times the quadrature
 nodes per pixel (``n**2`` for Airy), so pass ``min_rate`` to keep Airy stamps small
 (timings: ``docs/VALIDATION_SCENE.md``).
+
+photutils is imported inside the functions that use it (the photutils conversions,
+the Airy profile table, image-PSF encircled energies), not at the top: its import
+takes ~0.7 s and ~55 MB (``photutils.psf`` pulls in matplotlib), which a noise-only or
+Gaussian-PSF run does not need.
 """
 
 import math
@@ -108,9 +113,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
-from photutils.aperture import CircularAperture
-from photutils.psf import AiryDiskPSF, CircularGaussianPRF
-from photutils.psf import ImagePSF as PhotutilsImagePSF
 from scipy.special import erf, j0, j1
 
 from noise.errors import FileFormatError, ParameterError
@@ -166,6 +168,7 @@ class GaussianPSF:
         The photutils model is pixel-integrated too, so it evaluates to the values
         rendered here (useful for PSF photometry of simulated images).
         """
+        from photutils.psf import CircularGaussianPRF     # lazy (module notes)
         return CircularGaussianPRF(flux=flux, x_0=x_0, y_0=y_0, fwhm=self.fwhm)
 
     # private protocol used by render_point_sources --------------------------
@@ -224,6 +227,7 @@ class AiryPSF:
         Note that the photutils model is *sampled* at pixel centres, not integrated
         over pixels.
         """
+        from photutils.psf import AiryDiskPSF             # lazy (module notes)
         return AiryDiskPSF(flux=flux, x_0=x_0, y_0=y_0, radius=self.radius)
 
     def _useful_radius(self):
@@ -247,6 +251,7 @@ class AiryPSF:
         step_r = _AIRY_TABLE_STEP * a / math.pi
         nstep = int(math.ceil(rmax / step_r)) + 2
         r = np.arange(nstep + 1) * step_r
+        from photutils.psf import AiryDiskPSF             # lazy (module notes)
         model = AiryDiskPSF(flux=1.0, x_0=0.0, y_0=0.0, radius=self.radius)
         values = model.evaluate(r, np.zeros_like(r), 1.0, 0.0, 0.0, self.radius)
         return step_r, np.asarray(values, dtype=float)
@@ -510,6 +515,7 @@ class ImagePSF:
         # that overlap the image edge keep their share (the array stays centred).
         tmp = np.apply_along_axis(np.convolve, 1, self.data, kern, mode="full")
         epsf = np.apply_along_axis(np.convolve, 0, tmp, kern, mode="full")
+        from photutils.psf import ImagePSF as PhotutilsImagePSF   # lazy (module notes)
         return PhotutilsImagePSF(epsf, flux=flux, x_0=x_0, y_0=y_0, oversampling=os_)
 
     # private protocol ------------------------------------------------------
@@ -797,6 +803,7 @@ def encircled_energy(psf, radius):
             if rk == 0:
                 vals[k] = 0.0
                 continue
+            from photutils.aperture import CircularAperture   # lazy (module notes)
             ap = CircularAperture(centre, r=rk * psf.oversample)
             vals[k] = ap.do_photometry(psf.data, method="exact")[0][0]
         out = vals.reshape(r.shape)

@@ -16,8 +16,6 @@ noise ``sqrt(sum V_rep)``.  The median ratio's standard error is
 import math
 
 import numpy as np
-from photutils.aperture import (ApertureStats, CircularAnnulus, CircularAperture,
-                                aperture_photometry)
 
 from scenesim.sky.psf import encircled_energy
 
@@ -28,6 +26,9 @@ _MEDIAN_EFF = 1.2533  # sqrt(pi/2): std of the median / (std / sqrt(n)) for a no
 
 
 def source_photometry(slope, var, bad, sources, psf, radius, notes):
+    # photutils is imported here, not at the top (~0.7 s; see scenesim.sky.psf)
+    from photutils.aperture import (ApertureStats, CircularAnnulus, CircularAperture,
+                                    aperture_photometry)
     ny, nx = slope.shape
     r_in, r_out = 2.0 * radius, 3.0 * radius
     x = np.asarray(sources["x"], dtype=float)

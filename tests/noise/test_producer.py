@@ -65,9 +65,10 @@ def test_child_failure_is_raised_with_its_traceback():
 def test_close_early_reaps_the_child():
     prod = ForkedProducer(_fill, 1000, [(64,), (1,)], depth=2)
     prod.get(0)
-    pid = prod._pid
+    pid = prod.pid
     prod.close()
     prod.close()                                   # idempotent
+    assert prod.pid is None
     with pytest.raises(ChildProcessError):         # already reaped: no zombie left
         os.waitpid(pid, os.WNOHANG)
 
