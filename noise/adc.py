@@ -14,21 +14,13 @@ the same (two passes fewer and no float64 scratch, which the hot paths measure).
 """
 
 import math
-import numbers
 
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import check_map
+from noise.validate import check_int, check_map
 
 __all__ = ["ADC", "to_dn", "from_dn"]
-
-
-def _check_bits(bits):
-    if isinstance(bits, bool) or not isinstance(bits, (numbers.Integral, np.integer)) \
-            or not 1 <= bits <= 32:
-        raise ParameterError(f"'adc_bits' must be an integer in [1, 32], got {bits!r}")
-    return int(bits)
 
 
 class ADC:
@@ -52,7 +44,7 @@ class ADC:
     """
 
     def __init__(self, gain, bits=16, *, shape=None):
-        self.bits = _check_bits(bits)
+        self.bits = check_int("adc_bits", bits, minimum=1, maximum=32)
         if shape is None and np.ndim(gain):
             shape = np.shape(gain)
         self.gain = check_map("gain", gain, shape or (1, 1), minimum=0.0,
