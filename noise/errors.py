@@ -4,7 +4,8 @@ Every error raised for bad input names the parameter, the bad value and what is
 allowed, and is raised before any work starts (and before any file is opened).
 """
 
-__all__ = ["ScenesimError", "ParameterError", "FileFormatError"]
+__all__ = ["ScenesimError", "ParameterError", "FileFormatError", "OutputError",
+           "HelperProcessError"]
 
 
 class ScenesimError(Exception):
@@ -17,3 +18,23 @@ class ParameterError(ScenesimError, ValueError):
 
 class FileFormatError(ScenesimError, ValueError):
     """An input file is missing, unreadable, or does not have the expected layout."""
+
+
+class OutputError(ScenesimError, OSError):
+    """An output file could not be written (disk full, file-size limit, I/O error).
+
+    Raised while writing, after the temporary file has been removed; the message names
+    the output and the operating system's reason.  ``errno`` is the original error's.
+    """
+
+    def __init__(self, message, errno=None):
+        super().__init__(message)
+        self.errno = errno
+
+
+class HelperProcessError(ScenesimError, RuntimeError):
+    """A helper process of the run (the forked 1/f producer) failed or was killed.
+
+    The message says what happened (its traceback when it raised, or that it exited
+    without a result, e.g. after SIGKILL); the run stops and leaves no partial output.
+    """

@@ -9,11 +9,16 @@ Subcommands::
     scenesim bench [WORKLOAD ...] [--quick]                  run time against error
 
 Errors in the input are reported in one line (exit status 2) before any work starts.
+No existing file is replaced without ``--overwrite``, and never a file the command
+reads (:mod:`scenesim.outputs`).  An interrupted command (Ctrl-C, SIGTERM, SIGHUP)
+removes its temporary files, prints one line and exits with 128 + the signal number
+(130 for Ctrl-C).
 """
 
 import argparse
 import dataclasses
 import os
+import signal
 import sys
 import time
 
@@ -24,6 +29,7 @@ from scenesim.adapters.stcal import fit_exposure_stcal
 from scenesim.bench import main as bench_main
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import EngineOptions
+from scenesim.outputs import check_outputs, check_plot_dir, fit_path_for
 from scenesim.run import progress_bar, run_scene
 from scenesim.scene import load_scene
 from scenesim.validate.compare import compare_files
@@ -43,6 +49,7 @@ def _noise(args):
     params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
         rd_noise=5.2)
     gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
+    check_outputs({"output": args.output}, overwrite=args.overwrite)
     t0 = time.perf_counter()
     bar = None
     cb = None
@@ -54,7 +61,8 @@ def _noise(args):
             bar.update(n - bar.n)          # drawn at most every 0.1 s
     try:
         noise.write_noise_fits(args.output, gen, args.frames, nints=args.nints,
-                               unit=args.unit, gain=args.gain, progress=cb)
+                               unit=args.unit, gain=args.gain, progress=cb,
+                               overwrite=args.overwrite)
     finally:
         if bar is not None:
             bar.close()
@@ -72,7 +80,8 @@ def _run(args):
                             arrivals=args.arrivals)
     res = run_scene(scene, output=args.output, seed=args.seed, options=options,
                     progress=not args.quiet, fit=args.fit, refpix=args.refpix,
-                    compare=True if args.compare else None, plots=args.plots)
+                    compare=True if args.compare else None, plots=args.plots,
+                    overwrite=args.overwrite)
     if not args.quiet:
         eng = res.engine
         print(f"scene {args.scene}: {eng.detector.ny}x{eng.detector.nx}, "
@@ -89,25 +98,23 @@ def _run(args):
 
 
 def _fit(args):
-    out = args.output or _default_fit_path(args.exposure, args.fitter)
+    out = args.output or fit_path_for(args.exposure, args.fitter)
+    check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite)
     if args.fitter.lower().startswith("stcal-"):
         fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
-                           options=PrepareOptions(refpix=args.refpix))
+                           options=PrepareOptions(refpix=args.refpix),
+                           overwrite=args.overwrite)
     else:
         fit_exposure_file(args.exposure, out, fitter=args.fitter,
                           options=PrepareOptions(refpix=args.refpix),
-                          jump_threshold=args.jump_threshold)
+                          jump_threshold=args.jump_threshold, overwrite=args.overwrite)
     print(f"wrote {out}")
     return 0
 
 
-def _default_fit_path(path, fitter):
-    stem, ext = os.path.splitext(path)
-    return f"{stem}_{fitter}{ext or '.fits'}"
-
-
 def _compare(args):
     if args.plots:
+        check_plot_dir(args.plots, overwrite=args.overwrite)
         os.makedirs(args.plots, exist_ok=True)
     report = compare_files(args.fit, args.truth, plots=args.plots,
                            exposure=args.exposure)
@@ -138,6 +145,7 @@ def _parser():
     q.add_argument("--threads", type=int, default=None)
     q.add_argument("-o", "--output", required=True)
     q.add_argument("-q", "--quiet", action="store_true")
+    q.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
     q.set_defaults(func=_noise)
 
     r = sub.add_parser("run", help="simulate a scene file (TOML)")
@@ -155,6 +163,7 @@ def _parser():
                         "paper's fast shortcut: one Poisson image spread over the reads)")
     r.add_argument("--threads", type=int, default=None)
     r.add_argument("-q", "--quiet", action="store_true")
+    r.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
     r.set_defaults(func=_run)
 
     f = sub.add_parser("fit", help="fit up-the-ramp slopes of an exposure")
@@ -166,6 +175,7 @@ def _parser():
                         "calibration library's fitter (needs the [stcal] extra)")
     f.add_argument("--jump-threshold", type=float, default=5.0,
                    help="jump detection threshold in sigma (0 = off)")
+    f.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
     f.set_defaults(func=_fit)
 
     c = sub.add_parser("compare", help="compare a slope file with the truth file")
@@ -173,6 +183,8 @@ def _parser():
     c.add_argument("truth")
     c.add_argument("--exposure", default=None, help="exposure (for photometry errors)")
     c.add_argument("--plots", default=None)
+    c.add_argument("--overwrite", action="store_true",
+                   help="replace existing figures in --plots")
     c.set_defaults(func=_compare)
 
     b = sub.add_parser("bench", help="benchmarks: run time against error")
@@ -184,15 +196,39 @@ def _parser():
     return p
 
 
+_OVERWRITE = ("replace existing output files (never a file the command reads, never a "
+              "read-only one)")
+
+
+class Interrupted(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) turned into an exception in the main
+    thread, so the ``with`` blocks that own temporary files remove them."""
+
+    def __init__(self, signum):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
     args = _parser().parse_args(argv)
     keep_freed_memory()            # process-wide malloc policy: see noise.fast.memory
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _raise_interrupted)
     try:
         return args.func(args)
     except ScenesimError as exc:
         print(f"scenesim {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"scenesim {args.command}: interrupted ({signal.Signals(signum).name}); "
+              f"no partial output was left", file=sys.stderr)
+        return 128 + int(signum)
 
 
 if __name__ == "__main__":

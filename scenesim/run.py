@@ -36,11 +36,11 @@ from tqdm import tqdm
 from noise import streams
 from noise.clock import exposure_slots
 from noise.errors import ParameterError
-from noise.validate import check_writable
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import psf_cards
+from scenesim.outputs import check_outputs, check_plot_dir, fit_path_for, scene_inputs
 from scenesim.validate.compare import compare_files
 from scenesim.sky.maps import load_map
 from scenesim.sky.rates import cosmic_ray_hits, scene_rates
@@ -79,7 +79,7 @@ def progress_bar(total, unit, desc):
 
 
 def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
-                   save_noise=False, sources=None, progress=None, overwrite=True):
+                   save_noise=False, sources=None, progress=None, overwrite=False):
     """Run ``engine`` and write what it makes: the exposure and the truth file.
 
     The loop of every simulation: resultants are pulled from the engine's run
@@ -104,7 +104,7 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
     progress : callable, optional
         Called with the number of reads done.
     overwrite : bool
-        Replace existing files.
+        Replace existing files (default: refuse them).
 
     Returns
     -------
@@ -160,17 +160,25 @@ def _output_config(cfg, **overrides):
     return dataclasses.replace(cfg, **changes) if changes else cfg
 
 
-def _output_paths(cfg):
+def _output_paths(scene, cfg, *, overwrite, plots):
     """``(exposure, truth, fit)`` paths of a run (None: not written), checked before
-    any work.  Slopes only (``ramp = false``): no ramp file at all."""
+    any work (:func:`scenesim.outputs.check_outputs`).  Slopes only (``ramp =
+    false``): no ramp file at all."""
     exp_path = cfg.path if cfg.ramp else None
     if not cfg.ramp and not cfg.fit and not cfg.truth:
         raise ParameterError("nothing to write: set [output] ramp, truth or fit")
+    if cfg.fit and scene.readout.build().ngroups < 2:
+        raise ParameterError(
+            f"[output] 'fit' = {cfg.fit!r}: a one-group exposure (ngroups = 1) has no "
+            f"slope to fit; use ngroups >= 2 or drop the fit")
     truth_path = cfg.truth_path if cfg.truth else None
     fit_path = None
     if cfg.fit:
-        stem, ext = os.path.splitext(cfg.path)
-        fit_path = check_writable("fit path", f"{stem}_{cfg.fit}{ext or '.fits'}")
+        fit_path = fit_path_for(cfg.path, cfg.fit)
+    check_outputs({"exposure": exp_path, "truth file": truth_path, "fit file": fit_path},
+                  inputs=scene_inputs(scene), overwrite=overwrite)
+    if plots is not None:
+        check_plot_dir(plots, overwrite=overwrite)
     return exp_path, truth_path, fit_path
 
 
@@ -188,7 +196,7 @@ def _progress(nreads, enabled):
 
 
 def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progress=True,
-              fit=None, refpix=None, compare=None, plots=None):
+              fit=None, refpix=None, compare=None, plots=None, overwrite=False):
     """Run ``scene``: simulate, write the exposure and truth, then fit and compare.
 
     Parameters
@@ -204,6 +212,9 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
         Override ``[output] fit``, ``refpix`` and ``compare``.
     plots : str, optional
         Directory for the comparison's PNG figures.
+    overwrite : bool
+        Replace existing outputs (never a file the scene reads, never a read-only
+        one; :mod:`scenesim.outputs`).  Every output is checked before any work.
 
     Returns
     -------
@@ -215,26 +226,27 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     if seed is not None:
         scene = scene.replace(seed=seed)
     scene = scene.ensure_seed().replace(output=out_cfg)
-    if plots is not None:
-        os.makedirs(plots, exist_ok=True)
+    exp_path, truth_path, fit_path = _output_paths(scene, out_cfg, overwrite=overwrite,
+                                                   plots=plots)
     engine, rendered = build_engine(scene, options=options)
-    exp_path, truth_path, fit_path = _output_paths(out_cfg)
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf)
     ro = engine.readout
     with _progress(ro.nints * len(ro.needed_reads), progress) as cb:
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
                                  save_charge=out_cfg.save_charge,
                                  save_noise=out_cfg.save_noise, sources=rendered,
-                                 progress=cb)
+                                 progress=cb, overwrite=overwrite)
     report = None
     if out_cfg.fit:
         # slopes only (ramp = false): the resultants were kept in memory
         exposure = exp_path if exp_path is not None else written["exposure"]
         del written
-        fit_exposure_file(exposure, fit_path, fitter=out_cfg.fit,
+        fit_exposure_file(exposure, fit_path, fitter=out_cfg.fit, overwrite=overwrite,
                           options=PrepareOptions(refpix=out_cfg.refpix))
         del exposure
         if out_cfg.compare and truth_path is not None:
+            if plots is not None:
+                os.makedirs(plots, exist_ok=True)
             report = compare_files(fit_path, truth_path, plots=plots, exposure=exp_path)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,
                      engine)

@@ -38,6 +38,8 @@ import traceback
 
 import numpy as np
 
+from noise.errors import HelperProcessError
+
 __all__ = ["ForkedProducer", "available"]
 
 
@@ -90,7 +92,11 @@ class ForkedProducer:
             try:
                 os.close(ready_r)
                 os.close(free_w)
-                signal.signal(signal.SIGINT, signal.SIG_DFL)
+                # the parent alone handles interrupts and stops the child
+                # (close()); the child also ends when the parent dies (EOF on the
+                # free pipe, EPIPE on the ready pipe)
+                for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                    signal.signal(sig, signal.SIG_IGN)
                 for j in range(self.count):
                     if j >= self.depth and os.read(free_r, 1) != b"\x01":
                         break                           # parent gone
@@ -132,9 +138,11 @@ class ForkedProducer:
                         break
                     detail += chunk
             self.close()
-            raise RuntimeError("the 1/f line process failed"
-                               + (":\n" + detail.decode(errors="replace") if detail
-                                  else " (it exited without a result)"))
+            if detail:
+                last = detail.decode(errors="replace").strip().splitlines()[-1]
+                raise HelperProcessError(f"the 1/f line process failed: {last}")
+            raise HelperProcessError("the 1/f line process ended without a result "
+                                     "(killed?); the run was stopped")
         self._next += 1
         return self._slots[j % self.depth]
 

@@ -261,7 +261,7 @@ def _timing(ro, t_frame):
     return nframes, groupgap, float(ro.tgroup(t_frame)), first[0]
 
 
-def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", overwrite=True,
+def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", overwrite=False,
                        options=PrepareOptions()):
     """Fit the ramps of a scenesim exposure with stcal and write a scenesim slope file.
 
@@ -277,7 +277,7 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", overwrite=True,
         stcal ramp-fitting algorithm (case-insensitive); see the module notes.
         ``'OLS_C'`` needs evenly spaced, equal groups; ``'LIKELY'`` >= 4 resultants.
     overwrite : bool, keyword-only
-        Replace an existing ``output``.
+        Replace an existing ``output`` (default: refuse it).
     options : scenesim.calib.prepare.PrepareOptions, keyword-only
         The pre-processing, the very one of
         :func:`scenesim.calib.prepare.fit_exposure_file` (same defaults).  Its

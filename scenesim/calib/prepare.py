@@ -390,7 +390,7 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
 
 
 def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
-                      overwrite=True, options=PrepareOptions()):
+                      overwrite=False, options=PrepareOptions()):
     """Fit the slopes of ``exposure`` and write them to ``output``.
 
     Parameters
@@ -405,7 +405,7 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
     jump_threshold : float or None
         Jump detection in sigma; 0 or None turns it off.
     overwrite : bool
-        Replace an existing ``output``.
+        Replace an existing ``output`` (default: refuse it).
     options : PrepareOptions, keyword-only
         The preparation (:func:`prepare_exposure`); its ``threads`` also run the
         fit.  The slope file records it (``REFPIX``, ``RNSOURCE``, ``CMREMOVE``,

@@ -252,7 +252,7 @@ def test_failure_mid_run_keeps_old_file(tmp_path):
     path = tmp_path / "x.fits"
     path.write_bytes(b"old")
     with pytest.raises(RuntimeError):
-        write_exposure(eng, str(path))
+        write_exposure(eng, str(path), overwrite=True)
     assert path.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["x.fits"]
 

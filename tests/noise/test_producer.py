@@ -12,7 +12,9 @@
 """
 
 import os
+import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -20,7 +22,7 @@ import pytest
 import noise.generator as generator_module
 from noise import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseGenerator, preset
 from noise.clock import Detector
-from noise.errors import ParameterError
+from noise.errors import HelperProcessError, ParameterError, ScenesimError
 from noise.fast.producer import ForkedProducer, available
 
 pytestmark = pytest.mark.skipif(not available(), reason="needs POSIX fork (Linux)")
@@ -229,3 +231,41 @@ def test_progress_bar_starts_no_thread():
         assert tqdm.monitor_interval == before
     finally:
         bar.close()
+
+
+def _slow(j, arrays):
+    time.sleep(0.05)
+    arrays[0][:] = j
+
+
+def test_killed_helper_gives_one_clear_error():
+    # Old behaviour: a RuntimeError with a multi-line message, which the command
+    # printed as a traceback.  New: HelperProcessError (a ScenesimError), one line.
+    prod = ForkedProducer(_slow, 100, [(8,)], depth=2)
+    try:
+        prod.get(0)
+        os.kill(prod.pid, signal.SIGKILL)
+        with pytest.raises(HelperProcessError, match="ended without a result") as info:
+            prod.release(0)
+            prod.get(1)
+            prod.release(1)
+            prod.get(2)
+        assert isinstance(info.value, ScenesimError)
+        assert "\n" not in str(info.value)
+    finally:
+        prod.close()
+    assert prod.pid is None
+
+
+def test_helper_ignores_interrupts_the_parent_handles():
+    # Ctrl-C reaches the whole process group: the helper ignores it (the parent stops
+    # it), so the parent sees its own KeyboardInterrupt, not a helper failure
+    prod = ForkedProducer(_slow, 100, [(8,)], depth=2)
+    try:
+        prod.get(0)
+        os.kill(prod.pid, signal.SIGINT)
+        os.kill(prod.pid, signal.SIGTERM)
+        prod.release(0)
+        assert (prod.get(1)[0] == 1).all()
+    finally:
+        prod.close()

@@ -1,0 +1,125 @@
+"""What a command writes, and what it may replace: checked before any work starts.
+
+Policy (the README's "Outputs" section):
+
+* an existing file is never replaced unless asked (``--overwrite`` on the command line,
+  ``overwrite=True`` in the library), as astropy and most tools behave;
+* a file that the run reads (the scene file, its maps, catalogue, light curves, PSF
+  image or template) is never written, even with ``--overwrite``; neither is a
+  read-only file;
+* two outputs of one run never share a path;
+* all of this is checked for every output before any work starts, so a refused run
+  leaves nothing behind and changes nothing.
+
+Files are then written to hidden temporary files beside their targets and renamed into
+place when complete (:func:`noise.fitsio.atomic_path`), so an interrupted run leaves no
+partial file either.
+"""
+
+import os
+
+from noise.errors import ParameterError
+from noise.validate import check_writable
+
+__all__ = ["PLOT_FILES", "scene_inputs", "check_outputs", "check_plot_dir",
+           "fit_path_for"]
+
+#: The figures ``compare --plots DIR`` writes into ``DIR``.
+PLOT_FILES = ("slope.png", "residuals.png", "noise_vs_flux.png")
+
+
+def fit_path_for(exposure, fitter):
+    """The default slope file of ``exposure`` fitted with ``fitter``:
+    ``dir/stem_<fitter>.fits`` for ``dir/stem.fits``."""
+    stem, ext = os.path.splitext(os.fspath(exposure))
+    return f"{stem}_{fitter}{ext or '.fits'}"
+
+
+def scene_inputs(scene):
+    """Absolute paths of every file ``scene`` reads (its own file included)."""
+    src, eff = scene.sources, scene.effects
+    files = [scene.path, scene.noise.pca0_file, src.catalogue, src.psf.file]
+    files += list(src.map_files.values()) + list(eff.map_files.values())
+    files += [c.file for c in src.light_curves if c.kind == "file"]
+    return [os.path.abspath(f) for f in files if isinstance(f, str)]
+
+
+def _same(a, b):
+    """True if paths ``a`` and ``b`` name the same file (or would, once created)."""
+    if os.path.exists(a) and os.path.exists(b):
+        return os.path.samefile(a, b)
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_outputs(outputs, *, inputs=(), overwrite=False):
+    """Check every output path of a run before any work starts.
+
+    Parameters
+    ----------
+    outputs : dict
+        ``{what: path}``, e.g. ``{"exposure": "x.fits", "truth": "x_truth.fits"}``;
+        ``None`` paths are skipped.
+    inputs : sequence of str
+        Files the run reads: never written, even with ``overwrite``.
+    overwrite : bool
+        Replace existing outputs (not read-only ones, never inputs).
+
+    Returns
+    -------
+    dict
+        ``{what: path}`` of the outputs that will be written.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Naming the output and what is wrong: its directory is missing or not
+        writable, it is a directory, it is an input of the run, two outputs share it,
+        or it exists (without ``overwrite``, or read-only).
+    """
+    checked = {}
+    for what, path in outputs.items():
+        if path is None:
+            continue
+        path = os.fspath(path)
+        for other, other_path in checked.items():
+            if _same(path, other_path):
+                raise ParameterError(
+                    f"the {what} and the {other} would both be written to {path!r}; "
+                    f"give them different names")
+        for src in inputs:
+            if _same(path, src):
+                raise ParameterError(
+                    f"the {what} {path!r} is a file this run reads; it is never "
+                    f"overwritten, even with --overwrite: choose another output name")
+        if os.path.exists(path) and not os.path.isdir(path):
+            if not overwrite:
+                raise ParameterError(
+                    f"the {what} {path!r} exists; pass --overwrite (overwrite=True) to "
+                    f"replace it")
+            # mode bits as well as access(): root may write anything
+            if not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222:
+                raise ParameterError(
+                    f"the {what} {path!r} exists and is read-only; it is not replaced")
+        checked[what] = check_writable(what, path, overwrite=True)
+    return checked
+
+
+def check_plot_dir(directory, *, overwrite=False):
+    """The figures ``compare`` would write into ``directory``, checked like outputs.
+
+    ``directory`` may not exist yet (it is created when the figures are written) but
+    must not be a file.  Returns ``{name: path}`` of the figures.
+    """
+    directory = os.fspath(directory)
+    if os.path.exists(directory) and not os.path.isdir(directory):
+        raise ParameterError(
+            f"'plots' {directory!r} is a file; expected a directory for the figures")
+    parent = os.path.dirname(os.path.abspath(directory))
+    if not os.path.isdir(parent):
+        raise ParameterError(
+            f"'plots': the directory {parent!r} that would hold {directory!r} does not "
+            f"exist")
+    if not os.path.isdir(directory):
+        return {name: os.path.join(directory, name) for name in PLOT_FILES}
+    return check_outputs({f"figure {name}": os.path.join(directory, name)
+                          for name in PLOT_FILES}, overwrite=overwrite)
