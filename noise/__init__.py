@@ -12,24 +12,53 @@ write_noise_fits
     Stream a ramp to FITS (float32 e- or uint16 DN), atomically.
 """
 
-from noise.clock import PRESETS, Detector, Subarray, preset
-from noise.errors import FileFormatError, ParameterError, ScenesimError
-from noise.adc import ADC, from_dn, to_dn
-from noise.fitsio import atomic_path, package_version, write_noise_fits
-from noise.generator import Layout, NoiseGenerator
-from noise.streams import NOISE_COMPONENTS, root_seed
-from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
-from noise.pink import (PinkSeries, measure_psd_error, pink_psd_shape, realised_psd,
-                   unit_frame_variance)
-from noise.template import synthetic_template, template_for
+import importlib
 
-__all__ = [
-    "Detector", "Subarray", "PRESETS", "preset",
-    "NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE",
-    "NoiseGenerator", "Layout", "NOISE_COMPONENTS", "root_seed",
-    "write_noise_fits", "atomic_path", "package_version", "ADC", "to_dn", "from_dn",
-    "PinkSeries", "pink_psd_shape", "realised_psd", "unit_frame_variance",
-    "measure_psd_error",
-    "synthetic_template", "template_for",
-    "ScenesimError", "ParameterError", "FileFormatError",
-]
+#: Public name -> the module that defines it (imported on first use, so that
+#: ``import noise`` is cheap and the command can install its signal handlers
+#: before the heavy imports).
+_EXPORTS = {
+    "Detector": "noise.clock",
+    "Subarray": "noise.clock",
+    "PRESETS": "noise.clock",
+    "preset": "noise.clock",
+    "NoiseParams": "noise.params",
+    "NIRSPEC_DEFAULTS": "noise.params",
+    "ZERO_NOISE": "noise.params",
+    "NoiseGenerator": "noise.generator",
+    "Layout": "noise.generator",
+    "NOISE_COMPONENTS": "noise.streams",
+    "root_seed": "noise.streams",
+    "write_noise_fits": "noise.fitsio",
+    "atomic_path": "noise.fitsio",
+    "package_version": "noise.fitsio",
+    "ADC": "noise.adc",
+    "to_dn": "noise.adc",
+    "from_dn": "noise.adc",
+    "PinkSeries": "noise.pink",
+    "pink_psd_shape": "noise.pink",
+    "realised_psd": "noise.pink",
+    "unit_frame_variance": "noise.pink",
+    "measure_psd_error": "noise.pink",
+    "synthetic_template": "noise.template",
+    "template_for": "noise.template",
+    "ScenesimError": "noise.errors",
+    "ParameterError": "noise.errors",
+    "FileFormatError": "noise.errors",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name):
+    try:
+        module = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'noise' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -22,36 +22,67 @@ One subpackage per stage, one implementation of each physical step:
 The noise model lives in the sibling package :mod:`noise`.
 """
 
-from scenesim.validate.compare import Report, compare, compare_files
-from scenesim.detector.nonlinearity import Nonlinearity
-from scenesim.detector.ipc import apply_ipc, ipc_kernel
-from scenesim.engine import ChargeEngine, CosmicRayHits, EngineOptions, VariableSource
-from scenesim.io.exposure import read_exposure, read_truth
-from scenesim.io.exposure import Exposure
-from scenesim.io.fitfile import FitResult, read_fit, write_fit
-from scenesim.rampfit import fit_ramps, model_chi2, optimal_variance
-from scenesim.calib.prepare import (PreparedExposure, PrepareOptions, fit_exposure_file,
-                                    prepare_exposure)
-from scenesim.sky.lightcurve import LightCurve
-from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF, encircled_energy, render_point_sources
-from scenesim.detector.readout import NAMED_PATTERNS, ROMAN_LIKE_TABLE, Readout
-from scenesim.calib.refpix import correct_reference
-from scenesim.validate.refpix_study import measure_reference_correction, white_noise_added
-from scenesim.run import build_engine, run_scene, write_exposure
-from scenesim.scene import Scene, load_scene, parse_scene
+import importlib
 
-__all__ = [
-    "Readout", "NAMED_PATTERNS", "ROMAN_LIKE_TABLE",
-    "Scene", "load_scene", "parse_scene",
-    "GaussianPSF", "AiryPSF", "ImagePSF", "render_point_sources", "encircled_energy",
-    "LightCurve",
-    "ChargeEngine", "EngineOptions", "VariableSource", "CosmicRayHits",
-    "Nonlinearity", "ipc_kernel", "apply_ipc",
-    "write_exposure", "read_exposure", "read_truth",
-    "correct_reference", "measure_reference_correction", "white_noise_added",
-    "fit_ramps", "FitResult", "read_fit", "write_fit",
-    "optimal_variance", "model_chi2", "fit_exposure_file", "prepare_exposure",
-    "PreparedExposure", "PrepareOptions", "Exposure",
-    "Report", "compare", "compare_files",
-    "build_engine", "run_scene",
-]
+#: Public name -> the module that defines it (imported on first use, so that
+#: ``import scenesim`` is cheap and the command can install its signal handlers
+#: before the heavy imports).
+_EXPORTS = {
+    "Readout": "scenesim.detector.readout",
+    "NAMED_PATTERNS": "scenesim.detector.readout",
+    "ROMAN_LIKE_TABLE": "scenesim.detector.readout",
+    "Scene": "scenesim.scene",
+    "load_scene": "scenesim.scene",
+    "parse_scene": "scenesim.scene",
+    "GaussianPSF": "scenesim.sky.psf",
+    "AiryPSF": "scenesim.sky.psf",
+    "ImagePSF": "scenesim.sky.psf",
+    "render_point_sources": "scenesim.sky.psf",
+    "encircled_energy": "scenesim.sky.psf",
+    "LightCurve": "scenesim.sky.lightcurve",
+    "ChargeEngine": "scenesim.engine",
+    "EngineOptions": "scenesim.engine",
+    "VariableSource": "scenesim.engine",
+    "CosmicRayHits": "scenesim.engine",
+    "Nonlinearity": "scenesim.detector.nonlinearity",
+    "ipc_kernel": "scenesim.detector.ipc",
+    "apply_ipc": "scenesim.detector.ipc",
+    "write_exposure": "scenesim.run",
+    "read_exposure": "scenesim.io.exposure",
+    "read_truth": "scenesim.io.exposure",
+    "correct_reference": "scenesim.calib.refpix",
+    "measure_reference_correction": "scenesim.validate.refpix_study",
+    "white_noise_added": "scenesim.validate.refpix_study",
+    "fit_ramps": "scenesim.rampfit",
+    "FitResult": "scenesim.io.fitfile",
+    "read_fit": "scenesim.io.fitfile",
+    "write_fit": "scenesim.io.fitfile",
+    "optimal_variance": "scenesim.rampfit",
+    "model_chi2": "scenesim.rampfit",
+    "fit_exposure_file": "scenesim.calib.prepare",
+    "prepare_exposure": "scenesim.calib.prepare",
+    "PreparedExposure": "scenesim.calib.prepare",
+    "PrepareOptions": "scenesim.calib.prepare",
+    "Exposure": "scenesim.io.exposure",
+    "Report": "scenesim.validate.compare",
+    "compare": "scenesim.validate.compare",
+    "compare_files": "scenesim.validate.compare",
+    "build_engine": "scenesim.run",
+    "run_scene": "scenesim.run",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name):
+    try:
+        module = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'scenesim' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -16,115 +16,13 @@ removes its temporary files, prints one line and exits with 128 + the signal num
 """
 
 import argparse
-import dataclasses
-import os
 import signal
 import sys
-import time
 
-import noise
 from noise.errors import ScenesimError
 from noise.fast.memory import keep_freed_memory
-from scenesim.adapters.stcal import fit_exposure_stcal
-from scenesim.bench import main as bench_main
-from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
-from scenesim.engine import EngineOptions
-from scenesim.outputs import check_outputs, check_plot_dir, fit_path_for
-from scenesim.run import progress_bar, run_scene
-from scenesim.scene import load_scene
-from scenesim.validate.compare import compare_files
 
 __all__ = ["main"]
-
-
-def _noise(args):
-    det = noise.preset(args.preset)
-    changes = {}
-    if args.naxis:
-        changes.update(naxis1=args.naxis, naxis2=args.naxis)
-    if args.n_out:
-        changes["n_out"] = args.n_out
-    if changes:
-        det = dataclasses.replace(det, **changes)
-    params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
-        rd_noise=5.2)
-    gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
-    check_outputs({"output": args.output}, overwrite=args.overwrite)
-    t0 = time.perf_counter()
-    bar = None
-    cb = None
-    total = args.frames * args.nints
-    if not args.quiet and total >= 3:
-        bar = progress_bar(total, "frame", "noise")
-
-        def cb(n):
-            bar.update(n - bar.n)          # drawn at most every 0.1 s
-    try:
-        noise.write_noise_fits(args.output, gen, args.frames, nints=args.nints,
-                               unit=args.unit, gain=args.gain, progress=cb,
-                               overwrite=args.overwrite)
-    finally:
-        if bar is not None:
-            bar.close()
-    if not args.quiet:
-        print(f"wrote {args.output}: {args.nints} x {args.frames} frames of "
-              f"{det.ny}x{det.nx} ({det.name}, {det.n_out_active} outputs, "
-              f"t_frame={det.frame_time:.5f} s) in {time.perf_counter() - t0:.1f} s; "
-              f"seed entropy {gen.entropy}")
-    return 0
-
-
-def _run(args):
-    scene = load_scene(args.scene)
-    options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
-                            arrivals=args.arrivals)
-    res = run_scene(scene, output=args.output, seed=args.seed, options=options,
-                    progress=not args.quiet, fit=args.fit, refpix=args.refpix,
-                    compare=True if args.compare else None, plots=args.plots,
-                    overwrite=args.overwrite)
-    if not args.quiet:
-        eng = res.engine
-        print(f"scene {args.scene}: {eng.detector.ny}x{eng.detector.nx}, "
-              f"{eng.readout.nints} int x {eng.readout.ngroups} resultants "
-              f"({eng.readout.name}), seed entropy {eng.entropy}, "
-              f"{res.seconds:.1f} s")
-        for label, path in (("exposure", res.exposure), ("truth", res.truth),
-                            ("fit", res.fit)):
-            if path:
-                print(f"  {label}: {path}")
-        if res.report is not None:
-            print(res.report.format())
-    return 0
-
-
-def _fit(args):
-    out = args.output or fit_path_for(args.exposure, args.fitter)
-    check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite)
-    if args.fitter.lower().startswith("stcal-"):
-        fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
-                           options=PrepareOptions(refpix=args.refpix),
-                           overwrite=args.overwrite)
-    else:
-        fit_exposure_file(args.exposure, out, fitter=args.fitter,
-                          options=PrepareOptions(refpix=args.refpix),
-                          jump_threshold=args.jump_threshold, overwrite=args.overwrite)
-    print(f"wrote {out}")
-    return 0
-
-
-def _compare(args):
-    if args.plots:
-        check_plot_dir(args.plots, overwrite=args.overwrite)
-        os.makedirs(args.plots, exist_ok=True)
-    report = compare_files(args.fit, args.truth, plots=args.plots,
-                           exposure=args.exposure)
-    print(report.format())
-    return 0
-
-
-def _bench(args):
-    return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
-                      threads=args.threads)
 
 
 def _parser():
@@ -146,7 +44,7 @@ def _parser():
     q.add_argument("-o", "--output", required=True)
     q.add_argument("-q", "--quiet", action="store_true")
     q.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
-    q.set_defaults(func=_noise)
+    q.set_defaults(command_name="noise_command")
 
     r = sub.add_parser("run", help="simulate a scene file (TOML)")
     r.add_argument("scene")
@@ -164,7 +62,7 @@ def _parser():
     r.add_argument("--threads", type=int, default=None)
     r.add_argument("-q", "--quiet", action="store_true")
     r.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
-    r.set_defaults(func=_run)
+    r.set_defaults(command_name="run_command")
 
     f = sub.add_parser("fit", help="fit up-the-ramp slopes of an exposure")
     f.add_argument("exposure")
@@ -176,7 +74,7 @@ def _parser():
     f.add_argument("--jump-threshold", type=float, default=5.0,
                    help="jump detection threshold in sigma (0 = off)")
     f.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
-    f.set_defaults(func=_fit)
+    f.set_defaults(command_name="fit_command")
 
     c = sub.add_parser("compare", help="compare a slope file with the truth file")
     c.add_argument("fit")
@@ -185,14 +83,14 @@ def _parser():
     c.add_argument("--plots", default=None)
     c.add_argument("--overwrite", action="store_true",
                    help="replace existing figures in --plots")
-    c.set_defaults(func=_compare)
+    c.set_defaults(command_name="compare_command")
 
     b = sub.add_parser("bench", help="benchmarks: run time against error")
     b.add_argument("workloads", nargs="*")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--out", default="bench_out")
     b.add_argument("--threads", type=int, default=None)
-    b.set_defaults(func=_bench)
+    b.set_defaults(command_name="bench_command")
     return p
 
 
@@ -216,11 +114,21 @@ def _raise_interrupted(signum, frame):
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
     args = _parser().parse_args(argv)
-    keep_freed_memory()            # process-wide malloc policy: see noise.fast.memory
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _raise_interrupted)
     try:
-        return args.func(args)
+        # The ~0.7 s of imports run with the interrupt signals blocked: one that
+        # arrives then is delivered when they are done (an interrupt inside the
+        # import of a compiled extension can make Python exit through SIGINT even
+        # when it is caught), so it is handled like any other.
+        blocked = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+        signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
+        try:
+            from scenesim import commands
+        finally:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, blocked)
+        keep_freed_memory()        # process-wide malloc policy: see noise.fast.memory
+        return getattr(commands, args.command_name)(args)
     except ScenesimError as exc:
         print(f"scenesim {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -152,6 +152,8 @@ class EngineOptions:
                 f"'arrivals' must be one of {ARRIVALS}, got {self.arrivals!r}")
         if self.gauss_above is not None:
             check_float("gauss_above", self.gauss_above, minimum=0.0)
+        if self.threads is not None:
+            check_int("threads", self.threads, minimum=1)
 
 
 @dataclass

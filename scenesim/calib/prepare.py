@@ -296,6 +296,10 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
     _check_options(options)
     exp = load_exposure(exposure)
     ro = exposure_readout(exp)
+    if ro.ngroups < 2:
+        raise ParameterError(
+            f"exposure {exp.name!r} has one group (NGROUPS = 1): there is no slope to "
+            f"fit (a one-group exposure only gives a zero point)")
     hdr = exp.header
     det = detector_from_header(hdr)
     cfg = exposure_settings(hdr)

@@ -1,0 +1,115 @@
+"""The work of each ``scenesim`` subcommand (the parser and the signal handling are
+in :mod:`scenesim.cli`, which imports this module once its handlers are installed)."""
+
+
+import dataclasses
+import os
+import time
+
+import noise
+from scenesim.adapters.stcal import fit_exposure_stcal
+from scenesim.bench import main as bench_main
+from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
+from scenesim.engine import EngineOptions
+from scenesim.outputs import check_outputs, check_plot_dir, fit_path_for
+from scenesim.run import progress_bar, run_scene
+from scenesim.scene import load_scene
+from scenesim.validate.compare import compare_files
+
+__all__ = ["noise_command", "run_command", "fit_command", "compare_command",
+           "bench_command"]
+
+
+def noise_command(args):
+    """``scenesim noise``: write an empty (noise-only) ramp."""
+    det = noise.preset(args.preset)
+    changes = {}
+    if args.naxis:
+        changes.update(naxis1=args.naxis, naxis2=args.naxis)
+    if args.n_out:
+        changes["n_out"] = args.n_out
+    if changes:
+        det = dataclasses.replace(det, **changes)
+    params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
+        rd_noise=5.2)
+    gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
+    check_outputs({"output": args.output}, overwrite=args.overwrite)
+    t0 = time.perf_counter()
+    bar = None
+    cb = None
+    total = args.frames * args.nints
+    if not args.quiet and total >= 3:
+        bar = progress_bar(total, "frame", "noise")
+
+        def cb(n):
+            bar.update(n - bar.n)          # drawn at most every 0.1 s
+    try:
+        noise.write_noise_fits(args.output, gen, args.frames, nints=args.nints,
+                               unit=args.unit, gain=args.gain, progress=cb,
+                               overwrite=args.overwrite)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(f"wrote {args.output}: {args.nints} x {args.frames} frames of "
+              f"{det.ny}x{det.nx} ({det.name}, {det.n_out_active} outputs, "
+              f"t_frame={det.frame_time:.5f} s) in {time.perf_counter() - t0:.1f} s; "
+              f"seed entropy {gen.entropy}")
+    return 0
+
+
+def run_command(args):
+    """``scenesim run``: simulate a scene (then fit and compare)."""
+    scene = load_scene(args.scene)
+    options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
+                            arrivals=args.arrivals)
+    res = run_scene(scene, output=args.output, seed=args.seed, options=options,
+                    progress=not args.quiet, fit=args.fit, refpix=args.refpix,
+                    compare=True if args.compare else None, plots=args.plots,
+                    overwrite=args.overwrite)
+    if not args.quiet:
+        eng = res.engine
+        print(f"scene {args.scene}: {eng.detector.ny}x{eng.detector.nx}, "
+              f"{eng.readout.nints} int x {eng.readout.ngroups} resultants "
+              f"({eng.readout.name}), seed entropy {eng.entropy}, "
+              f"{res.seconds:.1f} s")
+        for label, path in (("exposure", res.exposure), ("truth", res.truth),
+                            ("fit", res.fit)):
+            if path:
+                print(f"  {label}: {path}")
+        if res.report is not None:
+            print(res.report.format())
+    return 0
+
+
+def fit_command(args):
+    """``scenesim fit``: fit the slopes of an exposure."""
+    out = args.output or fit_path_for(args.exposure, args.fitter)
+    check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite)
+    if args.fitter.lower().startswith("stcal-"):
+        fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
+                           options=PrepareOptions(refpix=args.refpix),
+                           overwrite=args.overwrite)
+    else:
+        fit_exposure_file(args.exposure, out, fitter=args.fitter,
+                          options=PrepareOptions(refpix=args.refpix),
+                          jump_threshold=args.jump_threshold, overwrite=args.overwrite)
+    print(f"wrote {out}")
+    return 0
+
+
+def compare_command(args):
+    """``scenesim compare``: grade a slope file against the truth."""
+    if args.plots:
+        check_plot_dir(args.plots, overwrite=args.overwrite)
+        os.makedirs(args.plots, exist_ok=True)
+    report = compare_files(args.fit, args.truth, plots=args.plots,
+                           exposure=args.exposure)
+    print(report.format())
+    return 0
+
+
+def bench_command(args):
+    """``scenesim bench``: run the benchmarks."""
+    return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
+                      threads=args.threads)

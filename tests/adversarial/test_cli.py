@@ -1,0 +1,275 @@
+"""The command against a hostile user, case by class: targets, inputs and signals.
+
+Every case runs ``python -m scenesim.cli`` in a fresh directory and checks, after it:
+
+* the exit status (2 for refused input, 128 + the signal for an interrupt);
+* exactly one line on stderr (``-q`` everywhere, so no progress bar), naming the file
+  or parameter, and no ``Traceback``;
+* no file left behind and no existing file changed (hashes of the directory);
+* no process left alive (the forked 1/f helper included).
+"""
+
+import hashlib
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+SCENE = """seed = 5
+[detector]
+preset = "H2RG"
+naxis1 = {naxis}
+naxis2 = {naxis}
+[noise]
+preset = "nirspec"
+[readout]
+pattern = "RAPID"
+ngroups = {ngroups}
+[sources]
+dark_current = {dark}
+background = 1.0
+[output]
+path = "out.fits"
+"""
+
+#: a time series on a window: with 2 threads its 1/f lines come from a forked helper
+SERIES = """seed = 6
+[detector]
+preset = "H2RG"
+[detector.subarray]
+kind = "window"
+x0 = 0
+y0 = 0
+nx = 64
+ny = 64
+[noise]
+preset = "nirspec"
+[readout]
+pattern = "RAPID"
+ngroups = 5
+nints = {nints}
+[sources]
+background = 1.0
+[output]
+path = "out.fits"
+"""
+
+
+def _cli(args, cwd, **kw):
+    return subprocess.run([sys.executable, "-m", "scenesim.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, **kw)
+
+
+def _snapshot(directory):
+    """``{name: sha256}`` of every file in ``directory`` (hidden ones included)."""
+    out = {}
+    for name in sorted(os.listdir(directory)):
+        path = os.path.join(directory, name)
+        if os.path.isfile(path):
+            with open(path, "rb") as f:
+                out[name] = hashlib.sha256(f.read()).hexdigest()
+        else:
+            out[name] = "<dir>"
+    return out
+
+
+def _one_line(stderr, *must_name):
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, stderr
+    assert "Traceback" not in stderr
+    for word in must_name:
+        assert word in lines[0], (word, lines[0])
+    return lines[0]
+
+
+@pytest.fixture
+def workdir(tmp_path):
+    (tmp_path / "scene.toml").write_text(SCENE.format(naxis=64, ngroups=3, dark=0.1))
+    return tmp_path
+
+
+def _exposure(workdir):
+    res = _cli(["run", "scene.toml", "-q"], workdir)
+    assert res.returncode == 0, res.stderr
+    return workdir / "out.fits"
+
+
+# ----------------------------------------------------------------- targets
+def _commands(workdir):
+    """Each command with its main output: ``(argv, output name)``."""
+    _exposure(workdir)
+    return {
+        "run": (["run", "scene.toml", "-q", "-o", "target.fits"], "target.fits"),
+        "noise": (["noise", "--naxis", "64", "--frames", "2", "-q", "-o",
+                   "target.fits"], "target.fits"),
+        "fit": (["fit", "out.fits", "-o", "target.fits"], "target.fits"),
+    }
+
+
+@pytest.mark.parametrize("command", ["run", "noise", "fit"])
+@pytest.mark.parametrize("case", ["exists", "read-only", "directory", "no-directory"])
+def test_output_targets_are_refused_before_any_work(workdir, command, case):
+    argv, target = _commands(workdir)[command]
+    path = workdir / target
+    if case in ("exists", "read-only"):
+        path.write_bytes(b"precious")
+        if case == "read-only":
+            path.chmod(stat.S_IRUSR | stat.S_IRGRP)
+            argv = argv + ["--overwrite"]
+    elif case == "directory":
+        path.mkdir()
+    else:
+        argv = [a if a != target else "missing/target.fits" for a in argv]
+        target = "missing"
+    before = _snapshot(workdir)
+    res = _cli(argv, workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, target)
+    assert _snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("which", ["scene", "map"])
+def test_run_never_writes_over_its_inputs_even_with_overwrite(workdir, which):
+    fits.PrimaryHDU(np.full((64, 64), 0.2)).writeto(workdir / "dark.fits")
+    (workdir / "scene.toml").write_text(SCENE.format(naxis=64, ngroups=3, dark='"dark.fits"'))
+    target = "scene.toml" if which == "scene" else "dark.fits"
+    before = _snapshot(workdir)
+    res = _cli(["run", "scene.toml", "-q", "--overwrite", "-o", target], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, target)
+    assert _snapshot(workdir) == before
+
+
+def test_fit_never_writes_over_the_exposure(workdir):
+    _exposure(workdir)
+    before = _snapshot(workdir)
+    res = _cli(["fit", "out.fits", "-o", "out.fits", "--overwrite"], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, "out.fits", "reads")
+    assert _snapshot(workdir) == before
+
+
+def test_compare_plots_on_a_file_is_refused(workdir):
+    _cli(["run", "scene.toml", "-q", "--fit", "gls"], workdir)
+    (workdir / "plots").write_text("not a directory")
+    before = _snapshot(workdir)
+    res = _cli(["compare", "out_gls.fits", "out_truth.fits", "--plots", "plots"],
+               workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, "plots")
+    assert _snapshot(workdir) == before
+
+
+def test_overwrite_replaces_and_keeps_the_umask_mode(workdir):
+    _exposure(workdir)
+    (workdir / "out.fits").write_bytes(b"old")
+    res = _cli(["run", "scene.toml", "-q", "--overwrite"], workdir)
+    assert res.returncode == 0, res.stderr
+    assert (workdir / "out.fits").read_bytes()[:6] == b"SIMPLE"
+
+
+# ------------------------------------------------------------ bad settings
+@pytest.mark.parametrize("argv, name", [
+    (["run", "scene.toml", "-q", "--threads", "0"], "threads"),
+    (["run", "scene.toml", "-q", "--threads", "-2"], "threads"),
+    (["noise", "--threads", "0", "-q", "-o", "n.fits"], "threads"),
+    (["run", "scene.toml", "-q", "--fit", "gls", "-o", "one.fits"], "fit"),
+    (["run", "missing.toml", "-q"], "missing.toml"),
+    (["fit", "missing.fits"], "missing.fits"),
+])
+def test_bad_settings_one_line_nothing_written(workdir, argv, name):
+    if "one.fits" in argv:
+        (workdir / "scene.toml").write_text(SCENE.format(naxis=64, ngroups=1, dark=0.1))
+    before = _snapshot(workdir)
+    res = _cli(argv, workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, name)
+    assert _snapshot(workdir) == before
+
+
+def test_fit_of_a_one_group_file_is_refused(workdir):
+    (workdir / "scene.toml").write_text(SCENE.format(naxis=64, ngroups=1, dark=0.1))
+    _exposure(workdir)
+    before = _snapshot(workdir)
+    res = _cli(["fit", "out.fits"], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, "out.fits", "NGROUPS = 1")
+    assert _snapshot(workdir) == before
+
+
+# ------------------------------------------------------------------ signals
+def _children(pid):
+    """Pids of the children of ``pid`` (Linux /proc)."""
+    out = set()
+    task_dir = f"/proc/{pid}/task"
+    try:
+        for tid in os.listdir(task_dir):
+            with open(f"{task_dir}/{tid}/children") as f:
+                out |= {int(p) for p in f.read().split()}
+    except OSError:
+        pass
+    return out
+
+
+def _alive(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def _interrupt(argv, cwd, sig, when):
+    """Start the command, send ``sig`` at ``when`` ('start': during start-up;
+    'writing': once a temporary output file exists), and return (result, the
+    children it had)."""
+    proc = subprocess.Popen([sys.executable, "-m", "scenesim.cli", *argv], cwd=cwd,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    before = set(os.listdir(cwd))
+    children = set()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 60:
+        children |= _children(proc.pid)
+        new = set(os.listdir(cwd)) - before
+        if when == "start" and time.monotonic() - t0 > 0.2:
+            break
+        if when == "writing" and any(n.startswith(".") for n in new):
+            time.sleep(0.3)
+            children |= _children(proc.pid)
+            break
+        if proc.poll() is not None:
+            break
+        time.sleep(0.02)
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    return proc.returncode, err, children
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize("when", ["start", "writing"])
+@pytest.mark.parametrize("job", ["run", "noise", "series"])
+def test_signals_leave_nothing_behind(tmp_path, sig, when, job):
+    if job == "run":
+        # ~10 s of work each: the signal always lands while the job runs
+        (tmp_path / "scene.toml").write_text(SCENE.format(naxis=256, ngroups=200,
+                                                          dark=0.1))
+        argv = ["run", "scene.toml", "-q"]
+    elif job == "series":            # forked 1/f helper (2 threads, small frames)
+        (tmp_path / "scene.toml").write_text(SERIES.format(nints=3000))
+        argv = ["run", "scene.toml", "-q", "--threads", "2"]
+    else:
+        argv = ["noise", "--naxis", "1024", "--frames", "40", "-q", "-o", "n.fits"]
+    before = _snapshot(tmp_path)
+    code, err, children = _interrupt(argv, tmp_path, sig, when)
+    assert code == 128 + sig, err          # the jobs last far longer than the wait
+    _one_line(err, "interrupted", signal.Signals(sig).name)
+    assert _snapshot(tmp_path) == before
+    time.sleep(0.2)
+    assert not [c for c in children if _alive(c)]
