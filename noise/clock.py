@@ -313,8 +313,8 @@ class Detector:
         """``(key, value, comment)`` FITS cards describing the detector and clock."""
         return [
             ("DETECTOR", self.name, "detector type"),
-            ("NAXIS1D", self.naxis1, "[pix] full-array columns"),
-            ("NAXIS2D", self.naxis2, "[pix] full-array rows"),
+            ("DETNAX1", self.naxis1, "[pix] full-array columns"),
+            ("DETNAX2", self.naxis2, "[pix] full-array rows"),
             ("NOUTPUTS", self.n_out_active, "video outputs used"),
             ("NOUTFULL", self.n_out, "video outputs of the full array"),
             ("NROH", self.nroh, "[pix times] new-row overhead"),
@@ -335,21 +335,40 @@ class Detector:
 
 
 def detector_from_header(header):
-    """Rebuild the :class:`Detector` recorded by :meth:`Detector.to_header_cards`."""
+    """Rebuild the :class:`Detector` recorded by :meth:`Detector.to_header_cards`.
+
+    The full-array size is ``DETNAX1``/``DETNAX2``; files written before those names
+    (``NAXIS1D``/``NAXIS2D``, which astropy cannot write back: they look like
+    ``NAXISn`` cards) are read too.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        A detector card is missing, or the cards describe no valid detector.
+    """
+    def get(*keys):
+        for key in keys:
+            if key in header:
+                return header[key]
+        raise KeyError(keys[0])
+
     try:
         det = Detector(
-            name=str(header["DETECTOR"]), naxis1=int(header["NAXIS1D"]),
-            naxis2=int(header["NAXIS2D"]), n_out=int(header["NOUTFULL"]),
-            nroh=int(header["NROH"]), nfoh=int(header["NFOH"]),
-            dt=float(header["PIXDWELL"]), ref_border=int(header["REFBORD"]),
-            reverse_scan=bool(header["REVSCAN"]), pixel_pitch=float(header["PIXPITCH"]))
+            name=str(get("DETECTOR")), naxis1=int(get("DETNAX1", "NAXIS1D")),
+            naxis2=int(get("DETNAX2", "NAXIS2D")), n_out=int(get("NOUTFULL")),
+            nroh=int(get("NROH")), nfoh=int(get("NFOH")),
+            dt=float(get("PIXDWELL")), ref_border=int(get("REFBORD")),
+            reverse_scan=bool(get("REVSCAN")), pixel_pitch=float(get("PIXPITCH")))
         kind = str(header.get("SUBKIND", "full"))
+        if kind != "full":
+            det = dataclasses.replace(det, subarray=Subarray(
+                kind, int(get("SUBSTRT1")) - 1, int(get("SUBSTRT2")) - 1,
+                int(get("SUBSIZE1")), int(get("SUBSIZE2")), str(get("SUBARRAY"))))
     except KeyError as exc:
         raise FileFormatError(f"header lacks detector keyword {exc.args[0]!r}") from exc
-    if kind != "full":
-        det = dataclasses.replace(det, subarray=Subarray(
-            kind, int(header["SUBSTRT1"]) - 1, int(header["SUBSTRT2"]) - 1,
-            int(header["SUBSIZE1"]), int(header["SUBSIZE2"]), str(header["SUBARRAY"])))
+    except (TypeError, ValueError) as exc:          # ParameterError is a ValueError
+        raise FileFormatError(
+            f"header detector cards describe no valid detector: {exc}") from exc
     return det
 
 

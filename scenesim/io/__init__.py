@@ -6,9 +6,9 @@
 is read back).
 """
 
-from scenesim.io.exposure import (Exposure, ExposureWriter, read_exposure, read_truth,
-                                  truth_path_for)
+from scenesim.io.exposure import (Exposure, ExposureWriter, derived_path, read_exposure,
+                                  read_truth, truth_path_for)
 from scenesim.io.fitfile import FitResult, read_fit, read_slopes, write_fit
 
 __all__ = ["Exposure", "ExposureWriter", "read_exposure", "read_truth", "truth_path_for",
-           "FitResult", "read_fit", "write_fit", "read_slopes"]
+           "derived_path", "FitResult", "read_fit", "write_fit", "read_slopes"]

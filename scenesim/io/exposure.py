@@ -35,27 +35,35 @@ no ramp file fits the resultants straight from memory
 header and table go through the same FITS serialisation as the file's, so the fit
 sees the same values to the last bit.
 
-Every file is written to a temporary file and renamed when complete.
+Every file is written to a temporary file and renamed when complete
+(:func:`noise.fitsio.atomic_file`): a name ending in ``.gz`` is gzip-compressed; an
+operating-system error while writing (disk full, ``ulimit -f``) removes every
+temporary file and raises :class:`noise.errors.OutputError` naming the file.  Derived
+names keep the full extension (:func:`derived_path`: ``out.fits.gz`` ->
+``out_truth.fits.gz``).  The readers raise :class:`noise.errors.FileFormatError`, one
+line naming the file, for anything that is not the file they expect (missing, empty,
+truncated, not FITS, or another kind of scenesim file: ``FILETYPE``).
 """
 
 import contextlib
 import io
 import os
-import tempfile
 from dataclasses import dataclass
 
 import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
-from noise.errors import FileFormatError
+from noise.errors import FileFormatError, ScenesimError
 from noise.validate import check_writable
-from noise.fitsio import StreamingFITS, atomic_path
+from noise.fitsio import (StreamingFITS, atomic_file, check_output_name, derived_path,
+                          input_path, open_fits, output_error, temp_file)
 
-from scenesim.io.header import exposure_cards
+from scenesim.io.header import (check_file_kind, exposure_cards, filetype_card,
+                                nextend_card)
 
-__all__ = ["Exposure", "ExposureWriter", "truth_path_for", "read_exposure",
-           "read_truth"]
+__all__ = ["Exposure", "ExposureWriter", "truth_path_for", "derived_path",
+           "read_exposure", "read_truth"]
 
 #: Output file buffer (bytes): small frames are written 1 MB at a time, not per frame.
 _WRITE_BUFFER = 1 << 20
@@ -100,28 +108,40 @@ class Exposure:
         Raises
         ------
         noise.errors.FileFormatError
-            Missing file, or no ``SCI`` or ``READS`` extension.
+            As :func:`read_exposure`.
         """
-        path = os.fspath(path)
+        path = input_path(path, "exposure")
         sci, header, reads = read_exposure(path)
         return cls(sci, header, reads, path)
 
 
 def truth_path_for(path):
-    """``dir/stem_truth.fits`` for exposure ``dir/stem.fits``."""
-    stem, ext = os.path.splitext(os.fspath(path))
-    return f"{stem}_truth{ext or '.fits'}"
+    """``dir/stem_truth.fits`` for exposure ``dir/stem.fits`` (the full extension
+    kept: ``stem.fits.gz`` -> ``stem_truth.fits.gz``; :func:`derived_path`)."""
+    return derived_path(path, "_truth")
 
 
 class _RawCube:
-    """Big-endian float32 data appended to a temporary file, copied into FITS later."""
+    """Big-endian float32 data appended to a temporary file, copied into FITS later.
 
-    def __init__(self, directory):
-        fd, self.path = tempfile.mkstemp(prefix=".tmp-", suffix=".raw", dir=directory)
-        self.f = os.fdopen(fd, "wb")
+    The temporary file is :func:`noise.fitsio.temp_file`'s, beside ``target`` (the
+    truth file) and tagged with the extension ``name``."""
+
+    def __init__(self, target, name):
+        self.target = target
+        self.path = temp_file(target, tag=name)
+        try:
+            self.f = open(self.path, "wb")
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
+            raise
 
     def write(self, data):
-        self.f.write(np.asarray(data, dtype=">f4").tobytes())
+        try:
+            self.f.write(np.asarray(data, dtype=">f4").tobytes())
+        except OSError as exc:
+            raise output_error(self.target, exc) from exc
 
     def copy_into(self, stream, shape, name, cards):
         self.f.close()
@@ -163,14 +183,24 @@ class ExposureWriter:
         Rendered source catalogue for the truth file.
     overwrite : bool
         Replace existing files.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        An output path cannot be written (before anything is created).
+    noise.errors.OutputError
+        From :meth:`add` or :meth:`finish`: a file could not be written (disk full,
+        file-size limit); every temporary file is removed.
     """
 
     def __init__(self, engine, path, *, cards=(), truth_path=None, save_charge=False,
                  save_noise=False, sources=None, overwrite=True):
         if path is not None:
             check_writable("output path", path, overwrite=overwrite)
+            check_output_name("output path", path)
         if truth_path is not None:
             check_writable("truth path", truth_path, overwrite=overwrite)
+            check_output_name("truth path", truth_path)
         self.engine, self.path, self.truth_path = engine, path, truth_path
         self.sources, self.overwrite = sources, overwrite
         det, ro = engine.detector, engine.readout
@@ -184,28 +214,44 @@ class ExposureWriter:
         self._raws = {}
         try:
             if path is not None:
-                tmp = self._stack.enter_context(atomic_path(path, overwrite=overwrite))
-                fobj = self._stack.enter_context(open(tmp, "wb", buffering=_WRITE_BUFFER))
-                self._stream = StreamingFITS(fobj)
-                self._stream.begin_image((), np.uint8, self.header)
-                self._stream.end_image()
-                self._stream.begin_image(self.shape, np.uint16,
-                                         [("BUNIT", "DN", "raw counts")], name="SCI")
+                fobj = self._stack.enter_context(
+                    atomic_file(path, overwrite=overwrite, buffering=_WRITE_BUFFER))
+                with self._writing():
+                    self._stream = StreamingFITS(fobj)
+                    self._stream.begin_image((), np.uint8, self.header)
+                    self._stream.end_image()
+                    self._stream.begin_image(self.shape, np.uint16,
+                                             [("BUNIT", "DN", "raw counts")], name="SCI")
             else:
                 self._sci = np.empty(self.shape, dtype=np.uint16)
-            tdir = os.path.dirname(os.path.abspath(truth_path or path or "."))
             for name, wanted in (("CHARGE", self.save_charge),
                                  ("NOISE", self.save_noise)):
                 if wanted:
-                    self._raws[name] = _RawCube(tdir)
+                    try:
+                        self._raws[name] = _RawCube(truth_path, name)
+                    except OSError as exc:
+                        raise output_error(truth_path, exc) from exc
         except BaseException:
             self.abort()
             raise
 
+    @contextlib.contextmanager
+    def _writing(self):
+        """An OS error writing the exposure becomes an OutputError naming it."""
+        try:
+            yield
+        except OSError as exc:
+            if isinstance(exc, ScenesimError):
+                raise
+            raise output_error(self.path, exc) from exc
+
     def add(self, res):
         """Write one :class:`scenesim.engine.Resultant` (they come in file order)."""
         if self._stream is not None:
-            self._stream.write(res.dn)
+            try:
+                self._stream.write(res.dn)
+            except OSError as exc:
+                raise output_error(self.path, exc) from exc
         else:
             self._sci[res.integration, res.index] = res.dn
         if "CHARGE" in self._raws:
@@ -229,9 +275,10 @@ class ExposureWriter:
         ro, t_frame = self.engine.readout, self.engine.detector.frame_time
         try:
             if self._stream is not None:
-                self._stream.end_image()
-                self._stream.append_hdu(fits.BinTableHDU(ro.read_table(t_frame),
-                                                         name="READS"))
+                with self._writing():
+                    self._stream.end_image()
+                    self._stream.append_hdu(fits.BinTableHDU(ro.read_table(t_frame),
+                                                             name="READS"))
             if self.truth_path is not None:
                 _write_truth(self.engine, self.truth_path, self.header, out, self._raws,
                              self.sources, self.overwrite)
@@ -298,9 +345,11 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
     nx = det.nx
     crs = Table({"TIME": cr.time, "X": cr.index % nx, "Y": cr.index // nx,
                  "CHARGE": cr.charge, "SEEN": out["cr_seen"]})
-    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
+    replace = {c[0]: c for c in (filetype_card("truth"), nextend_card(6 + len(raws)))}
+    header = [replace.get(c[0], c) for c in header]
+    with atomic_file(path, overwrite=overwrite, buffering=_WRITE_BUFFER) as f:
         s = StreamingFITS(f)
-        s.begin_image((), np.uint8, list(header) + [("FILETYPE", "truth", "")])
+        s.begin_image((), np.uint8, header)
         s.end_image()
         for name, data, unit in (("RATE", rate, "electron/s"),
                                  ("RATE_IPC", rate_ipc, "electron/s")):
@@ -324,33 +373,76 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
 
 
 def read_exposure(path):
-    """Load an exposure: ``(sci uint16 (nints, ngroups, ny, nx), header, reads Table)``."""
-    if not os.path.isfile(path):
-        raise FileFormatError(f"exposure file {path!r} does not exist")
-    with fits.open(path) as hdul:
+    """Load an exposure file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    sci : ndarray, shape (nints, ngroups, ny, nx), uint16, DN
+    header : astropy.io.fits.Header
+        The primary header.
+    reads : astropy.table.Table
+        The ``READS`` table.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        One line naming the file: missing, a directory, empty, truncated, corrupt or
+        not FITS, another kind of scenesim file (truth, slopes, noise-only), or no
+        4-D ``SCI`` or no ``READS`` extension.
+    """
+    path = input_path(path, "exposure")
+    with open_fits(path, "exposure") as hdul:
+        check_file_kind(hdul, path, "exposure")
         names = [h.name for h in hdul]
         for need in ("SCI", "READS"):
             if need not in names:
                 raise FileFormatError(
                     f"exposure file {path!r} has no {need!r} extension (found {names})")
-        sci = np.asarray(hdul["SCI"].data)
+        if not isinstance(hdul["READS"], fits.BinTableHDU):
+            raise FileFormatError(f"exposure file {path!r}: 'READS' is not a table")
+        sci = hdul["SCI"].data
+        if sci is None or sci.ndim != 4:
+            raise FileFormatError(
+                f"exposure file {path!r}: 'SCI' must be a 4-D cube (nints, ngroups, "
+                f"ny, nx), got shape {None if sci is None else sci.shape}")
+        sci = np.asarray(sci)
         header = hdul[0].header.copy()
         reads = Table.read(hdul["READS"])
     return sci, header, reads
 
 
 def read_truth(path):
-    """Load a truth file as a dict of arrays/tables keyed by extension name."""
-    if not os.path.isfile(path):
-        raise FileFormatError(f"truth file {path!r} does not exist")
+    """Load a truth file as a dict of arrays/tables keyed by extension name.
+
+    Returns
+    -------
+    dict
+        ``'header'`` (the primary header) and one entry per extension: ndarray for
+        images, :class:`astropy.table.Table` for tables.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        One line naming the file: missing, a directory, empty, truncated, corrupt or
+        not FITS, another kind of scenesim file (exposure, slopes, noise-only), or no
+        ``RATE`` image.
+    """
+    path = input_path(path, "truth file")
     out = {}
-    with fits.open(path) as hdul:
+    with open_fits(path, "truth file") as hdul:
+        check_file_kind(hdul, path, "truth")
+        names = [h.name for h in hdul]
+        if "RATE" not in names or hdul["RATE"].data is None:
+            raise FileFormatError(
+                f"truth file {path!r} has no 'RATE' image (found {names})")
         out["header"] = hdul[0].header.copy()
         for h in hdul[1:]:
             if isinstance(h, fits.BinTableHDU):
                 out[h.name] = Table(h.data)
             else:
                 out[h.name] = np.asarray(h.data)
-    if "RATE" not in out:
-        raise FileFormatError(f"truth file {path!r} has no 'RATE' extension")
     return out

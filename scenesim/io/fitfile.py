@@ -9,7 +9,9 @@ into the plain dict of arrays that :mod:`scenesim.validate.compare` grades, and
 
 Layout of a scenesim slope file
 -------------------------------
-Primary header: ``FITTER`` (``'cds'``, ``'ols'``, ``'gls'``, ``'stcal-...'``),
+Primary header: ``FILETYPE = 'slopes'`` (:func:`scenesim.io.header.filetype_card`),
+``NEXTEND = 10``,
+``FITTER`` (``'cds'``, ``'ols'``, ``'gls'``, ``'stcal-...'``),
 ``GAIN`` (e-/DN, used only for ``SLOPE_DN``), ``RNOISE`` (read noise **per read**,
 e-, not CDS; the median of a map), ``BUNIT = 'e-/s'``, ``NINTS``, plus the cards of
 the caller (e.g. the preparation cards of :mod:`scenesim.calib.prepare`).  Image
@@ -19,17 +21,24 @@ extensions: ``SLOPE`` (e-/s), ``SLOPE_DN`` (DN/s), ``VAR_READ`` and ``VAR_POIS``
 
 JWST rate files (``SCI`` in DN/s, ``DQ``, ``VAR_POISSON`` + ``VAR_RNOISE`` or
 ``ERR``) are converted to e- with a gain (e-/DN) the caller supplies.
+
+Files are written atomically (a ``.gz`` name gzip-compressed; an OS error such as a
+full disk raises :class:`noise.errors.OutputError` and leaves nothing) and read
+through :func:`noise.fitsio.open_fits`: a missing, empty, truncated, corrupt or
+non-FITS file, or another kind of scenesim file (``FILETYPE``), is one
+:class:`noise.errors.FileFormatError` naming it.
 """
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 from astropy.io import fits
 
 from noise.errors import FileFormatError, ParameterError
-from noise.fitsio import atomic_path
+from noise.fitsio import atomic_file, check_output_name, input_path, open_fits
 from noise.validate import check_writable
+
+from scenesim.io.header import check_file_kind, filetype_card, nextend_card
 
 __all__ = ["FitResult", "write_fit", "read_fit", "read_slopes", "fit_arrays"]
 
@@ -122,6 +131,10 @@ class FitResult:
         cards = _check_cards(header_cards)
         primary = fits.PrimaryHDU()
         hdr = primary.header
+        kind = filetype_card("slopes")
+        nextend = nextend_card(len(_EXTENSIONS) + 1)         # + SLOPE_DN
+        hdr[kind[0]] = kind[1:]
+        hdr[nextend[0]] = nextend[1:]
         hdr["FITTER"] = (self.fitter, "ramp fitter: cds, ols or gls")
         hdr["GAIN"] = (float(self.gain), "[e-/DN] gain used for SLOPE_DN")
         hdr["RNOISE"] = (float(self.read_noise),
@@ -129,7 +142,8 @@ class FitResult:
         hdr["BUNIT"] = ("e-/s", "unit of SLOPE")
         hdr["NINTS"] = (int(self.slope_ints.shape[0]), "integrations combined")
         for key, value, comment in cards:
-            hdr[key] = (value, comment)
+            if key not in (kind[0], nextend[0]):
+                hdr[key] = (value, comment)
         exts = [
             ("SLOPE", self.slope.astype(_F32), "e-/s"),
             ("SLOPE_DN", self.slope_dn, "DN/s"),
@@ -187,13 +201,21 @@ def write_fit(path, result, *, header_cards=(), overwrite=True):
     -------
     str
         The path written.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Bad ``result`` or cards, or an output path that cannot be written.
+    noise.errors.OutputError
+        The file could not be written (disk full, file-size limit); nothing is left.
     """
     if not isinstance(result, FitResult):
         raise ParameterError(f"'result' must be a FitResult, got {type(result).__name__}")
     path = check_writable("path", path, overwrite=overwrite)
+    check_output_name("path", path)
     hdul = result.to_hdul(header_cards)
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        hdul.writeto(tmp, overwrite=True)
+    with atomic_file(path, overwrite=overwrite) as f:
+        hdul.writeto(f, output_verify="exception")
     return path
 
 
@@ -203,27 +225,28 @@ def read_fit(path):
     Raises
     ------
     noise.errors.FileFormatError
-        If the file is missing, unreadable or lacks an extension or keyword.
+        One line naming the file: missing, a directory, empty, truncated, corrupt or
+        not FITS, another kind of scenesim file (exposure, truth, noise-only), or an
+        extension or keyword missing.
     """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileFormatError(f"'path': fit file {path!r} does not exist")
+    path = input_path(path, "fit file")
     names = _EXTENSIONS
-    try:
-        with fits.open(path, memmap=False) as hdul:
-            hdr = hdul[0].header
-            missing = [n for n in names if n not in hdul]
-            missing += [k for k in ("FITTER", "GAIN", "RNOISE") if k not in hdr]
-            if missing:
-                raise FileFormatError(
-                    f"{path!r} is not a scenesim fit file: missing {missing} "
-                    f"(expected extensions {list(names)} and keywords FITTER, GAIN, "
-                    f"RNOISE)")
-            data = {n: np.array(hdul[n].data) for n in names}
-            fitter, gain, rnoise = str(hdr["FITTER"]), float(hdr["GAIN"]), float(
-                hdr["RNOISE"])
-    except OSError as exc:
-        raise FileFormatError(f"cannot read fit file {path!r}: {exc}") from exc
+    with open_fits(path, "fit file", memmap=False) as hdul:
+        check_file_kind(hdul, path, "slopes")
+        hdr = hdul[0].header
+        missing = [n for n in names if n not in hdul]
+        missing += [k for k in ("FITTER", "GAIN", "RNOISE") if k not in hdr]
+        if missing:
+            raise FileFormatError(
+                f"{path!r} is not a scenesim fit file: missing {missing} "
+                f"(expected extensions {list(names)} and keywords FITTER, GAIN, "
+                f"RNOISE)")
+        data = {n: np.array(hdul[n].data) for n in names}
+        empty = [n for n in names if data[n].ndim == 0]
+        if empty:
+            raise FileFormatError(f"fit file {path!r}: extension(s) {empty} hold no data")
+        fitter, gain, rnoise = str(hdr["FITTER"]), float(hdr["GAIN"]), float(
+            hdr["RNOISE"])
     return FitResult(
         slope=data["SLOPE"].astype(_F32), var_read=data["VAR_READ"].astype(_F32),
         var_poisson=data["VAR_POIS"].astype(_F32), chi2=data["CHI2"].astype(_F32),
@@ -252,50 +275,54 @@ def read_slopes(path, *, gain=None):
         ``chi2`` (float64 or None), ``read_noise`` (e- per read or None),
         ``layout`` ('scenesim' or 'jwst').
     """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileFormatError(f"'fit_path': slope file {path!r} does not exist")
-    try:
-        with fits.open(path, memmap=False) as hdul:
-            names = [h.name for h in hdul]
-            if "SLOPE" in names:
-                layout = "scenesim"
-            elif "SCI" in names:
-                layout = "jwst"
-                need = ["SCI", "DQ"]
-                if not ("VAR_POISSON" in names and "VAR_RNOISE" in names):
-                    need.append("ERR")
-                missing = [n for n in need if n not in names]
-                if missing:
-                    raise FileFormatError(
-                        f"JWST rate file {path!r} lacks extension(s) {missing} (found "
-                        f"{names}; needs SCI, DQ and VAR_POISSON + VAR_RNOISE or ERR)")
-                if gain is None or not np.isfinite(gain) or gain <= 0:
-                    raise ParameterError(
-                        f"'gain' (e-/DN, > 0) is needed to convert the JWST rate file "
-                        f"{path!r} to e-/s, got {gain!r}")
-                g = float(gain)
-                sci = np.asarray(hdul["SCI"].data, dtype=np.float64)
-                if "VAR_POISSON" in names and "VAR_RNOISE" in names:
-                    var = (np.asarray(hdul["VAR_POISSON"].data, dtype=np.float64)
-                           + np.asarray(hdul["VAR_RNOISE"].data, dtype=np.float64))
-                else:
-                    var = np.asarray(hdul["ERR"].data, dtype=np.float64) ** 2
-                out = {"slope": sci * g, "var": var * g * g,
-                       "dq": np.asarray(hdul["DQ"].data).astype(np.uint32),
-                       "chi2": None, "read_noise": None, "layout": layout}
-                for key in ("slope", "var"):
-                    out[key] = np.nan_to_num(out[key], nan=0.0 if key == "slope"
-                                             else np.inf, posinf=np.inf)
-                return out
-            else:
+    path = input_path(path, "slope file")
+    with open_fits(path, "slope file", memmap=False) as hdul:
+        check_file_kind(hdul, path, "slopes")
+        names = [h.name for h in hdul]
+        if "SLOPE" in names:
+            layout = "scenesim"
+        elif "SCI" in names:
+            layout = "jwst"
+            need = ["SCI", "DQ"]
+            if not ("VAR_POISSON" in names and "VAR_RNOISE" in names):
+                need.append("ERR")
+            missing = [n for n in need if n not in names]
+            if missing:
                 raise FileFormatError(
-                    f"{path!r} is neither a scenesim fit file (extension 'SLOPE') nor a "
-                    f"JWST rate file (extension 'SCI'); found {names}")
-    except OSError as exc:
-        raise FileFormatError(f"cannot read slope file {path!r}: {exc}") from exc
+                    f"JWST rate file {path!r} lacks extension(s) {missing} (found "
+                    f"{names}; needs SCI, DQ and VAR_POISSON + VAR_RNOISE or ERR)")
+            if not _positive(gain):
+                raise ParameterError(
+                    f"'gain' (e-/DN, > 0) is needed to convert the JWST rate file "
+                    f"{path!r} to e-/s, got {gain!r}")
+            g = float(gain)
+            sci = np.asarray(hdul["SCI"].data, dtype=np.float64)
+            if "VAR_POISSON" in names and "VAR_RNOISE" in names:
+                var = (np.asarray(hdul["VAR_POISSON"].data, dtype=np.float64)
+                       + np.asarray(hdul["VAR_RNOISE"].data, dtype=np.float64))
+            else:
+                var = np.asarray(hdul["ERR"].data, dtype=np.float64) ** 2
+            out = {"slope": sci * g, "var": var * g * g,
+                   "dq": np.asarray(hdul["DQ"].data).astype(np.uint32),
+                   "chi2": None, "read_noise": None, "layout": layout}
+            for key in ("slope", "var"):
+                out[key] = np.nan_to_num(out[key], nan=0.0 if key == "slope"
+                                         else np.inf, posinf=np.inf)
+            return out
+        else:
+            raise FileFormatError(
+                f"{path!r} is neither a scenesim fit file (extension 'SLOPE') nor a "
+                f"JWST rate file (extension 'SCI'); found {names}")
     fit = read_fit(path)
     return fit_arrays(fit)
+
+
+def _positive(value):
+    """True for a finite real number > 0."""
+    try:
+        return bool(np.isfinite(value) and value > 0) and not isinstance(value, bool)
+    except (TypeError, ValueError):
+        return False
 
 
 def fit_arrays(fit):

@@ -5,12 +5,22 @@ exposure and truth files, :mod:`scenesim.calib.prepare` and the fit files) take
 their cards from here, and every reader (the fit's preparation, ``compare``, the
 stcal adapter) rebuilds what it needs through the functions below, never by hand.
 
+What a file is: ``FILETYPE`` (:func:`filetype_card`) in every primary header,
+``'exposure'``, ``'truth'``, ``'slopes'`` (fit files) or ``'noise'`` (noise-only ramps,
+written by :func:`noise.fitsio.write_noise_fits`).  The readers check it
+(:func:`check_file_kind`), so a file of the wrong kind is refused in one line; files
+without the card (older exposures and slope files, foreign files) are recognised by
+their extensions.  ``NEXTEND`` (:func:`nextend_card`) counts the extensions after the
+primary HDU, so a file cut at an HDU boundary (which astropy reads without a word) is
+refused as truncated.
+
 Exposure and truth primary header (:func:`exposure_cards`):
 
 * detector and clock: the cards of :meth:`noise.clock.Detector.to_header_cards`
-  (``DETECTOR``, ``NAXIS1D``/``NAXIS2D``, ``NOUTPUTS``, ``NROH``, ``NFOH``,
+  (``DETECTOR``, ``DETNAX1``/``DETNAX2``, ``NOUTPUTS``, ``NROH``, ``NFOH``,
   ``PIXDWELL``, ``REFBORD``, ``REVSCAN``, ``SUBARRAY``/``SUBSTRT``/``SUBSIZE``,
-  ``TFRAME``), read back by :func:`noise.clock.detector_from_header`;
+  ``TFRAME``), read back by :func:`noise.clock.detector_from_header` (which also
+  reads the ``NAXIS1D``/``NAXIS2D`` of older files);
 * readout: :meth:`scenesim.detector.readout.Readout.to_header_cards` (``NINTS``,
   ``NGROUPS``, ``NFRAMES``, ``GROUPGAP``, ``DROPFRM1``, ``READPATT``, ``TGROUP``,
   ``RESETMD``, ...) plus the exposure's ``READS`` table, read back by
@@ -27,7 +37,8 @@ Exposure and truth primary header (:func:`exposure_cards`):
   Gaussian, ``PSFAIRY`` for an Airy disk; :func:`header_psf`).
 
 Fit files copy :data:`COPIED_KEYS` from the exposure; every card is made to fit
-one 80-character card (:func:`card`).
+one 80-character card (:func:`card`).  Every header passes astropy's verification
+(``output_verify='exception'``).
 """
 
 import numpy as np
@@ -45,7 +56,8 @@ __all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
            "printable", "exposure_card", "exposure_read_noise", "exposure_readout",
            "readout_from_header", "readout_from_table", "header_nonlinearity", "header_ipc_kernel",
            "header_psf", "exposure_settings", "preparation_cards",
-           "header_ipc_deconvolved"]
+           "header_ipc_deconvolved", "FILETYPES", "filetype_card", "nextend_card",
+           "file_kind", "check_file_kind"]
 
 
 #: Exposure header keywords copied into the header of a fit.
@@ -54,6 +66,75 @@ COPIED_KEYS = ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
 
 
 CARD_LENGTH = 80                       # characters in a FITS header card
+
+#: ``FILETYPE`` values of scenesim files, and how messages name each kind.
+FILETYPES = {"exposure": "an exposure", "truth": "a truth file",
+             "slopes": "a slope file", "noise": "a noise-only ramp"}
+
+
+def filetype_card(kind):
+    """The ``FILETYPE`` card of a scenesim file of ``kind`` (a key of
+    :data:`FILETYPES`)."""
+    if kind not in FILETYPES:
+        raise ParameterError(f"'kind' must be one of {sorted(FILETYPES)}, got {kind!r}")
+    return ("FILETYPE", kind, "scenesim file: exposure, truth, slopes or noise")
+
+
+def nextend_card(n):
+    """The ``NEXTEND`` card: ``n`` extensions follow the primary HDU."""
+    return ("NEXTEND", int(n), "extensions after the primary HDU")
+
+
+def file_kind(hdul):
+    """What an opened FITS file is, and how that is known.
+
+    Parameters
+    ----------
+    hdul : astropy.io.fits.HDUList
+
+    Returns
+    -------
+    (str or None, str)
+        The kind (a key of :data:`FILETYPES`, or None when unknown, e.g. a JWST
+        file) and the evidence for the message: ``'FILETYPE=truth'``, or the
+        extension that marks a file written before the card existed.
+    """
+    value = hdul[0].header.get("FILETYPE") if len(hdul) else None
+    if isinstance(value, str) and value.strip().lower() in FILETYPES:
+        kind = value.strip().lower()
+        return kind, f"FILETYPE={kind}"
+    names = {h.name for h in hdul}
+    if "SLOPE" in names:
+        return "slopes", "extension 'SLOPE'"
+    if "RATE" in names and "RATE_IPC" in names:
+        return "truth", "extensions 'RATE' and 'RATE_IPC'"
+    if "SCI" in names and "READS" in names:
+        return "exposure", "extensions 'SCI' and 'READS'"
+    return None, ""
+
+
+def check_file_kind(hdul, path, expected):
+    """Raise unless the opened file ``path`` can be a complete file of kind
+    ``expected``.
+
+    A file whose kind :func:`file_kind` cannot tell passes (the caller checks its
+    extensions); one with fewer extensions than its ``NEXTEND`` says is truncated.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        E.g. ``'x.fits' is a truth file (FILETYPE=truth), not an exposure``.
+    """
+    kind, evidence = file_kind(hdul)
+    if kind is not None and kind != expected:
+        raise FileFormatError(
+            f"{path!r} is {FILETYPES[kind]} ({evidence}), not {FILETYPES[expected]}")
+    declared = hdul[0].header.get("NEXTEND")
+    if isinstance(declared, int) and not isinstance(declared, bool) \
+            and len(hdul) - 1 < declared:
+        raise FileFormatError(
+            f"{path!r} is truncated: {len(hdul) - 1} of its {declared} extensions "
+            f"(NEXTEND) are there")
 
 
 def exposure_read_noise(header, default=0.0):
@@ -137,9 +218,12 @@ def exposure_readout(exposure):
     if missing:
         raise FileFormatError(
             f"exposure {exposure.name!r} lacks header keyword {missing[0]!r}")
-    det = detector_from_header(hdr)
-    nints = int(hdr["NINTS"])
-    ro = readout_from_table(hdr, exposure.reads)
+    try:
+        det = detector_from_header(hdr)
+        nints = int(hdr["NINTS"])
+        ro = readout_from_table(hdr, exposure.reads)
+    except (TypeError, ValueError) as exc:   # FileFormatError, ParameterError too
+        raise FileFormatError(f"exposure {exposure.name!r}: {exc}") from exc
     sci = exposure.sci
     if (sci.ndim != 4 or sci.shape[:2] != (nints, ro.ngroups)
             or sci.shape[2:] != det.shape):
@@ -214,10 +298,13 @@ def header_ipc_kernel(header):
 
 
 def exposure_cards(engine, cards):
+    """The primary-header cards of an exposure of ``engine``, ``cards`` last (a card
+    of ``cards`` replaces one of the same key); ``FILETYPE = 'exposure'`` and
+    ``NEXTEND = 2`` (``SCI``, ``READS``; the truth file replaces both)."""
     det, ro = engine.detector, engine.readout
     t_frame = det.frame_time
     out = [("TELESCOP", "scenesim", "simulated HxRG exposure"),
-           ("ORIGIN", "scenesim", "")]
+           ("ORIGIN", "scenesim", ""), filetype_card("exposure"), nextend_card(2)]
     seen = set()
     for key, value, comment in list(det.to_header_cards()) + list(
             ro.to_header_cards(t_frame)):

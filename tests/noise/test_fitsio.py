@@ -181,8 +181,13 @@ def test_no_overwrite(tmp_path):
 @pytest.mark.parametrize("kwargs, name", [
     (dict(unit="ADU"), "unit"), (dict(gain=0.0), "gain"), (dict(gain=float("nan")), "gain"),
     (dict(nints=0), "nints"),
+    # old: int() truncated these (2.7 frames became 2, 1.5 integrations 1)
+    (dict(nframes=2.7), "nframes"), (dict(nints=1.5), "nints"),
+    (dict(nframes="3"), "nframes"), (dict(nframes=True), "nframes"),
+    (dict(nframes=0), "nframes"),
 ])
 def test_bad_arguments_write_nothing(tmp_path, kwargs, name):
+    nframes = kwargs.pop("nframes", 2)
     with pytest.raises(ParameterError, match=f"'{name}'"):
-        write_noise_fits(tmp_path / "x.fits", _gen(NIRSPEC_DEFAULTS), 2, **kwargs)
+        write_noise_fits(tmp_path / "x.fits", _gen(NIRSPEC_DEFAULTS), nframes, **kwargs)
     assert _files(tmp_path) == []
