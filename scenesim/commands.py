@@ -11,7 +11,7 @@ from scenesim.adapters.stcal import fit_exposure_stcal
 from scenesim.bench import main as bench_main
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import EngineOptions
-from scenesim.outputs import check_outputs, check_plot_dir, fit_path_for
+from scenesim.outputs import check_outputs, check_plot_dir, clean_stale_temps, fit_path_for
 from scenesim.run import progress_bar, run_scene
 from scenesim.scene import load_scene
 from scenesim.validate.compare import compare_files
@@ -34,6 +34,9 @@ def noise_command(args):
         rd_noise=5.2)
     gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
     check_outputs({"output": args.output}, overwrite=args.overwrite)
+    cleaned = clean_stale_temps([args.output])
+    if cleaned and not args.quiet:
+        print(cleaned)
     t0 = time.perf_counter()
     bar = None
     cb = None
@@ -67,6 +70,8 @@ def run_command(args):
                     progress=not args.quiet, fit=args.fit, refpix=args.refpix,
                     compare=True if args.compare else None, plots=args.plots,
                     overwrite=args.overwrite)
+    if res.cleaned and not args.quiet:
+        print(res.cleaned)
     if not args.quiet:
         eng = res.engine
         print(f"scene {args.scene}: {eng.detector.ny}x{eng.detector.nx}, "

@@ -19,10 +19,11 @@ partial file either.
 import os
 
 from noise.errors import ParameterError
+from noise.fitsio import derived_path, remove_stale_temps
 from noise.validate import check_writable
 
 __all__ = ["PLOT_FILES", "scene_inputs", "check_outputs", "check_plot_dir",
-           "fit_path_for"]
+           "fit_path_for", "clean_stale_temps"]
 
 #: The figures ``compare --plots DIR`` writes into ``DIR``.
 PLOT_FILES = ("slope.png", "residuals.png", "noise_vs_flux.png")
@@ -30,9 +31,23 @@ PLOT_FILES = ("slope.png", "residuals.png", "noise_vs_flux.png")
 
 def fit_path_for(exposure, fitter):
     """The default slope file of ``exposure`` fitted with ``fitter``:
-    ``dir/stem_<fitter>.fits`` for ``dir/stem.fits``."""
-    stem, ext = os.path.splitext(os.fspath(exposure))
-    return f"{stem}_{fitter}{ext or '.fits'}"
+    ``dir/stem_<fitter>.fits`` for ``dir/stem.fits`` (``stem_<fitter>.fits.gz`` for a
+    compressed one; :func:`noise.fitsio.derived_path`)."""
+    return derived_path(exposure, f"_{fitter}")
+
+
+def clean_stale_temps(paths):
+    """Remove the temporary files that dead scenesim processes (killed by SIGKILL)
+    left in the directories of ``paths``; return one line saying what was removed,
+    or None (:func:`noise.fitsio.remove_stale_temps`)."""
+    removed = []
+    for directory in sorted({os.path.dirname(os.path.abspath(os.fspath(p)))
+                             for p in paths if p is not None}):
+        removed += remove_stale_temps(directory)
+    if not removed:
+        return None
+    return (f"removed {len(removed)} temporary file(s) left by an interrupted run: "
+            + ", ".join(os.path.basename(r) for r in removed))
 
 
 def scene_inputs(scene):

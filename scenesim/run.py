@@ -40,7 +40,8 @@ from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import psf_cards
-from scenesim.outputs import check_outputs, check_plot_dir, fit_path_for, scene_inputs
+from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps,
+                              fit_path_for, scene_inputs)
 from scenesim.validate.compare import compare_files
 from scenesim.sky.maps import load_map
 from scenesim.sky.rates import cosmic_ray_hits, scene_rates
@@ -50,7 +51,8 @@ __all__ = ["build_engine", "run_scene", "write_exposure", "RunResult", "progress
 
 @dataclass
 class RunResult:
-    """What a run produced: paths (None when not written) and timings (s)."""
+    """What a run produced: paths (None when not written), timings (s), and a note of
+    the temporary files of dead runs removed from the output directories (or None)."""
 
     exposure: str | None
     truth: str | None
@@ -58,6 +60,7 @@ class RunResult:
     report: object
     seconds: float
     engine: ChargeEngine
+    cleaned: str | None = None
 
 
 def progress_bar(total, unit, desc):
@@ -228,6 +231,7 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     scene = scene.ensure_seed().replace(output=out_cfg)
     exp_path, truth_path, fit_path = _output_paths(scene, out_cfg, overwrite=overwrite,
                                                    plots=plots)
+    cleaned = clean_stale_temps([exp_path, truth_path, fit_path])
     engine, rendered = build_engine(scene, options=options)
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf)
     ro = engine.readout
@@ -249,5 +253,5 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
                 os.makedirs(plots, exist_ok=True)
             report = compare_files(fit_path, truth_path, plots=plots, exposure=exp_path)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,
-                     engine)
+                     engine, cleaned)
 

@@ -273,3 +273,22 @@ def test_signals_leave_nothing_behind(tmp_path, sig, when, job):
     assert _snapshot(tmp_path) == before
     time.sleep(0.2)
     assert not [c for c in children if _alive(c)]
+
+
+@pytest.mark.slow
+def test_sigkill_leftovers_are_removed_by_the_next_run(tmp_path):
+    # SIGKILL cannot be caught: the killed run's temporary files stay, named with its
+    # pid; the next run in that directory removes them (their owner is dead), says
+    # so, and writes its own outputs
+    (tmp_path / "scene.toml").write_text(SCENE.format(naxis=256, ngroups=200,
+                                                      dark=0.1))
+    code, err, _ = _interrupt(["run", "scene.toml", "-q"], tmp_path, signal.SIGKILL,
+                              "writing")
+    assert code == -signal.SIGKILL
+    left = [n for n in os.listdir(tmp_path) if n.startswith(".")]
+    assert left and all(n.startswith(".scenesim-") for n in left)
+    (tmp_path / "scene.toml").write_text(SCENE.format(naxis=64, ngroups=3, dark=0.1))
+    res = _cli(["run", "scene.toml"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "removed" in res.stdout and all(n in res.stdout for n in left)
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
