@@ -7,8 +7,8 @@ is read back).
 """
 
 from scenesim.io.exposure import (Exposure, ExposureWriter, derived_path, read_exposure,
-                                  read_truth, truth_path_for)
+                                  read_exposure_header, read_truth, truth_path_for)
 from scenesim.io.fitfile import FitResult, read_fit, read_slopes, write_fit
 
 __all__ = ["Exposure", "ExposureWriter", "read_exposure", "read_truth", "truth_path_for",
-           "derived_path", "FitResult", "read_fit", "write_fit", "read_slopes"]
+           "derived_path", "read_exposure_header", "FitResult", "read_fit", "write_fit", "read_slopes"]

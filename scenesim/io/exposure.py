@@ -63,7 +63,7 @@ from scenesim.io.header import (check_file_kind, exposure_cards, filetype_card,
                                 nextend_card)
 
 __all__ = ["Exposure", "ExposureWriter", "truth_path_for", "derived_path",
-           "read_exposure", "read_truth"]
+           "read_exposure", "read_exposure_header", "read_truth"]
 
 #: Output file buffer (bytes): small frames are written 1 MB at a time, not per frame.
 _WRITE_BUFFER = 1 << 20
@@ -396,23 +396,49 @@ def read_exposure(path):
     """
     path = input_path(path, "exposure")
     with open_fits(path, "exposure") as hdul:
-        check_file_kind(hdul, path, "exposure")
-        names = [h.name for h in hdul]
-        for need in ("SCI", "READS"):
-            if need not in names:
-                raise FileFormatError(
-                    f"exposure file {path!r} has no {need!r} extension (found {names})")
-        if not isinstance(hdul["READS"], fits.BinTableHDU):
-            raise FileFormatError(f"exposure file {path!r}: 'READS' is not a table")
-        sci = hdul["SCI"].data
-        if sci is None or sci.ndim != 4:
-            raise FileFormatError(
-                f"exposure file {path!r}: 'SCI' must be a 4-D cube (nints, ngroups, "
-                f"ny, nx), got shape {None if sci is None else sci.shape}")
-        sci = np.asarray(sci)
+        _check_exposure(hdul, path)
+        sci = np.asarray(hdul["SCI"].data)
         header = hdul[0].header.copy()
         reads = Table.read(hdul["READS"])
     return sci, header, reads
+
+
+def read_exposure_header(path):
+    """The primary header and ``READS`` table of an exposure file, without its data
+    (``SCI`` is neither read nor required: the read times need only these).
+
+    Returns
+    -------
+    header : astropy.io.fits.Header
+    reads : astropy.table.Table
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        As :func:`read_exposure`.
+    """
+    path = input_path(path, "exposure")
+    with open_fits(path, "exposure") as hdul:
+        _check_exposure(hdul, path, sci=False)
+        return hdul[0].header.copy(), Table.read(hdul["READS"])
+
+
+def _check_exposure(hdul, path, *, sci=True):
+    """Raise unless ``hdul`` is a complete exposure: a 4-D ``SCI`` image (if ``sci``)
+    and a ``READS`` table (the data are not read)."""
+    check_file_kind(hdul, path, "exposure")
+    names = [h.name for h in hdul]
+    for need in ("SCI", "READS") if sci else ("READS",):
+        if need not in names:
+            raise FileFormatError(
+                f"exposure file {path!r} has no {need!r} extension (found {names})")
+    if not isinstance(hdul["READS"], fits.BinTableHDU):
+        raise FileFormatError(f"exposure file {path!r}: 'READS' is not a table")
+    if sci and (not isinstance(hdul["SCI"], (fits.ImageHDU, fits.PrimaryHDU))
+                or hdul["SCI"].header.get("NAXIS") != 4):
+        raise FileFormatError(
+            f"exposure file {path!r}: 'SCI' must be a 4-D image (nints, ngroups, ny, "
+            f"nx), got NAXIS={hdul['SCI'].header.get('NAXIS')}")
 
 
 def read_truth(path):

@@ -27,13 +27,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from astropy.io import fits
-from astropy.table import Table
 
 from noise.errors import FileFormatError, ParameterError
 
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.readout import Readout
-from scenesim.io.exposure import read_truth
+from scenesim.io.exposure import read_exposure_header, read_truth
 from scenesim.io.header import (exposure_read_noise, exposure_settings,
                                 header_ipc_deconvolved, header_ipc_kernel, header_psf,
                                 readout_from_header, readout_from_table)
@@ -128,16 +127,8 @@ class Report:
 
 
 def _readout_from_exposure(path):
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileFormatError(f"'exposure': file {path!r} does not exist")
-    with fits.open(path, memmap=True) as hdul:
-        names = [h.name for h in hdul]
-        if "READS" not in names:
-            raise FileFormatError(
-                f"exposure {path!r} has no 'READS' extension (found {names})")
-        hdr = hdul[0].header
-        return readout_from_table(hdr, Table.read(hdul["READS"])), hdr
+    hdr, reads = read_exposure_header(path)
+    return readout_from_table(hdr, reads), hdr
 
 
 def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=None,

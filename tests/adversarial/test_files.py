@@ -1,8 +1,9 @@
 """Input and output files against a hostile user, generated case by class.
 
 Inputs: every reader of the project (``read_exposure``, ``Exposure.read``,
-``read_truth``, ``read_fit``, ``read_slopes``) and the commands that read files
-(``scenesim fit FILE``; ``scenesim compare FIT TRUTH`` with either argument bad) x
+``read_exposure_header``, ``read_truth``, ``read_fit``, ``read_slopes``) and the
+commands that read files (``scenesim fit FILE``; ``scenesim compare FIT TRUTH
+[--exposure EXPOSURE]`` with any one of them bad) x
 every class of bad file (:data:`BAD_FILES`: missing, a directory, empty, truncated,
 cut inside the header, text, random bytes, a damaged header card, a truncated gzip, a
 dangling link, a FIFO, FITS without the needed extensions, and each other kind of
@@ -41,7 +42,7 @@ from noise.errors import FileFormatError
 from noise.fitsio import TEMP_PATTERN
 from scenesim.detector.readout import Readout
 from scenesim.engine import ChargeEngine, EngineOptions
-from scenesim.io.exposure import Exposure, read_exposure, read_truth
+from scenesim.io.exposure import Exposure, read_exposure, read_exposure_header, read_truth
 from scenesim.io.fitfile import FitResult, read_fit, read_slopes, write_fit
 from scenesim.run import write_exposure
 
@@ -203,6 +204,7 @@ def _applies(case, kind):
 READERS = {
     "read_exposure": (read_exposure, "exposure"),
     "Exposure.read": (Exposure.read, "exposure"),
+    "read_exposure_header": (read_exposure_header, "exposure"),
     "read_truth": (read_truth, "truth"),
     "read_fit": (read_fit, "slopes"),
     "read_slopes": (lambda p: read_slopes(p, gain=1.0), "slopes"),
@@ -242,7 +244,9 @@ CLI_FILES = ["missing", "directory", "empty", "truncated", "text", "image-only"]
 #: ``slopes.fits`` are valid files copied into the case's directory.
 COMMANDS = [("fit", ["fit", "{bad}"], "exposure"),
             ("compare-fit", ["compare", "{bad}", "truth.fits"], "slopes"),
-            ("compare-truth", ["compare", "slopes.fits", "{bad}"], "truth")]
+            ("compare-truth", ["compare", "slopes.fits", "{bad}"], "truth"),
+            ("compare-exposure", ["compare", "slopes.fits", "truth.fits", "--exposure",
+                                  "{bad}"], "exposure")]
 
 CLI_CASES = [(name, case) for name, _, kind in COMMANDS for case in CLI_FILES
              if _applies(case, kind)]
