@@ -293,7 +293,7 @@ def _umask():
 
 
 @contextlib.contextmanager
-def atomic_path(path, *, overwrite=True):
+def atomic_path(path, *, overwrite=False):
     """Yield a temporary path beside ``path``; rename it to ``path`` on success.
 
     The temporary file is :func:`temp_file`'s; on success it gets the mode ``open()``
@@ -328,7 +328,7 @@ def atomic_path(path, *, overwrite=True):
 
 
 @contextlib.contextmanager
-def atomic_file(path, *, overwrite=True, buffering=-1):
+def atomic_file(path, *, overwrite=False, buffering=-1):
     """Yield a binary file object writing ``path`` atomically (see :func:`atomic_path`).
 
     A ``path`` ending in ``.gz`` is gzip-compressed on the fly (no extra pass over the
@@ -548,7 +548,7 @@ def _hdu_bytes(hdu):
 
 
 def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
-                     overwrite=True, progress=None, extra_cards=()):
+                     overwrite=False, progress=None, extra_cards=()):
     """Stream a noise-only ramp to a FITS file, atomically.
 
     Parameters

@@ -19,7 +19,7 @@ partial file either.
 import os
 
 from noise.errors import ParameterError
-from noise.fitsio import derived_path, remove_stale_temps
+from noise.fitsio import check_output_name, derived_path, remove_stale_temps
 from noise.validate import check_writable
 
 __all__ = ["PLOT_FILES", "scene_inputs", "check_outputs", "check_plot_dir",
@@ -87,15 +87,16 @@ def check_outputs(outputs, *, inputs=(), overwrite=False):
     Raises
     ------
     noise.errors.ParameterError
-        Naming the output and what is wrong: its directory is missing or not
-        writable, it is a directory, it is an input of the run, two outputs share it,
-        or it exists (without ``overwrite``, or read-only).
+        Naming the output and what is wrong: a compression scenesim does not write
+        (``.bz2``, ...), its directory is missing or not writable, it is a directory,
+        it is an input of the run, two outputs share it, or it exists (without
+        ``overwrite``, or read-only).
     """
     checked = {}
     for what, path in outputs.items():
         if path is None:
             continue
-        path = os.fspath(path)
+        path = check_output_name(what, os.fspath(path))
         for other, other_path in checked.items():
             if _same(path, other_path):
                 raise ParameterError(

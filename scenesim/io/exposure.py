@@ -182,7 +182,7 @@ class ExposureWriter:
     sources : astropy.table.Table or None
         Rendered source catalogue for the truth file.
     overwrite : bool
-        Replace existing files.
+        Replace existing files (default: refuse them).
 
     Raises
     ------
@@ -194,7 +194,7 @@ class ExposureWriter:
     """
 
     def __init__(self, engine, path, *, cards=(), truth_path=None, save_charge=False,
-                 save_noise=False, sources=None, overwrite=True):
+                 save_noise=False, sources=None, overwrite=False):
         if path is not None:
             check_writable("output path", path, overwrite=overwrite)
             check_output_name("output path", path)

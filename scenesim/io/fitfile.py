@@ -181,7 +181,7 @@ def _check_cards(header_cards):
     return cards
 
 
-def write_fit(path, result, *, header_cards=(), overwrite=True):
+def write_fit(path, result, *, header_cards=(), overwrite=False):
     """Write a :class:`FitResult` to a FITS file atomically.
 
     The file is written to a temporary file in the same directory and moved into
@@ -195,7 +195,7 @@ def write_fit(path, result, *, header_cards=(), overwrite=True):
     header_cards : iterable of (key, value, comment)
         Extra primary-header cards.
     overwrite : bool
-        Replace an existing file.
+        Replace an existing file (default: refuse it).
 
     Returns
     -------

@@ -12,7 +12,7 @@ __all__ = ['plot_report']
 
 
 def _savefig(fig, path):
-    with atomic_path(path) as tmp:
+    with atomic_path(path, overwrite=True) as tmp:   # checked by check_plot_dir
         fig.savefig(tmp, format="png", dpi=100)
     return path
 

@@ -158,7 +158,7 @@ def test_failing_write_keeps_existing_file(tmp_path):
     path.write_bytes(b"previous result")
     gen = _FailingGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
     with pytest.raises(RuntimeError):
-        write_noise_fits(path, gen, 4)
+        write_noise_fits(path, gen, 4, overwrite=True)
     assert path.read_bytes() == b"previous result"
     assert _files(tmp_path) == ["keep.fits"]
 
