@@ -16,6 +16,7 @@ removes its temporary files, prints one line and exits with 128 + the signal num
 """
 
 import argparse
+import importlib
 import signal
 import sys
 
@@ -26,6 +27,9 @@ __all__ = ["main"]
 
 
 def _parser():
+    """The command line.  Each subcommand names the function that does its work as
+    ``set_defaults(target="module:function")``; the module is imported only when
+    that subcommand runs (see :func:`main`)."""
     p = argparse.ArgumentParser(prog="scenesim", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -44,7 +48,7 @@ def _parser():
     q.add_argument("-o", "--output", required=True)
     q.add_argument("-q", "--quiet", action="store_true")
     q.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
-    q.set_defaults(command_name="noise_command")
+    q.set_defaults(target="scenesim.commands:noise_command")
 
     r = sub.add_parser("run", help="simulate a scene file (TOML)")
     r.add_argument("scene")
@@ -62,7 +66,7 @@ def _parser():
     r.add_argument("--threads", type=int, default=None)
     r.add_argument("-q", "--quiet", action="store_true")
     r.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
-    r.set_defaults(command_name="run_command")
+    r.set_defaults(target="scenesim.commands:run_command")
 
     f = sub.add_parser("fit", help="fit up-the-ramp slopes of an exposure")
     f.add_argument("exposure")
@@ -74,7 +78,7 @@ def _parser():
     f.add_argument("--jump-threshold", type=float, default=5.0,
                    help="jump detection threshold in sigma (0 = off)")
     f.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
-    f.set_defaults(command_name="fit_command")
+    f.set_defaults(target="scenesim.commands:fit_command")
 
     c = sub.add_parser("compare", help="compare a slope file with the truth file")
     c.add_argument("fit")
@@ -83,14 +87,14 @@ def _parser():
     c.add_argument("--plots", default=None)
     c.add_argument("--overwrite", action="store_true",
                    help="replace existing figures in --plots")
-    c.set_defaults(command_name="compare_command")
+    c.set_defaults(target="scenesim.commands:compare_command")
 
     b = sub.add_parser("bench", help="benchmarks: run time against error")
     b.add_argument("workloads", nargs="*")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--out", default="bench_out")
     b.add_argument("--threads", type=int, default=None)
-    b.set_defaults(command_name="bench_command")
+    b.set_defaults(target="scenesim.commands:bench_command")
     return p
 
 
@@ -123,12 +127,13 @@ def main(argv=None):
         # when it is caught), so it is handled like any other.
         blocked = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
         signal.pthread_sigmask(signal.SIG_BLOCK, blocked)
+        module, name = args.target.split(":")
         try:
-            from scenesim import commands
+            command = getattr(importlib.import_module(module), name)
         finally:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, blocked)
         keep_freed_memory()        # process-wide malloc policy: see noise.fast.memory
-        return getattr(commands, args.command_name)(args)
+        return command(args)
     except ScenesimError as exc:
         print(f"scenesim {args.command}: error: {exc}", file=sys.stderr)
         return 2
