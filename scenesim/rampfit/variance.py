@@ -65,12 +65,12 @@ def optimal_variance(rate, read_times, read_noise, *, resultant_noise=0.0):
     read_times : sequence of 1-D arrays, seconds from reset
         Read times of each resultant (>= 2 resultants).
     read_noise : float or ndarray, e- per read (not CDS), broadcast with ``rate``
-    resultant_noise : float, keyword-only
+    resultant_noise : float or sequence of float (one per resultant), keyword-only
         White noise added to each resultant once, independently of its reads, e- rms
         (e.g. the rounding of an on-board average of several digitised reads,
-        ``gain / sqrt(12)``): ``Var(R_i)`` gains ``resultant_noise**2``, so
-        ``alpha_i`` gains ``2 q / dt_i^2`` and ``beta_i`` ``-q / (dt_i dt_{i+1})``
-        (``q = resultant_noise**2``).
+        ``gain / sqrt(12)``): ``Var(R_i)`` gains ``q_i = resultant_noise_i**2``, so
+        ``alpha_i`` gains ``(q_i + q_{i+1}) / dt_i^2`` and ``beta_i``
+        ``-q_{i+1} / (dt_i dt_{i+1})``.
 
     Returns
     -------
@@ -84,25 +84,26 @@ def optimal_variance(rate, read_times, read_noise, *, resultant_noise=0.0):
     rate, rn = _broadcast_rate_noise(rate, read_noise)
     cov = RampCovariance(times)
     s2 = rn ** 2
-    q = float(resultant_noise) ** 2
     dt = cov.dt
+    q = np.broadcast_to(np.asarray(resultant_noise, dtype=np.float64) ** 2,
+                        (dt.size + 1,))
     S11 = np.zeros(rate.shape)
     u = Dprev = None
     with np.errstate(divide="ignore", invalid="ignore"):
         for i in range(dt.size):
-            a = s2 * cov.Ar[i] + rate * cov.Ap[i] + 2 * q / dt[i] ** 2
+            a = s2 * cov.Ar[i] + rate * cov.Ap[i] + (q[i] + q[i + 1]) / dt[i] ** 2
             if i == 0:
                 D, u = a, np.ones(rate.shape)
             else:
                 b = (s2 * cov.Br[i - 1] + rate * cov.Bp[i - 1]
-                     - q / (dt[i - 1] * dt[i]))
+                     - q[i] / (dt[i - 1] * dt[i]))
                 ell = b / Dprev
                 D = a - ell * b
                 u = 1 - ell * u
             S11 = S11 + u * u / D
             Dprev = D
         out = 1 / S11
-    out = np.where((rate == 0) & (rn == 0) & (q == 0), 0.0, out)     # no noise at all
+    out = np.where((rate == 0) & (rn == 0) & (not q.any()), 0.0, out)   # no noise
     return float(out) if out.ndim == 0 else out
 
 

@@ -8,6 +8,7 @@ from scenesim.rampfit import optimal_variance
 
 
 def _dense(times, f, s, q):
+    q = np.broadcast_to(np.asarray(q, dtype=float), (len(times),))
     """1 / (X^T C^-1 X)[slope] with a free intercept, C built from its definition:
     Var(R_i) = s^2/N_i + q^2 + f tau_i, Cov(R_i, R_j) = f tbar_min(i, j)."""
     n = [len(t) for t in times]
@@ -22,14 +23,14 @@ def _dense(times, f, s, q):
     C = np.empty((m, m))
     for i in range(m):
         for j in range(m):
-            C[i, j] = (s ** 2 / n[i] + q ** 2 + f * tau(times[i]) if i == j
+            C[i, j] = (s ** 2 / n[i] + q[i] ** 2 + f * tau(times[i]) if i == j
                        else f * tb[min(i, j)])
     X = np.column_stack([np.ones(m), tb])
     return np.linalg.inv(X.T @ np.linalg.inv(C) @ X)[1, 1]
 
 
 @pytest.mark.parametrize("f, s, q", [(0.0, 3.0, 0.5), (30.0, 5.0, 1.2), (1e4, 1.0, 0.3),
-                                     (0.0, 0.0, 0.5)])
+                                     (0.0, 0.0, 0.5), (7.0, 2.0, (0.3, 0.0, 1.1, 0.5))])
 def test_resultant_noise_matches_the_dense_gls(f, s, q):
     times = [np.array([1.0, 2.0, 3.0]), np.array([5.0, 6.0]),
              np.array([9.0, 10.0, 11.0, 12.0]), np.array([20.0])]
