@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.io import fits
 
+from noise.clock import detector_from_header
 from noise.errors import FileFormatError, ParameterError
 
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
@@ -38,11 +39,11 @@ from scenesim.io.header import (exposure_read_noise, exposure_settings,
                                 readout_from_header, readout_from_table)
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.io.fitfile import fit_arrays, read_slopes
-from scenesim.rampfit import ols_variance, optimal_variance
+from scenesim.rampfit import ols_variance
 from scenesim.validate.jumps import jump_stats, ramp_windows
 from scenesim.validate.photometry import source_photometry
 from scenesim.validate.plots import plot_report
-from scenesim.validate.stats import DEFAULT_EDGES, bin_rows
+from scenesim.validate.stats import DEFAULT_EDGES, bin_rows, usable_variance
 
 __all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files"]
 
@@ -57,7 +58,8 @@ class Report:
     rows : list of dict
         One dict per flux bin: ``lo``, ``hi`` (e-/s), ``n_regular`` (regular pixels),
         ``n`` (of which not ``DO_NOT_USE``), ``bias_rep``, ``chi2_rep``, ``bias_opt``,
-        ``std_opt``, ``ols_ratio``, ``chi2_fit``, ``frac_flagged`` (NaN when empty).
+        ``se_bias``, ``std_opt``, ``std_eff``, ``ols_ratio``, ``chi2_fit``,
+        ``frac_flagged`` (NaN when empty; :mod:`scenesim.validate.stats`).
     jumps : dict
         ``n_hit``, ``completeness``, ``n_clean``, ``false_positive``, ``threshold_e``.
     photometry : dict
@@ -94,7 +96,8 @@ class Report:
         """Printable text tables (flux bins, jumps, photometry, notes)."""
         cols = [("lo", "{:>8.3g}"), ("hi", "{:>8.3g}"), ("n", "{:>8d}"),
                 ("bias_rep", "{:>9.3f}"), ("chi2_rep", "{:>9.3f}"),
-                ("bias_opt", "{:>9.3f}"), ("std_opt", "{:>8.3f}"),
+                ("bias_opt", "{:>9.3f}"), ("se_bias", "{:>8.3f}"),
+                ("std_opt", "{:>8.3f}"), ("std_eff", "{:>8.3f}"),
                 ("ols_ratio", "{:>9.3f}"), ("chi2_fit", "{:>9.3f}"),
                 ("frac_flagged", "{:>12.4f}")]
         head = " ".join(f"{name:>{len(fmt.format(1) if 'd' in fmt else fmt.format(1.0))}}"
@@ -102,10 +105,26 @@ class Report:
         lines = ["Slopes vs truth per true-rate bin (e-/s)", head]
         for row in self.rows:
             lines.append(" ".join(fmt.format(row[name]) for name, fmt in cols))
+        lines += ["What each column compares (r = fit - truth):",
+                  "  bias_rep, chi2_rep: mean r/sigma and r^2/sigma^2 with the errors the "
+                  "fit reported (0 and 1 if right)",
+                  "  bias_opt +- se_bias: mean r/sigma_opt; se_bias counts the pixels of "
+                  "one output and 16 rows as one draw (correlated noise); an error "
+                  "common to the whole array",
+                  "    (correlated 1/f noise) is one draw per exposure and not in it: "
+                  "pool realisations (scenesim batch) to measure a bias to that level",
+                  "  std_opt: scatter against the white-read-noise optimum (> 1 with 1/f "
+                  "noise even for an optimal fitter)",
+                  "  std_eff: scatter against the optimum for the noise the data have "
+                  "(measured read noise, ADC rounding): 1 = optimal",
+                  "  ols_ratio: what equal-weight least squares reaches (sqrt(V_ols/V_opt)); "
+                  "chi2_fit: the fit's own chi2",
+                  "  saturated pixels are judged on their usable ramp (before SATGROUP)"]
         j = self.jumps
         if j:
-            lines += ["", f"Jumps (hit: CR charge > {j['threshold_e']:.3g} e- inside a "
-                      f"ramp): "
+            rule = j.get("threshold_rule", "read noise")
+            lines += ["", f"Jumps (hit: CR charge > 10 sigma of a two-read difference "
+                      f"({rule}; {j['threshold_e']:.3g} e- at rate 0) inside a ramp): "
                       f"completeness {j['completeness']:.4f} of {j['n_hit']} hit pixels; "
                       f"false-positive rate {j['false_positive']:.3g} of {j['n_clean']} "
                       f"clean pixels"]
@@ -196,12 +215,16 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     regular = (dq & np.uint32(REFERENCE_PIXEL)) == 0
     use = regular & ((dq & np.uint32(DO_NOT_USE)) == 0)
     r0 = np.clip(rate, 0.0, None)
-    with np.errstate(divide="ignore", invalid="ignore"):  # rate = read noise = 0
-        var_opt = np.asarray(optimal_variance(r0, read_times, read_noise)) / nints
-        var_ols = np.asarray(ols_variance(r0, read_times, read_noise)) / nints
-    var_opt = np.where(np.isfinite(var_opt), var_opt, 0.0)
-    rows = bin_rows(f, rate, var_opt, var_ols, edges, use, regular)
-    jumps = _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes)
+    satgroup = _satgroup(truth, nints, rate.shape, len(read_times), notes)
+    var_opt = usable_variance(r0, read_times, read_noise, nints=nints, satgroup=satgroup)
+    var_ols = usable_variance(r0, read_times, read_noise, nints=nints, satgroup=satgroup,
+                              variance=ols_variance)
+    rn_eff, q = _effective_noise(f, hdr, read_noise, read_times, notes)
+    var_eff = usable_variance(r0, read_times, rn_eff, nints=nints, satgroup=satgroup,
+                              resultant_noise=q)
+    rows = bin_rows(f, rate, var_opt, var_eff, var_ols, edges, use, regular,
+                    clusters=_clusters(hdr, rate.shape))
+    jumps = _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes, rate)
     photometry = {}
     src = truth.get("SOURCES")
     if src is not None and len(src) and all(c in src.colnames for c in ("x", "y", "flux")):
@@ -286,7 +309,60 @@ def _read_times(hdr, readout, notes):
     return readout, readout.read_times(t_frame)
 
 
-def _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes):
+def _satgroup(truth, nints, shape, ngroups, notes):
+    """The truth's ``SATGROUP`` as (nints, ny, nx), or None (no saturation known)."""
+    sat = truth.get("SATGROUP")
+    if sat is None:
+        notes.append("truth has no SATGROUP: the optimum assumes every resultant usable")
+        return None
+    sat = np.asarray(sat)
+    if sat.ndim == 2:
+        sat = sat[None]
+    if sat.shape != (nints,) + tuple(shape):
+        notes.append(f"truth SATGROUP shape {sat.shape} does not match: ignored")
+        return None
+    return sat if np.any((sat >= 0) & (sat < ngroups)) else None
+
+
+def _effective_noise(f, hdr, read_noise, read_times, notes):
+    """Read noise per read and per-resultant rounding noise of the data (``std_eff``).
+
+    The fit's measured read noise (it holds every white per-read term, the ADC's
+    included) when it has one, else the model's with ``gain^2 / 12`` added; and the
+    rounding of each on-board average of ``N > 1`` reads, ``gain^2 / 12 (1 -
+    1/N^2)`` (stats module notes).
+    """
+    gain = exposure_settings(hdr)["gain"] or 0.0
+    if gain == 0.0:
+        notes.append("std_eff: no GAIN in the truth header: ADC rounding left out")
+    if f.get("read_noise") is not None:
+        rn = float(f["read_noise"])
+    else:
+        rn = float(np.sqrt(read_noise ** 2 + gain ** 2 / 12.0))
+        notes.append("std_eff: the fit file has no measured read noise: the model's "
+                     "is used, with the ADC's gain^2/12")
+    n = np.array([np.size(t) if np.ndim(t) == 1 else np.shape(t)[0]
+                  for t in read_times], dtype=float)
+    q = gain / np.sqrt(12.0) * np.sqrt(np.clip(1.0 - 1.0 / n ** 2, 0.0, None))
+    return rn, q
+
+
+def _clusters(hdr, shape, rows=16):
+    """Labels of pixels sharing correlated noise: one output (its columns, from the
+    detector cards; else blocks of 64 columns) and one band of ``rows`` rows."""
+    ny, nx = shape
+    try:
+        det = detector_from_header(hdr)
+        col = det.output_of_column() if det.shape == tuple(shape) else None
+    except (FileFormatError, ParameterError, KeyError, ValueError):
+        col = None
+    if col is None:
+        col = np.arange(nx) // 64
+    band = np.arange(ny) // rows
+    return band[:, None] * (int(np.max(col)) + 1) + np.asarray(col)[None, :]
+
+
+def _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes, rate):
     """Jump completeness and false positives (:func:`jump_stats`), or ``{}``."""
     crs = truth.get("CRS")
     if crs is None or not all(c in crs.colnames for c in ("X", "Y", "CHARGE", "SEEN")):
@@ -306,7 +382,8 @@ def _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes):
         notes.append("jumps: no detector cards or readout in the truth: every seen "
                      "deposit counts as a hit, even one before the first read")
     return jump_stats(dq, crs, dq.shape, read_noise, cr_sigma, regular,
-                      windows=windows, ipc=settings["ipc"])
+                      windows=windows, ipc=settings["ipc"], rate=rate,
+                      t_read=settings["t_frame"])
 
 
 def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,

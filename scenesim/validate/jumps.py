@@ -1,8 +1,9 @@
 """Jump detection graded against the injected cosmic rays.
 
 Jumps: a pixel is *hit* when a cosmic ray that a read saw (``SEEN``) deposited more
-than ``cr_sigma`` (10) times the noise of a difference of two reads,
-``sqrt(2) * read_noise``, *inside* the pixel's usable ramp of an integration: after
+than ``cr_sigma`` (10) times the noise of a difference of two consecutive reads at
+the pixel's true rate, ``sqrt(2 read_noise^2 + rate t_frame)`` (a bright pixel's shot
+noise hides a deposit read noise alone would not), *inside* the pixel's usable ramp of an integration: after
 the first read of the first resultant and not after the last read of the last
 unsaturated resultant (truth ``SATGROUP``), in clock time (frame slot ``s`` of the
 readout, ``s * TFRAME + t_pix`` with the pixel's read time in the frame from the
@@ -74,9 +75,20 @@ def ramp_windows(truth, readout, t_frame):
 
 
 def jump_stats(dq, crs, shape, read_noise, cr_sigma, regular, *, windows=None,
-                ipc=False):
+               ipc=False, rate=None, t_read=None):
+    """Completeness and false-positive rate of the jump flags (module notes).
+
+    A deposit is detectable (a *hit*) when its charge exceeds ``cr_sigma`` times the
+    noise of a difference of two consecutive reads at the pixel's true rate,
+    ``sqrt(2 read_noise^2 + rate t_read)`` (read noise alone when ``rate`` or
+    ``t_read`` is None): on a bright pixel the shot noise of the difference hides a
+    deposit that read noise alone would not.
+    """
     ny, nx = shape
-    thr = cr_sigma * math.sqrt(2.0) * read_noise
+    var_diff = 2.0 * read_noise ** 2
+    if rate is not None and t_read is not None:
+        var_diff = var_diff + np.clip(np.asarray(rate, dtype=np.float64), 0.0, None) * t_read
+    thr_map = cr_sigma * np.sqrt(np.broadcast_to(var_diff, shape))
     x = np.asarray(crs["X"], dtype=np.int64)
     y = np.asarray(crs["Y"], dtype=np.int64)
     q = np.asarray(crs["CHARGE"], dtype=np.float64)
@@ -84,6 +96,8 @@ def jump_stats(dq, crs, shape, read_noise, cr_sigma, regular, *, windows=None,
     on = (x >= 0) & (x < nx) & (y >= 0) & (y < ny)
     flat = y[on] * nx + x[on]
     any_dep = np.bincount(flat, minlength=ny * nx).reshape(shape) > 0
+    thr = np.full(q.shape, np.inf)
+    thr[on] = thr_map[y[on], x[on]]
     big = on & seen & (q > thr)
     if windows is not None and "TIME" in crs.colnames:
         t = np.asarray(crs["TIME"], dtype=np.float64)[big]
@@ -108,4 +122,6 @@ def jump_stats(dq, crs, shape, read_noise, cr_sigma, regular, *, windows=None,
             "completeness": float(flagged[hit].mean()) if n_hit else float("nan"),
             "n_clean": n_clean,
             "false_positive": float(flagged[clean].mean()) if n_clean else float("nan"),
-            "threshold_e": float(thr)}
+            "threshold_e": float(cr_sigma * math.sqrt(2.0) * read_noise),
+            "threshold_rule": ("read noise and shot noise" if np.ndim(var_diff)
+                               else "read noise")}

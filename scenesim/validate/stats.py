@@ -10,34 +10,126 @@ not flagged ``DO_NOT_USE``.  For each bin, with ``r = fit - truth``:
   are right, ``bias_rep`` ~ 0 when the fit is unbiased (standard error
   ``1/sqrt(n)``);
 * ``bias_opt = mean(r / sqrt(V_opt))`` and ``std_opt = std(r / sqrt(V_opt))`` with
-  ``V_opt = optimal_variance(truth, read_times, read_noise) / nints``, the minimum
-  variance of an unbiased linear slope estimate for that readout (Brandt 2024, PASP
-  136, 045004, eqs. 28-29; integrations are independent, so their optimal combination
-  divides it by ``nints``).  ``std_opt`` = 1 for an optimal fitter; an equal-weight
-  fitter reaches ``sqrt(V_ols / V_opt)`` (``ols_ratio``, the bin mean, from
-  :func:`scenesim.rampfit.variance.ols_variance`).  Its standard error is about
-  ``std_opt / sqrt(2 n)``;
+  ``V_opt`` the minimum variance of an unbiased linear slope estimate for the readout
+  with white read noise alone (the header's ``RDNOISE``; Brandt 2024, PASP 136,
+  045004, eqs. 28-29), over each pixel's *usable* ramp: up to its first saturated
+  resultant (truth ``SATGROUP``), integrations combined (their inverse variances
+  add; :func:`usable_variance`).  ``std_opt`` = 1 for an optimal fitter in white
+  noise; an equal-weight fitter reaches ``sqrt(V_ols / V_opt)`` (``ols_ratio``, the
+  bin mean, from :func:`scenesim.rampfit.variance.ols_variance`).  Its standard error
+  is about ``std_opt / sqrt(2 n)``;
+* ``se_bias``: the standard error of ``bias_opt``, cluster-robust
+  (:func:`cluster_se`): the pixels of one output and one band of 16 rows share
+  correlated noise, so a bin's mean error is an average of cluster draws, not of
+  ``n`` independent ones.  It cannot include an error common to the whole array (the
+  part of the correlated 1/f noise that the reference correction and the common-mode
+  removal leave in every pixel's slope): one exposure holds one draw of it.  On
+  ``scenes/quick.toml`` that part dominates (``docs/VALIDATION_COMPARE.md``): pooling
+  realisations measures a bias to that level;
+* ``std_eff = std(r / sqrt(V_eff))``: as ``std_opt`` against the optimum for the
+  noise the data actually have: the read noise the fit measured on the ramps (its
+  ``RNOISE``, which contains every white per-read term: read noise, the ADC's
+  ``gain^2 / 12`` and what the corrections left of the correlated noise; without it
+  the model's ``RDNOISE`` with ``gain^2 / 12`` added), plus the rounding of each
+  on-board average of ``N > 1`` reads, ``gain^2 / 12 (1 - 1/N^2)`` per resultant.
+  With correlated (1/f) noise ``std_opt`` exceeds 1 even for an optimal fitter;
+  ``std_eff`` ~ 1 says the fitter is optimal for the noise it was given;
 * ``chi2_fit``: mean reported ``CHI2`` (when the file has it);
 * ``frac_flagged``: fraction of the bin's regular pixels with any DQ bit set.
-
 """
 
 import numpy as np
 
+from scenesim.rampfit import optimal_variance
 
-__all__ = ['DEFAULT_EDGES', 'bin_rows']
+
+__all__ = ["DEFAULT_EDGES", "bin_rows", "usable_variance", "cluster_se"]
 
 
 #: Default flux-bin edges, e-/s (true rate ``RATE_IPC``).
 DEFAULT_EDGES = (0.0, 0.01, 0.1, 1.0, 10.0, 100.0, 1e3, 1e4, np.inf)
 
 
-def bin_rows(fit, rate, var_opt, var_ols, edges, use_mask, regular):
+def usable_variance(rate, read_times, read_noise, *, nints, satgroup=None,
+                    resultant_noise=0.0, variance=optimal_variance):
+    """Per-pixel theoretical slope variance over each pixel's usable ramp.
+
+    Each integration's ramp is usable up to its first saturated resultant (truth
+    ``SATGROUP``; all resultants where it is -1 or absent); integrations are
+    independent, so their inverse variances add.  Pixels with fewer than two usable
+    resultants in every integration have no slope: ``inf``.
+
+    Parameters
+    ----------
+    rate : ndarray (ny, nx), e-/s, >= 0
+    read_times : list of 1-D arrays, s
+    read_noise : float, e- per read (not CDS)
+    nints : int
+    satgroup : ndarray (nints, ny, nx) or (ny, nx) int, or None
+    resultant_noise : float or sequence, e- rms per resultant (see
+        :func:`scenesim.rampfit.optimal_variance`); used with ``optimal_variance``
+    variance : callable
+        :func:`scenesim.rampfit.optimal_variance` or
+        :func:`scenesim.rampfit.ols_variance`.
+    """
+    ng = len(read_times)
+    kw = {} if variance is not optimal_variance else {"resultant_noise": resultant_noise}
+    q = np.broadcast_to(np.asarray(resultant_noise, dtype=np.float64), (ng,))
+    if satgroup is None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.asarray(variance(rate, read_times, read_noise, **kw)) / nints
+    sat = np.asarray(satgroup)
+    if sat.ndim == 2:
+        sat = np.broadcast_to(sat, (nints,) + sat.shape)
+    inv = np.zeros(rate.shape)
+    for i in range(nints):
+        usable = np.where(sat[i] >= 0, sat[i], ng)
+        for m in np.unique(usable):
+            if m < 2:
+                continue
+            sel = usable == m
+            if variance is optimal_variance:
+                kw = {"resultant_noise": q[:m]}
+            with np.errstate(divide="ignore", invalid="ignore"):
+                v = np.asarray(variance(rate[sel], read_times[:m], read_noise, **kw))
+                inv[sel] += 1.0 / v
+    with np.errstate(divide="ignore"):
+        return np.where(inv > 0, 1.0 / inv, np.inf)
+
+
+def cluster_se(z, labels):
+    """Standard error of ``mean(z)`` when values sharing a label are correlated.
+
+    The cluster-robust (sandwich) estimate ``sqrt(B / (B - 1) sum_b (sum_{p in b}
+    (z_p - mean))^2) / n`` over the ``B`` clusters: correlated noise common to a
+    cluster (1/f noise shared by the pixels of an output read close in time) makes
+    the bin mean one draw per cluster, not one per pixel.  With one pixel per
+    cluster it is the usual ``std / sqrt(n)``.
+    """
+    n = z.size
+    dev = z - z.mean()
+    _, inverse = np.unique(labels, return_inverse=True)
+    sums = np.bincount(inverse, weights=dev)
+    nb = sums.size
+    if nb < 2:
+        return float("nan")
+    return float(np.sqrt(nb / (nb - 1) * np.sum(sums ** 2)) / n)
+
+
+def bin_rows(fit, rate, var_opt, var_eff, var_ols, edges, use_mask, regular,
+             clusters=None):
+    """Per true-rate bin statistics (module notes); ``clusters`` labels the pixels
+    whose noise is correlated (for the standard error of the bias), None: every
+    pixel its own."""
     res = fit["slope"] - rate
     var = fit["var"]
-    good = use_mask & np.isfinite(var) & (var > 0) & (var_opt > 0)
+    good = (use_mask & np.isfinite(var) & (var > 0) & (var_opt > 0)
+            & np.isfinite(var_opt))
+    if clusters is None:
+        clusters = np.arange(rate.size).reshape(rate.shape)
     rows = []
     idx = np.digitize(rate, edges[1:-1], right=False)  # bin k: edges[k] <= r < edges[k+1]
+    nan = float("nan")
     for k in range(len(edges) - 1):
         inbin = idx == k
         reg = regular & inbin
@@ -45,19 +137,21 @@ def bin_rows(fit, rate, var_opt, var_ols, edges, use_mask, regular):
         n = int(sel.sum())
         row = {"lo": float(edges[k]), "hi": float(edges[k + 1]),
                "n_regular": int(reg.sum()), "n": n}
-        nan = float("nan")
         if n:
             z_rep = res[sel] / np.sqrt(var[sel])
             z_opt = res[sel] / np.sqrt(var_opt[sel])
+            z_eff = res[sel] / np.sqrt(var_eff[sel])
             row.update(bias_rep=float(z_rep.mean()), chi2_rep=float(np.mean(z_rep ** 2)),
                        bias_opt=float(z_opt.mean()),
+                       se_bias=cluster_se(z_opt, clusters[sel]) if n > 1 else nan,
                        std_opt=float(z_opt.std(ddof=1)) if n > 1 else nan,
+                       std_eff=float(z_eff.std(ddof=1)) if n > 1 else nan,
                        ols_ratio=float(np.mean(np.sqrt(var_ols[sel] / var_opt[sel]))),
                        chi2_fit=(float(fit["chi2"][sel].mean()) if fit["chi2"] is not None
                                  else nan))
         else:
-            row.update(bias_rep=nan, chi2_rep=nan, bias_opt=nan, std_opt=nan,
-                       ols_ratio=nan, chi2_fit=nan)
+            row.update(bias_rep=nan, chi2_rep=nan, bias_opt=nan, se_bias=nan,
+                       std_opt=nan, std_eff=nan, ols_ratio=nan, chi2_fit=nan)
         row["frac_flagged"] = (float(np.mean(fit["dq"][reg] != 0)) if row["n_regular"]
                                else nan)
         rows.append(row)
