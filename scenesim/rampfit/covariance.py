@@ -37,7 +37,9 @@ Where ``sigma = 0`` the covariance is evaluated at a rate of at least
 
 import numpy as np
 
+from noise.errors import ParameterError
 from scenesim.detector.readout import resultant_moments
+from scenesim.rampfit.times import check_read_times
 
 __all__ = ["RampCovariance", "RATE_FLOOR"]
 
@@ -69,7 +71,12 @@ class RampCovariance:
     """
 
     def __init__(self, read_times):
-        self.n, self.tbar, self.tau = resultant_moments(read_times)
+        times, shift = check_read_times(read_times)
+        if shift is not None:
+            raise ParameterError(
+                "'read_times' of a RampCovariance must be the same for every pixel "
+                "(1-D arrays, one per resultant)")
+        self.n, self.tbar, self.tau = resultant_moments(times)
         self.dt = np.diff(self.tbar)
         n, tb, tau, dt = self.n, self.tbar, self.tau, self.dt
         self.Ar = (1 / n[:-1] + 1 / n[1:]) / dt ** 2

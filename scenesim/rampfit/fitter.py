@@ -21,8 +21,21 @@ Algorithm
 All fitters are one routine: a weighted mean of the ``d_i`` whose weights are
 ``W^-1 1 / (1^T W^-1 1)`` for a tridiagonal "weighting" matrix ``W``:
 
-* ``'gls'``: ``W = C(f)`` -- optimal.  ``f`` is unknown, so it is iterated: start from
-  the CDS estimate, clip at >= 0 for the covariance, re-solve ``n_iter`` times.
+* ``'gls'``: ``W = C(f)`` -- optimal.  ``f`` is unknown.  First fit: start from the
+  CDS estimate, clip at >= 0 for the covariance, re-solve ``n_iter`` times.  Weights
+  evaluated at the pixel's own noisy rate are correlated with its noise, which
+  biases and degrades the slope where the Poisson part of ``C`` is comparable to
+  the read part over one standard deviation of the rate (rates ~0 with low read
+  noise: +0.05 to +0.45 sigma and std/sqrt(V_opt) 1.04-1.79 at read noise 1 and
+  0.1 e-).  With the default ``variance_rate='local'`` the pixels whose reported
+  variance takes its rate from the neighbours
+  (:func:`scenesim.rampfit.local_rate.uses_neighbours`) are therefore solved again
+  with ``C`` at the *weight rate* of :func:`scenesim.rampfit.local_rate.local_rates`
+  (the neighbours' median, shrunk toward 0 where it cannot be told from 0; not the
+  pixel's own rate unless the pixel stands out from its neighbours), in two rounds
+  (the second from the refitted neighbours, only where the rate moved ``C`` by
+  > 5 %); with a known ``variance_rate`` array every pixel is solved again at that
+  rate; ``'fit'`` keeps the first fit (per pixel, independent of the neighbours).
 * ``'ols'``: ``W`` = covariance of differences of independent, equal-variance
   resultants (``2`` on the diagonal and ``-1`` off it, in charge units): this is
   exactly equal-weight least squares of the resultants against ``tbar`` with a free
@@ -38,8 +51,9 @@ propagated through the model covariance to split the variance into a read part
     var_read = sigma^2 w^T C_read w,     var_poisson = r w^T C_poisson w
 
 with ``r`` the *variance rate* (:mod:`scenesim.rampfit.local_rate`;
-``max(slope, 0)`` with ``variance_rate='fit'``).  For GLS with ``r = max(slope, 0)``
-their sum is ``1 / (1^T C^-1 1)`` up to the last update of ``f``.
+``max(slope, 0)`` with ``variance_rate='fit'``).  The split holds for any weights, so
+the reported variance is that of the weights actually used, at rate ``r``; for GLS
+weighted at ``r`` itself (a known rate) it is ``1 / (1^T C(r)^-1 1)``.
 
 Unusable differences (after saturation, or containing a jump) are removed by
 replacing their row and column of ``W`` by the identity: the matrix becomes block
@@ -78,8 +92,18 @@ Saturation, jumps and short ramps
 * ``refmask`` pixels are fitted like the others but flagged
   ``REFERENCE_PIXEL | DO_NOT_USE`` (JWST practice).
 
+Precision: the differences are taken in the input's dtype (float64 for float64 or
+integer input) before the float32 arithmetic, so float64 resultants keep their
+precision whatever their size (1000 reads at 1e7 e-/s: chi2 1.00).  float32 input
+is rounded before the fitter sees it (to 2^14 e- at 1e11 e-), noise the model does
+not include (chi2 1.05 there): keep resultants above ~1e9 e- in float64, or take
+the differences before casting.
+
 Cost: working memory beyond the outputs (36 bytes per pixel per integration) is
-bounded by the row chunks, about 15 MiB per thread.  Measured timings are in
+bounded by the row chunks, about 15 MiB per thread.  The second solve at the weight
+rate costs nothing where every pixel is bright enough not to need its neighbours
+(``kappa^2 < 3e-3``), up to ~2 solves more (jump detection repeated only on pixels
+with a jump) in dark, read-noise dominated frames.  Measured timings are in
 ``docs/VALIDATION_FIT.md``.
 """
 
@@ -98,8 +122,8 @@ from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_
 from scenesim.io.fitfile import FitResult
 from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
 from scenesim.rampfit.jumps import flag_jumps
-from scenesim.rampfit.local_rate import local_rate
-from scenesim.rampfit.solver import TINY, ldl_pass, quad_form, row_chunks
+from scenesim.rampfit.local_rate import local_rates, uses_neighbours
+from scenesim.rampfit.solver import CHUNK_ELEMS, TINY, ldl_pass, quad_form, row_chunks
 from scenesim.rampfit.times import check_read_times
 
 __all__ = ["FITTERS", "VARIANCE_RATES", "fit_ramps"]
@@ -127,7 +151,9 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     ----------
     resultants : ndarray, shape (nres, ny, nx) or (nints, nres, ny, nx), e-
         Resultants of one or several integrations, in electrons (DN times gain;
-        nothing else subtracted).  Any real dtype; computations are float32.
+        nothing else subtracted).  Any real dtype; differences are taken in the
+        input dtype (float64 for integers), the rest in float32 (module notes:
+        keep resultants above ~1e9 e- in float64).
     read_times : sequence of nres arrays, seconds from reset
         Times of the reads averaged into each resultant: 1-D ``(N_i,)`` arrays, the
         same for every pixel (uneven Roman-style tables and gaps are allowed), or
@@ -158,14 +184,18 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         result does not depend on it.
     variance_rate : {'local', 'fit'} or ndarray (ny, nx), e-/s
         Rate at which the Poisson part of the reported variances (``var_poisson``,
-        ``var_ints``) is evaluated; the slopes do not depend on it.  ``'local'``
-        (default): the pixel's fitted rate shrunk toward the median of its 5 x 5
-        neighbours, as far as they predict it
-        (:func:`scenesim.rampfit.local_rate.local_rate`); ``'fit'``: the pixel's own
-        fitted rate clipped at 0 (stcal and fitramp practice; its error is
-        correlated with the slope's, which makes the reported variance wrong by up
-        to ~10 % at low flux); an array: a rate known independently of these data
-        (e.g. from a deeper exposure), clipped at 0.
+        ``var_ints``) is evaluated, and, for GLS, where the rate of the weights
+        comes from (module notes).  ``'local'`` (default): the median of the
+        pixel's 5 x 5 neighbours, or its own fitted rate where it stands out from
+        them (:func:`scenesim.rampfit.local_rate.local_rates`); the GLS weights of
+        read-noise dominated pixels at the neighbours' rate shrunk toward 0.
+        ``'fit'``: the pixel's own fitted rate clipped at 0, for the weights
+        (iterated) and the variance (stcal and fitramp practice; its error is
+        correlated with the slope's, which biases faint slopes and makes the
+        reported variance wrong by up to ~10 % at low flux; each pixel's result
+        depends on its own ramp only).  An array: a rate known independently of
+        these data (e.g. a dark calibration or a deeper exposure), clipped at 0,
+        for the weights and the variance: optimal and calibrated.
 
     Returns
     -------
@@ -204,7 +234,19 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         out = _fit_chunks(setup, bounds, pool)
         if refmask is not None:
             out["dq"][refmask] |= np.uint32(REFERENCE_PIXEL | DO_NOT_USE)
-        rate_v = _variance_rate(variance_rate, out, pool)
+        local = fitter == "gls" and isinstance(variance_rate, str) and \
+            variance_rate == "local"
+        rate_v, rate_w, refit = _variance_rate(variance_rate, out, pool,
+                                               own_share=not local)
+        if fitter == "gls" and refit is not None:
+            _refit_at_rate(setup, out, rate_w, refit, pool)
+        if local and refit.any():
+            # second round, from the refitted (efficient) slopes: the own rate
+            # joins the weight rate where the pixel stands out from its neighbours
+            prev = rate_w
+            rate_v, rate_w, refit = _variance_rate(variance_rate, out, pool)
+            _refit_at_rate(setup, out, rate_w, refit & _moved(prev, rate_w, out),
+                           pool)
     pcoef, pcoef_ints = out.pop("pcoef"), out.pop("pcoef_ints")
     out["var_poisson"] = (rate_v * pcoef).astype(_F32)
     out["var_ints"] += rate_v[None] * pcoef_ints
@@ -310,6 +352,8 @@ def _fit_chunks(setup, bounds, pool):
         y0, y1 = bound
         shp = (y1 - y0, nx)
         for key, val in _fit_block(*setup.chunk(y0, y1)).items():
+            if key not in out:
+                continue
             if val.ndim == 2:
                 out[key][:, y0:y1] = val.reshape((nints,) + shp)
             else:
@@ -323,15 +367,69 @@ def _fit_chunks(setup, bounds, pool):
     return out
 
 
-def _variance_rate(variance_rate, out, pool):
-    """Rate (ny, nx) float32 >= 0 of the Poisson part of the reported variances."""
+def _variance_rate(variance_rate, out, pool, own_share=True):
+    """Rates (ny, nx) float32 >= 0 of the reported Poisson variances and of the GLS
+    weights, and the pixels to fit again with those weights ((ny, nx) bool, or
+    None)."""
+    usable = (out["dq"] & np.uint32(DO_NOT_USE)) == 0
     if isinstance(variance_rate, str) and variance_rate == "local":
-        usable = (out["dq"] & np.uint32(DO_NOT_USE)) == 0
-        return local_rate(out["slope"], out["var_read"], out["pcoef"], usable=usable,
-                          pool=pool)
+        need = uses_neighbours(out["slope"], out["var_read"], out["pcoef"],
+                               usable=usable)
+        rate, wrate = local_rates(out["slope"], out["var_read"], out["pcoef"],
+                                  usable=usable, pool=pool, own_share=own_share,
+                                  need=need)
+        return rate, wrate, need
     if isinstance(variance_rate, str):
-        return np.maximum(out["slope"], _F32(0))
-    return np.maximum(np.asarray(variance_rate, dtype=_F32), _F32(0))
+        own = np.maximum(out["slope"], _F32(0))
+        return own, own, None
+    known = np.maximum(np.broadcast_to(np.asarray(variance_rate, dtype=_F32),
+                                       usable.shape), _F32(0))
+    return known, known, usable
+
+
+def _moved(prev, rate, out):
+    """Pixels whose weight rate moved the covariance by more than 5 % (of the
+    slope variance at the new rate): a smaller change moves the GLS weights' variance
+    by ~1e-3 of itself or less (second order)."""
+    v = out["var_read"] + out["pcoef"] * rate
+    return np.abs(rate - prev) * out["pcoef"] > _F32(0.05) * v
+
+
+def _refit_at_rate(setup, out, rate, refit, pool):
+    """GLS of the pixels ``refit`` again, with the covariance at ``rate``.
+
+    One solve per pixel (started from the first fit's slope), on the same usable
+    differences: jump detection does not depend on the weights, so it is only
+    repeated on the pixels that had a jump.  Updates the slopes, read variances,
+    Poisson coefficients, chi-squares and per-integration values of ``out``.
+    """
+    nints, nres, ny, nx = setup.res4.shape
+    ys, xs = np.divmod(np.flatnonzero(refit), nx)
+    if ys.size == 0:
+        return
+    jumped = out["n_jumps"][ys, xs] > 0
+    step = max(1, CHUNK_ELEMS // (nints * nres))
+
+    def work(c0):
+        y, x = ys[c0:c0 + step], xs[c0:c0 + step]
+        sat = None if setup.sat4 is None else setup.sat4[:, :, y, x]
+        s2 = setup.s2 if np.isscalar(setup.s2) else setup.s2[y, x]
+        got = _fit_block(setup.res4[:, :, y, x], sat, s2, setup.cov, "gls", setup.thr,
+                         1, None, None, frate=rate[y, x],
+                         fstart=out["slope"][y, x], jumped=jumped[c0:c0 + step])
+        ok = got["by_diff"]
+        y, x = y[ok], x[ok]
+        for key in ("slope", "var_read", "pcoef", "chi2"):
+            out[key][y, x] = got[key][ok]
+        for key in ("slope_ints", "var_ints", "pcoef_ints"):
+            out[key][:, y, x] = got[key][:, ok]
+
+    starts = range(0, ys.size, step)
+    if pool is None:
+        for c0 in starts:
+            work(c0)
+    else:
+        list(pool.map(work, starts))
 
 
 # ---------------------------------------------------------------------- one chunk
@@ -356,24 +454,32 @@ class _Block:
         self.measured = np.zeros(npix, bool)
 
 
-def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift):
-    """Fit one chunk: ``res`` (nints, nres, P); returns a dict of (P,)/(nints, P) arrays."""
+def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None,
+               fstart=None, jumped=None):
+    """Fit one chunk: ``res`` (nints, nres, P); returns a dict of (P,)/(nints, P) arrays.
+
+    ``frate`` (P,): GLS weights at this rate (one solve from ``fstart``) instead of
+    the iteration from the CDS slope; ``jumped`` (P,) bool: run the jump detection
+    on these pixels only (the others are known to have none).
+    """
     nints, nres, npix = res.shape
     nuse, anysat = _usable_resultants(res, sat)
     blk = _Block(nints, npix)
+    by_diff = np.zeros(npix, bool)
     if nres >= 2:
         d, valid = _rate_estimates(res, sat, nuse, cov)
-        if thr is not None and nres >= 4:
-            blk.n_jumps = flag_jumps(d, valid, s2, cov, thr)
+        if thr is not None and nres >= 3:
+            blk.n_jumps = _flag_jumps_of(d, valid, s2, cov, thr, jumped)
         diffs = _Differences(d, valid, s2, cov)
         if fitter == "gls":
-            chi2_raw = _fit_gls(diffs, n_iter, blk)
+            chi2_raw = _fit_gls(diffs, n_iter, blk, frate, fstart)
         else:
             chi2_raw = _fit_weighted(diffs, fitter, blk)
         ndof = valid.sum(axis=1, dtype=np.int32).sum(axis=0) - 1
         blk.dof = np.where(blk.measured, np.maximum(ndof, 0), 0).astype(np.int32)
         blk.chi2 = np.divide(np.maximum(chi2_raw, 0), blk.dof,
                              out=np.zeros(npix, _F32), where=blk.dof > 0).astype(_F32)
+        by_diff = blk.measured.copy()
     unmeasured = ~blk.measured
     if unmeasured.any():
         blk.slope[unmeasured] = 0
@@ -388,7 +494,21 @@ def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift):
     return {"slope": blk.slope.astype(_F32), "var_read": blk.var_read.astype(_F32),
             "pcoef": blk.pcoef.astype(_F32), "chi2": blk.chi2, "dof": blk.dof,
             "dq": dq, "slope_ints": blk.slope_ints, "var_ints": blk.var_ints,
-            "pcoef_ints": blk.pcoef_ints, "n_jumps": blk.n_jumps}
+            "pcoef_ints": blk.pcoef_ints, "n_jumps": blk.n_jumps, "by_diff": by_diff}
+
+
+def _flag_jumps_of(d, valid, s2, cov, thr, jumped):
+    """:func:`flag_jumps` on every pixel, or on the pixels ``jumped`` only."""
+    if jumped is None:
+        return flag_jumps(d, valid, s2, cov, thr)
+    counts = np.zeros(d.shape[2], np.int32)
+    j = np.flatnonzero(jumped)
+    if j.size:
+        vj = valid[:, :, j]
+        counts[j] = flag_jumps(d[:, :, j], vj, s2 if np.isscalar(s2) else s2[j], cov,
+                               thr)
+        valid[:, :, j] = vj
+    return counts
 
 
 def _usable_resultants(res, sat):
@@ -443,15 +563,20 @@ class _Differences:
         return np.zeros(self.npix, _F32)
 
 
-def _fit_gls(diffs, n_iter, blk):
-    """GLS with the covariance at the previous estimate; fills ``blk``, returns raw chi2."""
-    dtw = diffs.cov.dt.astype(_F32)[None, :, None]
-    den = (diffs.mf * dtw).sum(axis=(0, 1))
-    num = (diffs.d * diffs.mf * dtw).sum(axis=(0, 1))
-    fref = np.divide(num, den, out=diffs.zeros(), where=den > 0)    # CDS start
+def _fit_gls(diffs, n_iter, blk, frate=None, fstart=None):
+    """GLS with the covariance at the previous estimate (or at ``frate``, one solve
+    from ``fstart``); fills ``blk``, returns raw chi2."""
+    if frate is not None:
+        fref, n_iter = fstart, 1
+    else:
+        dtw = diffs.cov.dt.astype(_F32)[None, :, None]
+        den = (diffs.mf * dtw).sum(axis=(0, 1))
+        num = (diffs.d * diffs.mf * dtw).sum(axis=(0, 1))
+        fref = np.divide(num, den, out=diffs.zeros(), where=den > 0)    # CDS start
     for it in range(n_iter):
         last = it == n_iter - 1
-        passes = diffs.model_solves(fref, np.maximum(fref, diffs.lo), want_x=last)
+        fcov = fref if frate is None else frate
+        passes = diffs.model_solves(fref, np.maximum(fcov, diffs.lo), want_x=last)
         S11 = sum(p[0] for p in passes)
         S1y = sum(p[1] for p in passes)
         blk.measured = S11 > 0
@@ -459,30 +584,37 @@ def _fit_gls(diffs, n_iter, blk):
         if not last:
             fref = new
     blk.slope = new
-    _gls_variances(diffs, passes, fref, S11, blk)
+    _gls_variances(diffs, passes, fref, np.maximum(fcov, diffs.lo), S11, blk)
     syy = sum(p[2] for p in passes)
     return syy - np.divide(S1y * S1y, S11, out=diffs.zeros(), where=blk.measured)
 
 
-def _gls_variances(diffs, passes, fref, S11, blk):
-    """Read and Poisson variances of the GLS slopes, combined and per integration."""
+def _gls_variances(diffs, passes, fref, f, S11, blk):
+    """Read and Poisson variances of the GLS slopes, combined and per integration.
+
+    The weights ``x / (1^T x)``, ``x = C(f)^-1 1``, have variance ``1 / (1^T x)`` at
+    the rate ``f`` of ``C`` (``x^T C x = 1^T x``, a sum of positive terms); its
+    Poisson part is ``x^T C_poisson x / (1^T x)^2`` (non-negative terms) and the read
+    part the rest.  (``x^T C_read x`` itself cancels beyond float32 in long
+    read-noise dominated ramps: 1000 reads at 100 e- scattered it by +-30 %.)
+    """
     cov, s2 = diffs.cov, diffs.s2
     inv11 = np.divide(1, S11, out=diffs.zeros(), where=blk.measured)
-    qr_tot = diffs.zeros()
+    has_read = np.asarray(s2 > 0)
     qp_tot = diffs.zeros()
     for k, p in enumerate(passes):
-        x = p[3]
-        qr = quad_form(x, cov.Ar, cov.Br)
-        qp = quad_form(x, cov.Ap, cov.Bp)
-        qr_tot += qr
+        qp = quad_form(p[3], cov.Ap, cov.Bp)
         qp_tot += qp
         ok = p[0] > 0
         ik = np.divide(1, p[0], out=diffs.zeros(), where=ok)
         blk.slope_ints[k] = np.where(ok, fref + p[1] * ik, 0)
-        blk.var_ints[k] = np.where(ok, s2 * qr * ik * ik, BAD_VARIANCE)
-        blk.pcoef_ints[k] = qp * ik * ik
-    blk.var_read = s2 * qr_tot * inv11 * inv11
+        pk = qp * ik * ik
+        vr = np.where(has_read, np.maximum(ik - f * pk, 0), 0)
+        blk.var_ints[k] = np.where(ok, vr, BAD_VARIANCE)
+        blk.pcoef_ints[k] = pk
     blk.pcoef = qp_tot * inv11 * inv11
+    blk.var_read = np.where(has_read, np.maximum(inv11 - f * blk.pcoef, 0),
+                            0).astype(_F32)
 
 
 def _weighting(fitter, cov):
@@ -520,7 +652,9 @@ def _integration_weights(diffs, passes, fv, blk):
         ok = p[0] > 0
         ik = np.divide(1, p[0], out=diffs.zeros(), where=ok)
         x = p[3]
-        vr = s2 * quad_form(x, cov.Ar, cov.Br) * ik * ik
+        # x^T C_read x cancels in long ramps: float64 (see quad_form)
+        vr = (s2 * quad_form(x.astype(np.float64), cov.Ar, cov.Br)).astype(_F32) \
+            * ik * ik
         qp = quad_form(x, cov.Ap, cov.Bp) * ik * ik
         vp = fv * qp
         blk.slope_ints[k] = p[1] * ik

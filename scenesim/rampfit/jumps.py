@@ -9,8 +9,8 @@ standardised score statistic for a jump of signature ``s`` is::
     z = s^T C^-1 r / sqrt(s^T C^-1 s - (s^T C^-1 1)^2 / (1^T C^-1 1)),
 
 ``r = d - f_hat 1`` the GLS residuals (:func:`jump_statistics`).  Without a jump it
-is exactly N(0, 1) for Gaussian noise whatever the readout, so a threshold ``k``
-gives ``2 Q(k)`` false alarms per test.  A single difference ``i`` has ``s = e_i``;
+is exactly N(0, 1) for Gaussian noise whatever the readout, so a (one-sided)
+threshold ``k`` gives ``Q(k)`` false alarms per test.  A single difference ``i`` has ``s = e_i``;
 a hit halfway through a multi-read resultant ``R_{i+1}`` adds half its charge to
 ``D_i`` and half to ``D_{i+1}``: ``s = e_i / dt_i + e_{i+1} / dt_{i+1}``.
 
@@ -18,15 +18,41 @@ Procedure (:func:`flag_jumps`, threshold in sigma, per integration)
 --------------------------------------------------------------------
 At the rate ``max(median(d), 0)`` (robust to the jumps themselves) every usable
 difference, and every pair sharing a multi-read resultant, gets its statistic.  The
-largest ``|z|`` above the threshold is flagged and excluded (a pair as a whole when
-it is the larger excess), and the test repeated on the pixels that had a flag (at
-most ``n_diff - 2`` passes).  Detection needs >= 3 usable differences.  Excluding a
-difference splits the ramp into independent segments.  The differences next to a
-flagged span that share a multi-read resultant with it are excluded too,
-unconditionally: the hit may have arrived during that resultant, and choosing them
-by their values would bias the slope (excluding them costs some precision in hit
-pixels only).  With single-read resultants (JWST NFRAMES=1) neither the pairs nor
-the neighbours apply.
+largest *positive* ``z`` above the threshold is flagged and excluded (a pair as a
+whole when it is the larger excess), and the test repeated on the pixels that had a
+flag.  The test is one-sided because a hit adds charge: a hit raises the common
+rate, so the clean differences read low, and with few differences a two-sided test
+would as often exclude the clean half of a ramp as the hit one (with two usable
+differences their residuals are exactly opposite).  Detection needs >= 2 usable
+differences (no pair when only two are left: it would be the whole ramp).
+Excluding a difference splits the ramp into independent segments.
+
+What a flag costs.  A hit adds its charge to every read after it, so it moves only
+the resultant during which it arrived (by the fraction of that resultant's reads
+after it) relative to the line through the others: the differences touching that
+resultant are the part of the ramp it touches.
+
+* A flagged pair (a hit inside the multi-read resultant the two differences share)
+  costs those two differences only: the resultants on either side are untouched.
+* A flagged single difference may hold a hit that arrived during a multi-read
+  resultant at either end of it (a small remainder then sits in the neighbour
+  sharing that resultant, below the pair's statistic); the neighbours sharing a
+  multi-read resultant are excluded too, unconditionally (choosing them by their
+  values would bias the slope), unless no usable difference of the integration
+  would be left: the neighbours then stay, and a remainder above the threshold is
+  flagged in the next pass.  A hit never costs a pixel with usable differences.
+  (The price: when two hits touch three of the four differences of a 5-group
+  ramp, the difference left may hold part of the second; docs/STRESS.md.)  With
+  single-read resultants (JWST NFRAMES=1) neither the pairs nor the neighbours
+  apply.
+
+Two hits mask each other: each raises the common rate of the other's test (in a
+10-group RAPID ramp two 10 sigma hits far apart both read ~5.3 sigma).  A pixel with
+no statistic above the threshold but one above half of it is therefore tested again
+with that span left out (look-ahead), and the strongest span of that test is flagged
+if it now exceeds the threshold; the first span is then tested in the next pass with
+the second left out.  A false alarm still needs a statistic above the threshold, so
+the false-alarm rate stays ``~Q(k)`` per test.
 
 Where the read noise is 0 the covariance uses a rate of at least
 :data:`scenesim.rampfit.covariance.RATE_FLOOR`.  Pixels are processed in blocks of
@@ -42,6 +68,9 @@ __all__ = ["flag_jumps", "jump_statistics"]
 
 _F32 = np.float32
 _JUMP_BLOCK = 4096
+#: Pixels whose strongest statistic exceeds this fraction of the threshold get the
+#: look-ahead test for two hits masking each other (module notes).
+_LOOKAHEAD = 0.5
 
 
 def flag_jumps(d, valid, s2, cov, threshold):
@@ -84,29 +113,73 @@ def _detect_jumps(d, valid, s2, cov, thr):
     nd, npix = d.shape
     jumps = np.zeros((nd, npix), bool)
     multi = cov.n > 1                                  # multi-read resultants
-    idx = np.flatnonzero(valid.sum(axis=0) >= 3)
-    for _ in range(nd - 2):
+    idx = np.flatnonzero(valid.sum(axis=0) >= 2)
+    for _ in range(nd - 1):
         if idx.size == 0:
             break
-        dd = d[:, idx]
-        vv = valid[:, idx]
-        med = _median_of_valid(dd, vv)
-        s2i = s2 if np.isscalar(s2) else s2[idx]
-        lo = _F32(RATE_FLOOR) * (s2i == 0)
-        z, zp = jump_statistics(dd, vv, med, s2i, np.maximum(med, lo), cov)
-        hit, first, last = _largest_excess(z, zp, thr)
-        ih, a, b = idx[hit], first[hit], last[hit]
-        # A hit may have arrived during a multi-read resultant at either end of the
-        # flagged span; the differences beyond that share it are excluded too
-        # (unconditionally: a data-dependent choice would bias the slope).
-        left = (a >= 1) & multi[a]
-        right = (b + 1 < nd) & multi[np.minimum(b + 1, nd - 1)]
-        for pos, sel in ((a, None), (b, None), (a - 1, left), (b + 1, right)):
-            p, i = (pos, ih) if sel is None else (pos[sel], ih[sel])
-            jumps[p, i] |= valid[p, i]
-            valid[p, i] = False
-        idx = ih[valid[:, ih].sum(axis=0) >= 3]
+        zmax, first, last, pair = _strongest(d[:, idx], valid[:, idx], s2, idx, cov)
+        hit = zmax > thr
+        # Look-ahead: two hits can mask each other (each pulls the common rate
+        # toward itself); a pixel whose strongest statistic is within a factor
+        # _LOOKAHEAD of the threshold is tested again without that span, and the
+        # strongest span of that test is flagged if it now exceeds the threshold.
+        look = ~hit & (zmax > _LOOKAHEAD * thr) & (valid[:, idx].sum(axis=0) >= 3)
+        if look.any():
+            il = idx[look]
+            vt = valid[:, il].copy()
+            rows = np.arange(nd)[:, None]
+            vt &= ~((rows >= first[look]) & (rows <= last[look]))
+            z2, f2, l2, p2 = _strongest(d[:, il], vt, s2, il, cov)
+            ok = z2 > thr
+            sel = np.flatnonzero(look)[ok]
+            hit[sel] = True
+            first[sel], last[sel], pair[sel] = f2[ok], l2[ok], p2[ok]
+        ih = idx[hit]
+        _exclude(jumps, valid, ih, first[hit], last[hit], pair[hit], multi)
+        idx = ih[valid[:, ih].sum(axis=0) >= 2]
     return jumps
+
+
+def _strongest(dd, vv, s2, idx, cov):
+    """Largest positive statistic of each pixel and its span: (zmax, first, last,
+    pair).  With only two usable differences a pair would be the whole ramp, so
+    only single differences are tested.
+    """
+    med = _median_of_valid(dd, vv)
+    s2i = s2 if np.isscalar(s2) else s2[idx]
+    lo = _F32(RATE_FLOOR) * (s2i == 0)
+    z, zp = _signed_statistics(dd, vv, med, s2i, np.maximum(med, lo), cov)
+    z = np.maximum(z, 0)
+    if zp is not None:
+        zp = np.where(vv.sum(axis=0) == 2, 0, np.maximum(zp, 0))
+    return _largest_excess(z, zp)
+
+
+def _exclude(jumps, valid, ih, a, b, pair, multi):
+    """Exclude the flagged spans ``a..b`` of pixels ``ih`` (and their neighbours).
+
+    A pair (a hit inside the multi-read resultant the two differences share)
+    costs those two differences only.  A single difference ``i`` may hold a hit
+    that arrived during a multi-read resultant at either end of it, leaving a
+    remainder in the neighbour sharing that resultant: the neighbour is excluded
+    too, unconditionally (a choice by its value would bias the slope), unless no
+    usable difference of the integration would be left: then they stay and are
+    tested in the next pass like the others.
+    """
+    nd = valid.shape[0]
+    for pos in (a, b):
+        jumps[pos, ih] |= valid[pos, ih]
+        valid[pos, ih] = False
+    single = ~pair
+    left = single & (a >= 1) & multi[a]
+    right = single & (b + 1 < nd) & multi[np.minimum(b + 1, nd - 1)]
+    pl, pr = np.maximum(a - 1, 0), np.minimum(b + 1, nd - 1)
+    left &= valid[pl, ih]
+    right &= valid[pr, ih]
+    keep = valid[:, ih].sum(axis=0) - left - right >= 1
+    for pos, sel in ((pl, left & keep), (pr, right & keep)):
+        jumps[pos[sel], ih[sel]] = True
+        valid[pos[sel], ih[sel]] = False
 
 
 def _median_of_valid(d, valid):
@@ -119,24 +192,25 @@ def _median_of_valid(d, valid):
     return _F32(0.5) * (lo + hi)
 
 
-def _largest_excess(z, zp, thr):
-    """Pixels whose largest statistic exceeds ``thr``, and the flagged span.
+def _largest_excess(z, zp):
+    """Largest statistic of every pixel and its span of differences.
 
-    Returns (hit (n,) bool, first (n,), last (n,)): the span of differences of each
+    Returns (zmax (n,), first (n,), last (n,), pair (n,) bool): the span of each
     pixel's largest statistic (one difference, or a pair).
     """
     cols = np.arange(z.shape[1])
     first = z.argmax(axis=0)
     zmax = z[first, cols]
     last = first.copy()
+    pair = np.zeros(z.shape[1], bool)
     if zp is not None:
         q = zp.argmax(axis=0)
         zq = zp[q, cols]
-        better = zq > zmax
-        first = np.where(better, q, first)
-        last = np.where(better, q + 1, last)
-        zmax = np.where(better, zq, zmax)
-    return zmax > thr, first, last
+        pair = zq > zmax
+        first = np.where(pair, q, first)
+        last = np.where(pair, q + 1, last)
+        zmax = np.where(pair, zq, zmax)
+    return zmax, first, last, pair
 
 
 def jump_statistics(d, valid, fref, s2, f, cov):
@@ -169,6 +243,12 @@ def jump_statistics(d, valid, fref, s2, f, cov):
     zp : ndarray, shape (nd - 1, n), float32, or None
         ``|z|`` of every pair, or None when no pair shares a multi-read resultant.
     """
+    z, zp = _signed_statistics(d, valid, fref, s2, f, cov)
+    return np.abs(z), (None if zp is None else np.abs(zp))
+
+
+def _signed_statistics(d, valid, fref, s2, f, cov):
+    """:func:`jump_statistics` with signs (positive: charge added)."""
     nd, npix = d.shape
     mf = valid.astype(_F32)
     a = np.empty((nd, npix), _F32)
@@ -212,7 +292,7 @@ def jump_statistics(d, valid, fref, s2, f, cov):
     xd = _F32(1) / (delta + eta - a)                     # diag of C^-1
     inv11 = np.divide(1, S11, out=np.zeros(npix, _F32), where=S11 > 0)
     den = np.maximum(xd - h * h * inv11, _F32(TINY))
-    z = np.abs(g) * mf / np.sqrt(den)
+    z = g * mf / np.sqrt(den)
     pair_ok = cov.n[1:-1] > 1
     if nd < 2 or not pair_ok.any():
         return z, None
@@ -221,7 +301,7 @@ def jump_statistics(d, valid, fref, s2, f, cov):
 
 
 def _pair_statistics(g, h, xd, b, delta, inv11, mf, pair_ok, cov):
-    """``|z|`` of the pairs (nd - 1, n) from the pieces of :func:`jump_statistics`."""
+    """Signed ``z`` of the pairs (nd - 1, n) from the pieces of :func:`jump_statistics`."""
     xo = -b * xd[1:] / delta[:-1]                        # (C^-1)_{i,i+1}
     s0 = (1 / cov.dt[:-1]).astype(_F32)[:, None]
     s1 = (1 / cov.dt[1:]).astype(_F32)[:, None]
@@ -229,4 +309,4 @@ def _pair_statistics(g, h, xd, b, delta, inv11, mf, pair_ok, cov):
     sh = s0 * h[:-1] + s1 * h[1:]
     den_p = s0 * s0 * xd[:-1] + 2 * s0 * s1 * xo + s1 * s1 * xd[1:] - sh * sh * inv11
     ok = mf[:-1] * mf[1:] * pair_ok[:, None]
-    return np.abs(num) * ok / np.sqrt(np.maximum(den_p, _F32(TINY)))
+    return num * ok / np.sqrt(np.maximum(den_p, _F32(TINY)))

@@ -125,19 +125,24 @@ def ldl_pass(d, valid, mf, mc, fref, s2, f, A, B, *, want_x):
 def quad_form(x, A, B):
     """``x^T M x`` per pixel for the tridiagonal M with diagonal A (nd,), off-diagonal B.
 
+    Computed in the dtype of ``x``.  Where ``M`` has negative off-diagonals (the read
+    part of the covariance) the sum cancels: for ``x = C^-1 1`` of a 1000-read,
+    read-noise dominated ramp its terms are ~1e5 times the result, beyond float32;
+    pass float64 ``x`` there (the GLS fitter avoids it: ``x^T C x = 1^T x``).
+
     Parameters
     ----------
-    x : ndarray, shape (nd, P), float32
+    x : ndarray, shape (nd, P), float32 or float64
     A : array_like, shape (nd,)
     B : array_like, shape (nd - 1,)
 
     Returns
     -------
-    ndarray, shape (P,), float32
+    ndarray, shape (P,), dtype of ``x``
     """
-    a = np.asarray(A, _F32)[:, None]
+    a = np.asarray(A, x.dtype)[:, None]
     q = (a * x * x).sum(axis=0)
     if x.shape[0] > 1:
-        b = np.asarray(B, _F32)[:, None]
+        b = np.asarray(B, x.dtype)[:, None]
         q += 2 * (b * x[:-1] * x[1:]).sum(axis=0)
     return q

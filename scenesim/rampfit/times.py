@@ -17,7 +17,7 @@ differ between pixels only by a common shift.
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import is_sequence
+from noise.validate import check_int, describe, is_sequence
 
 __all__ = ["check_read_times"]
 
@@ -49,10 +49,12 @@ def check_read_times(read_times, nres=None, image_shape=None):
     noise.errors.ParameterError
         Naming the entry and the rule it breaks.
     """
-    if not is_sequence(read_times) or len(read_times) == 0:
+    if not is_sequence(read_times) or len(read_times) == 0 or isinstance(read_times, dict):
         raise ParameterError(
             f"'read_times' must be a non-empty sequence of 1-D arrays of read times "
-            f"(s from reset), one per resultant, got {read_times!r}")
+            f"(s from reset), one per resultant, got {describe(read_times)}")
+    if nres is not None:
+        nres = check_int("nres", nres, minimum=1)
     if nres is not None and len(read_times) != nres:
         raise ParameterError(
             f"'read_times' has {len(read_times)} entries but 'resultants' has {nres} "
@@ -70,7 +72,7 @@ def check_read_times(read_times, nres=None, image_shape=None):
     for r, a in enumerate(arrays):
         if np.any(np.diff(a) <= 0):
             raise ParameterError(
-                f"'read_times'[{r}] must be strictly increasing, got {a!r}")
+                f"'read_times'[{r}] must be strictly increasing, got {describe(a)}")
         if r > 0 and a[0] <= arrays[r - 1][-1]:
             raise ParameterError(
                 f"'read_times': resultant {r} starts at {a[0]} s, not after the last "
@@ -85,7 +87,7 @@ def _entry(r, t, image_shape):
         a = np.asarray(t, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ParameterError(
-            f"'read_times'[{r}] must be an array of read times (s), got {t!r}"
+            f"'read_times'[{r}] must be an array of read times (s), got {describe(t)}"
         ) from exc
     if a.ndim == 0:
         a = a.reshape(1)
@@ -100,7 +102,7 @@ def _entry(r, t, image_shape):
                              f">= 1 read")
     if not np.all(np.isfinite(a)) or np.any(a < 0):
         raise ParameterError(
-            f"'read_times'[{r}] must be finite and >= 0 s, got {t!r}")
+            f"'read_times'[{r}] must be finite and >= 0 s, got {describe(t)}")
     return a
 
 
