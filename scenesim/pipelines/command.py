@@ -1,0 +1,173 @@
+"""``scenesim pipeline jwst|roman`` and the pipeline products of ``scenesim run``.
+
+``scenesim run SCENE --uncal --l1 --reffiles`` writes, beside the exposure
+``stem.fits``: ``stem_uncal.fits`` (JWST uncal,
+:func:`scenesim.pipelines.jwst.write_uncal`), ``stem_l1.asdf`` (Roman L1,
+:func:`scenesim.pipelines.roman.write_l1`) and the directory ``stem_refs/`` of
+reference files: ``jwst_<type>.fits`` for a JWST-sized detector read with a
+MULTIACCUM pattern, ``roman_<type>.asdf`` whenever the Roman extra is installed.
+Every path is checked before the run starts (:func:`check_run_products`).
+
+``scenesim pipeline jwst UNCAL --refs DIR [--truth TRUTH --exposure EXP]`` runs
+Detector1 offline (:func:`scenesim.pipelines.jwst.run_detector1`) and, given the
+truth, prints ``compare``'s report of the rate file; ``scenesim pipeline roman L1
+--refs DIR`` does the same with romancal's ramp fit
+(:func:`scenesim.pipelines.roman.run_ramp_fit`).
+"""
+
+import glob
+import os
+
+from noise.errors import ParameterError
+from noise.fitsio import derived_path
+
+__all__ = ["pipeline_command", "write_run_products", "check_run_products",
+           "product_paths", "reference_paths"]
+
+
+def _stem(path):
+    path = os.fspath(path)
+    for ext in (".fits.gz", ".fits", ".asdf"):
+        if path.lower().endswith(ext):
+            return path[:-len(ext)]
+    return path
+
+
+def product_paths(exposure):
+    """``{'uncal', 'l1', 'reffiles'}`` paths derived from the exposure path
+    (``stem_uncal.fits``, ``stem_l1.asdf``, ``stem_refs``)."""
+    stem = _stem(exposure)
+    return {"uncal": derived_path(os.fspath(exposure), "_uncal").replace(".fits.gz",
+                                                                        ".fits"),
+            "l1": stem + "_l1.asdf", "reffiles": stem + "_refs"}
+
+
+def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=False,
+                       overwrite=False):
+    """Check, before a run starts, that the asked-for products can be written: the
+    extras are installed, the ramp file is kept, and no file would be replaced
+    without ``overwrite`` (:func:`scenesim.outputs.check_outputs`)."""
+    if not (uncal or l1 or reffiles):
+        return
+    from scenesim.outputs import check_outputs
+    cfg = scene.output
+    if not cfg.ramp:
+        raise ParameterError("--uncal, --l1 and --reffiles need the ramp file "
+                             "([output] ramp = true)")
+    paths = product_paths(output if output is not None else cfg.path)
+    for flag, module, extra in ((uncal, "stdatamodels", "jwst"),
+                                (l1, "roman_datamodels", "roman")):
+        if flag:
+            try:
+                __import__(module)
+            except ImportError as exc:
+                raise ParameterError(f"this product needs the optional '{extra}' extra: "
+                                     f"pip install 'scenesim[{extra}]'") from exc
+    det, ro = scene.detector, scene.readout.build()
+    if uncal and (det.n_out_active not in (1, 4) or max(det.naxis1, det.naxis2) > 2048):
+        raise ParameterError(
+            f"--uncal: a JWST uncal needs a detector of at most 2048 x 2048 read through "
+            f"1 or 4 outputs; {det.name!r} is {det.naxis2} x {det.naxis1} with "
+            f"{det.n_out_active} outputs (use --l1 for a Roman detector)")
+    if l1 and ro.nints != 1:
+        raise ParameterError(f"--l1: a Roman L1 file holds one integration; the scene "
+                             f"has nints = {ro.nints}")
+    check_outputs({"JWST uncal": paths["uncal"] if uncal else None,
+                   "Roman L1": paths["l1"] if l1 else None},
+                  inputs=[], overwrite=overwrite)
+    if reffiles and os.path.exists(paths["reffiles"]) and not overwrite:
+        raise ParameterError(f"reference directory {paths['reffiles']!r} exists; pass "
+                             f"--overwrite to replace its files")
+
+
+def reference_paths(directory, prefix):
+    """``{reftype: path}`` of the reference files ``<prefix>_<type>.*`` in
+    ``directory``."""
+    found = {}
+    for path in sorted(glob.glob(os.path.join(os.fspath(directory), f"{prefix}_*"))):
+        name = os.path.basename(path)
+        found[name[len(prefix) + 1:].split(".")[0]] = path
+    if not found:
+        raise ParameterError(f"'--refs' directory {os.fspath(directory)!r} holds no "
+                             f"{prefix}_<type> reference files; write them with "
+                             f"'scenesim run SCENE --reffiles'")
+    return found
+
+
+def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
+                       overwrite=False):
+    """The pipeline products of a finished run (module notes).
+
+    Parameters
+    ----------
+    scene : scenesim.scene.Scene
+        The scene run (its seed is taken from the run when it had none).
+    result : scenesim.run.RunResult
+    uncal, l1, reffiles : bool, keyword-only
+    overwrite : bool, keyword-only
+
+    Returns
+    -------
+    list of str
+        Paths written (a directory for the references).
+    """
+    if not (uncal or l1 or reffiles):
+        return []
+    if result.exposure is None:
+        raise ParameterError("the pipeline products need the ramp file ([output] "
+                             "ramp = true)")
+    engine = result.engine
+    if scene.seed is None:
+        scene = scene.replace(seed=int(engine.entropy))
+    det = engine.detector
+    jwst_sized = det.n_out_active in (1, 4) and max(det.naxis1, det.naxis2) <= 2048
+    written = []
+    paths = product_paths(result.exposure)
+    if uncal:
+        from scenesim.pipelines.jwst import write_uncal
+        written.append(write_uncal(result.exposure, paths["uncal"], overwrite=overwrite))
+    if l1:
+        from scenesim.pipelines.roman import write_l1
+        written.append(write_l1(result.exposure, paths["l1"], overwrite=overwrite))
+    if reffiles:
+        from scenesim.pipelines.reffiles import detector_reference
+        ref = detector_reference(scene, engine)
+        directory = paths["reffiles"]
+        if jwst_sized and engine.readout.is_multiaccum:
+            from scenesim.pipelines.jwst import write_reference_files
+            write_reference_files(ref, engine.readout, det.frame_time, directory,
+                                  instrument=getattr(scene, "instrument", None),
+                                  overwrite=overwrite)
+        try:
+            from scenesim.pipelines.roman import write_reference_files as roman_refs
+            roman_refs(ref, directory, overwrite=overwrite)
+        except ImportError:
+            pass
+        written.append(directory)
+    return written
+
+
+def pipeline_command(args):
+    """``scenesim pipeline jwst|roman``: run the pipeline offline, then compare."""
+    refs = args.refs
+    if args.pipeline == "jwst":
+        from scenesim.pipelines.jwst import run_detector1
+        out_dir = args.output or os.path.dirname(os.path.abspath(args.input))
+        out = run_detector1(args.input, reference_paths(refs, "jwst"), out_dir,
+                            overwrite=args.overwrite)
+        product = out["rate"]
+    else:
+        from scenesim.pipelines.roman import run_ramp_fit
+        stem = _stem(args.input)
+        stem = stem[:-len("_l1")] if stem.endswith("_l1") else stem
+        product = args.output or stem + "_l2.asdf"
+        run_ramp_fit(args.input, reference_paths(refs, "roman"), product,
+                     overwrite=args.overwrite)
+    print(f"wrote {product}")
+    if args.truth:
+        from scenesim.validate.compare import compare_files
+        report = compare_files(product, args.truth, exposure=args.exposure)
+        print(report.format())
+    return 0
+
+

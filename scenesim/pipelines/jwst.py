@@ -1,0 +1,532 @@
+"""JWST: uncal files the calibration pipeline accepts, the detector's reference files,
+and Detector1 run offline on them.
+
+Needs the optional ``jwst`` extra (``stdatamodels``, and ``jwst`` to run the pipeline);
+imported only when used.
+
+The uncal file (:func:`write_uncal`)
+------------------------------------
+Written through ``stdatamodels.jwst.datamodels.Level1bModel``, so it is what the data
+models write (the ``ASDF`` extension included) and passes
+``RampModel(path, strict_validation=True)``:
+
+* ``SCI``: the exposure's resultants, uint16 DN, (nints, ngroups, ny, nx), unchanged;
+* ``PIXELDQ`` (zeros) and ``GROUPDQ`` (zeros), as ``RampModel`` reads them;
+* ``INT_TIMES``: start, middle and end of each integration (MJD UTC; BJD columns are
+  the same numbers, no barycentric correction is made), from ``DATE-OBS`` and the
+  frame clock: integration ``i`` starts at frame slot ``i * (1 + nreads)``
+  (:func:`noise.clock.frame_slot`);
+* the JWST keywords: ``INSTRUME``, ``DETECTOR`` (a JWST detector name), ``EXP_TYPE``,
+  ``READPATT`` (the pattern, or ``ANY``), ``SUBARRAY`` (``FULL``, a JWST name, or
+  ``GENERIC``) with ``SUBSTRT1/2``, ``SUBSIZE1/2``, ``FASTAXIS = 1`` and ``SLOWAXIS =
+  2`` (the file is in scenesim's detector orientation: columns are the fast axis,
+  rows the slow one; real NRS1 files, transposed into the DMS frame, differ),
+  ``NINTS``, ``NGROUPS``, ``NFRAMES``, ``GROUPGAP``, ``DRPFRMS1`` (frames dropped after
+  reset), ``FRMDIVSR`` (= ``NFRAMES``: scenesim averages, so the divisor is the frame
+  count), ``TFRAME``, ``TGROUP``, ``EFFINTTM``, ``EFFEXPTM``, ``NOUTPUTS``,
+  ``DATE-OBS``/``TIME-OBS`` and the exposure start/mid/end times;
+* ``ZEROFRAM = F`` and no ``ZEROFRAME``: the engine does not keep the first read of a
+  group on its own (for ``NFRAMES = 1`` it is group 0 itself);
+* scenesim's own cards (``GAIN``, ``RDNOISE``, the clock, the effects, the seed...) in
+  the primary header, and the exposure's ``READS`` table, so the uncal is also a
+  scenesim exposure (:func:`scenesim.io.exposure.read_exposure` reads it); the
+  scenesim keywords whose name JWST uses for something else are left out (scenesim's
+  ``DETECTOR`` is ``SSDETECT``, its pattern name ``SSREADPT``).
+
+JWST describes only detectors it has: ``NOUTPUTS`` must be 1 or 4 and the array at
+most 2048 x 2048, so an H4RG exposure (Roman) has no JWST uncal
+(:mod:`scenesim.pipelines.roman` writes its Level 1 file).
+
+Clock: the uncal records scenesim's own ``TFRAME`` and ``TGROUP``, so the pipeline
+fits with the times the charge was simulated at.  JWST's frame time (JDox, "NIRCam
+Detector Subarrays") is ``((ncols/4 + 12) (nrows + 1) + 1) x 10 us`` with 4 outputs
+and ``(ncols + 12) (nrows + 2) x 10 us`` with 1: the ``H2RG`` preset (``nroh = 12``,
+``nfoh = 1``) is one pixel time (10 us, 1 ppm) short on full frames and stripes, and a
+window matches exactly with ``nfoh = 2`` (:func:`jwst_frame_time`).
+
+Reference files (:func:`write_reference_files`)
+----------------------------------------------- The references of
+:func:`scenesim.pipelines.reffiles.detector_reference` in the formats the steps read
+as ``override_<type>``: ``gain`` (GainModel, e-/DN), ``readnoise`` (ReadnoiseModel:
+the CDS noise of two frames in DN, ``sqrt(2) * read_noise / gain``, as stcal expects:
+:func:`scenesim.adapters.stcal.stcal_read_noise`), ``saturation`` (SaturationModel,
+raw DN, bias included), ``superbias`` (SuperBiasModel, DN), ``linearity``
+(LinearityModel, ``COEFFS`` (ncoeffs, ny, nx) on bias-subtracted DN), ``dark``
+(DarkModel, DN per group in the exposure's own MULTIACCUM pattern, so the dark step
+uses it without averaging frames: group ``g`` is the mean over its reads ``k`` of
+``dark * (k + 1) * t_frame / gain``), ``mask`` (MaskModel, DQ), ``ipc`` (IPCModel:
+JWST corrects IPC by *convolving* with this array, so it holds the inverse of the
+engine's kernel, 5x5, :func:`scenesim.pipelines.reffiles.ipc_inverse_kernel`; the
+superbias is the bias after that same convolution, since the ``ipc`` step runs before
+``superbias``). Each is validated with ``strict_validation=True`` when it is written.
+
+Detector1 offline (:func:`run_detector1`)
+----------------------------------------
+CRDS is never contacted: the process gets an empty local CRDS cache
+(``CRDS_PATH``), an unreachable server (``CRDS_SERVER_URL``), ``CRDS_MODE=local``, and
+``STPIPE_DISABLE_CRDS_STEPPARS`` (no parameter references); the pipeline does not
+prefetch references, and each step that needs one gets its ``override_<type>``.
+Steps with no scenesim reference are skipped: ``persistence``, ``charge_migration``,
+``picture_frame`` and ``clean_flicker_noise`` (also skipped by the pipeline's own
+defaults), ``emicorr``, ``rscd``, ``firstframe``, ``lastframe`` and ``reset`` (MIRI
+only).  ``ipc`` runs only when the exposure has IPC.  The rate file's header says what
+ran (``S_IPC``, ``S_DARK``, ...), and :func:`scenesim.validate.compare.compare_files`
+reads it.
+"""
+
+import contextlib
+import os
+import tempfile
+
+import numpy as np
+from astropy.table import Table
+from astropy.time import Time
+
+from noise.clock import detector_from_header, frame_slot
+from noise.errors import FileFormatError, ParameterError
+from noise.fitsio import atomic_path
+from noise.validate import check_writable
+
+from scenesim.adapters.stcal import stcal_read_noise
+from scenesim.io.exposure import Exposure
+from scenesim.io.header import header_instrument, readout_from_table
+from scenesim.pipelines.instrument import resolve_instrument
+
+__all__ = ["write_uncal", "uncal_model", "write_reference_files", "run_detector1",
+           "detector1_products", "jwst_frame_time", "offline_crds", "REFERENCE_TYPES",
+           "DEFAULT_DATE_OBS", "SKIPPED_STEPS", "OFFLINE_CONTEXT"]
+
+#: Observation start written when the scene gives none (ISO, UTC).
+DEFAULT_DATE_OBS = "2026-01-01T00:00:00"
+
+#: Reference types written by :func:`write_reference_files` (``ipc`` only with IPC).
+REFERENCE_TYPES = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark",
+                   "mask", "ipc")
+
+#: Detector1 steps run without scenesim references (see the module notes).
+SKIPPED_STEPS = ("persistence", "charge_migration", "picture_frame",
+                 "clean_flicker_noise", "emicorr", "rscd", "firstframe", "lastframe",
+                 "reset")
+
+#: scenesim primary cards not copied into the uncal: JWST keywords of the same name
+#: (set from the data model) or structural cards.
+_JWST_OWNED = frozenset((
+    "SIMPLE", "BITPIX", "NAXIS", "EXTEND", "DATE", "FILENAME", "DATAMODL", "TELESCOP",
+    "ORIGIN", "FILETYPE", "NEXTEND", "DETECTOR", "SUBARRAY", "SUBSTRT1", "SUBSTRT2",
+    "SUBSIZE1", "SUBSIZE2", "READPATT", "NINTS", "NGROUPS", "NFRAMES", "GROUPGAP",
+    "TFRAME", "TGROUP", "NOUTPUTS", "EFFINTTM", "INSTRUME", "EXP_TYPE", "DATE-OBS",
+    "TIME-OBS"))
+
+
+def _datamodels():
+    try:
+        from stdatamodels.jwst import datamodels
+    except ImportError as exc:               # pragma: no cover - depends on the extra
+        raise ParameterError(
+            "JWST files need the optional 'jwst' extra: pip install 'scenesim[jwst]' "
+            "(stdatamodels and jwst)") from exc
+    return datamodels
+
+
+def jwst_frame_time(detector):
+    """JWST's frame time (s) for ``detector``'s read-out size and outputs (JDox,
+    "NIRCam Detector Subarrays"): ``((nx/4 + 12)(ny + 1) + 1) x 10 us`` with 4
+    outputs, ``(nx + 12)(ny + 2) x 10 us`` with 1."""
+    nx, ny, nout = detector.nx, detector.ny, detector.n_out_active
+    if nout == 4:
+        return ((nx // 4 + 12) * (ny + 1) + 1) * 1e-5
+    if nout == 1:
+        return (nx + 12) * (ny + 2) * 1e-5
+    raise ParameterError(f"JWST reads through 1 or 4 outputs, not {nout}")
+
+
+def _check_jwst_detector(det):
+    if det.n_out_active not in (1, 4) or det.naxis1 > 2048 or det.naxis2 > 2048:
+        raise ParameterError(
+            f"a JWST uncal needs a detector of at most 2048 x 2048 read through 1 or 4 "
+            f"outputs (NOUTPUTS); {det.name!r} is {det.naxis2} x {det.naxis1} with "
+            f"{det.n_out_active} outputs (an H4RG exposure: write a Roman L1 file, "
+            f"scenesim.pipelines.roman)")
+
+
+def _as_exposure(exposure):
+    if isinstance(exposure, Exposure):
+        return exposure
+    return Exposure.read(exposure)
+
+
+def uncal_model(exposure, *, date_obs=None):
+    """The JWST ``Level1bModel`` of a scenesim exposure (module notes).
+
+    Parameters
+    ----------
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
+    date_obs : str, keyword-only
+        Start of the exposure, ISO UTC; default :data:`DEFAULT_DATE_OBS`.
+
+    Returns
+    -------
+    stdatamodels.jwst.datamodels.Level1bModel
+    """
+    dm = _datamodels()
+    exp = _as_exposure(exposure)
+    hdr = exp.header
+    det = detector_from_header(hdr)
+    _check_jwst_detector(det)
+    ro = readout_from_table(hdr, exp.reads)
+    t_frame = float(hdr["TFRAME"])
+    ident = resolve_instrument(header_instrument(hdr), det, ro.name)
+    start = Time(date_obs or DEFAULT_DATE_OBS, format="isot", scale="utc")
+    day = 86400.0
+    nints = ro.nints
+    int_start = np.array([frame_slot(i, -1, ro.nreads) for i in range(nints)]) * t_frame
+    int_end = int_start + (ro.nreads + 1) * t_frame
+    m = dm.Level1bModel(data=np.ascontiguousarray(exp.sci, dtype=np.uint16))
+    meta = m.meta
+    meta.telescope = "JWST"
+    meta.filetype = "uncalibrated"
+    meta.observation.date = start.isot[:10]
+    meta.observation.time = start.isot[11:]
+    meta.instrument.name = ident["name"]
+    meta.instrument.detector = ident["detector"]
+    ex = meta.exposure
+    ex.type = ident["exp_type"]
+    ex.readpatt = ident["readpatt"]
+    ex.nints = nints
+    ex.ngroups = ro.ngroups
+    ex.nframes = int(ro.nframes if ro.is_multiaccum else len(ro.resultants[0]))
+    ex.groupgap = int(ro.groupgap if ro.is_multiaccum else hdr.get("GROUPGAP", 0))
+    ex.drop_frames1 = int(ro.nskip)
+    ex.frame_divisor = ex.nframes
+    ex.nresets_at_start = 1
+    ex.nresets_between_ints = 1
+    ex.frame_time = t_frame
+    ex.group_time = float(ro.tgroup(t_frame))
+    tbar = ro.mean_times(t_frame)
+    ex.integration_time = float(tbar[-1] - tbar[0]) if ro.ngroups > 1 else float(tbar[0])
+    ex.effective_exposure_time = ex.integration_time * nints
+    ex.exposure_time = float(int_end[-1] - int_start[0])
+    ex.duration = ex.exposure_time
+    ex.zero_frame = False
+    ex.noutputs = det.n_out_active
+    ex.start_time = start.mjd
+    ex.mid_time = start.mjd + ex.exposure_time / 2 / day
+    ex.end_time = start.mjd + ex.exposure_time / day
+    sub = meta.subarray
+    sub.name = ident["subarray"]
+    sub.xstart, sub.ystart = det.x0 + 1, det.y0 + 1
+    sub.xsize, sub.ysize = det.nx, det.ny
+    sub.fastaxis, sub.slowaxis = 1, 2
+    mjd0 = start.mjd
+    cols = [f"int_{when}_{scale}" for scale in ("MJD_UTC", "BJD_TDB")
+            for when in ("start", "mid", "end")]
+    times = np.zeros(nints, dtype=[("integration_number", ">i4")]
+                     + [(c, ">f8") for c in cols])
+    times["integration_number"] = np.arange(1, nints + 1)
+    for col, t in (("start", int_start), ("mid", (int_start + int_end) / 2),
+                   ("end", int_end)):
+        times[f"int_{col}_MJD_UTC"] = mjd0 + t / day
+        times[f"int_{col}_BJD_TDB"] = mjd0 + t / day
+    m.int_times = times
+    cards = [[k, v, hdr.comments[k]] for k, v in hdr.items()
+             if k not in _JWST_OWNED and k not in ("COMMENT", "HISTORY", "")]
+    cards += [["SSDETECT", det.name, "scenesim detector (preset) name"],
+              ["SSREADPT", ro.name, "scenesim readout pattern name"]]
+    reads = Table(exp.reads)
+    reads_cards = [[str(k)[:8].upper(), v, ""] for k, v in reads.meta.items()
+                   if isinstance(v, (bool, int, float, str))]
+    ny, nx = det.shape
+    m.extra_fits = {
+        "PRIMARY": {"header": cards},
+        "PIXELDQ": {"data": np.zeros((ny, nx), dtype=np.uint32)},
+        "GROUPDQ": {"data": np.zeros(exp.sci.shape, dtype=np.uint8)},
+        "READS": {"data": reads.as_array(), "header": reads_cards},
+    }
+    return m
+
+
+def write_uncal(exposure, path, *, date_obs=None, overwrite=False):
+    """Write the JWST uncal file of a scenesim exposure (module notes).
+
+    Parameters
+    ----------
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
+    path : str or os.PathLike
+        Output ``.fits`` file, written atomically.
+    date_obs : str, keyword-only
+        Exposure start, ISO UTC (default :data:`DEFAULT_DATE_OBS`).
+    overwrite : bool, keyword-only
+
+    Returns
+    -------
+    str
+        ``path``.
+    """
+    path = check_writable("uncal path", path, overwrite=overwrite)
+    model = uncal_model(exposure, date_obs=date_obs)
+    _save_fits(model, path, overwrite)
+    return path
+
+
+def _save_fits(model, path, overwrite):
+    """Write a data model to ``path`` atomically (its FILENAME is ``path``'s name)."""
+    model.meta.filename = os.path.basename(os.fspath(path))
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as f:
+        model.to_fits(f)
+        model.meta.filename = os.path.basename(os.fspath(path))
+    model.close()
+
+
+# ------------------------------------------------------------------ reference files
+def _ref_meta(model, reftype, ident, det, description):
+    meta = model.meta
+    meta.reftype = reftype.upper()
+    meta.description = description
+    meta.author = "scenesim"
+    meta.pedigree = "DUMMY"
+    meta.useafter = "2000-01-01T00:00:00"
+    meta.telescope = "JWST"
+    meta.instrument.name = ident["name"]
+    meta.instrument.detector = ident["detector"]
+    try:                                  # not every reference schema has these
+        meta.subarray.name = ident["subarray"]
+        meta.subarray.xstart, meta.subarray.ystart = det.x0 + 1, det.y0 + 1
+        meta.subarray.xsize, meta.subarray.ysize = det.nx, det.ny
+        meta.subarray.fastaxis, meta.subarray.slowaxis = 1, 2
+    except AttributeError:
+        pass
+    try:
+        meta.exposure.type = ident["exp_type"]
+        meta.exposure.readpatt = "ANY"
+    except AttributeError:
+        pass
+
+
+def write_reference_files(reference, readout, t_frame, directory, *, instrument=None,
+                          overwrite=False):
+    """Write the JWST reference files of a simulated detector (module notes).
+
+    Parameters
+    ----------
+    reference : scenesim.pipelines.reffiles.DetectorReference
+    readout : scenesim.detector.readout.Readout
+        The exposure's readout (MULTIACCUM: the dark is written in its pattern).
+    t_frame : float
+        Frame time, s.
+    directory : str or os.PathLike
+        Created if missing; files ``jwst_<type>.fits``.
+    instrument : scenesim.pipelines.instrument.InstrumentConfig or None, keyword-only
+    overwrite : bool, keyword-only
+
+    Returns
+    -------
+    dict
+        ``{reftype: path}`` (``ipc`` only when the detector has IPC).
+    """
+    dm = _datamodels()
+    det = reference.detector
+    _check_jwst_detector(det)
+    if not readout.is_multiaccum:
+        raise ParameterError(
+            f"the dark reference is written in the exposure's MULTIACCUM pattern; "
+            f"readout {readout.name!r} is not one")
+    ident = resolve_instrument(instrument, det, readout.name)
+    types = [t for t in REFERENCE_TYPES if t != "ipc" or reference.has_ipc]
+    paths = {t: os.path.join(os.fspath(directory), f"jwst_{t}.fits") for t in types}
+    os.makedirs(directory, exist_ok=True)
+    for t, path in paths.items():
+        check_writable(f"{t} reference", path, overwrite=overwrite)
+    g = reference.gain
+    shape = det.shape
+    f32 = np.float32
+    dq0 = np.zeros(shape, dtype=np.uint32)
+    nc = reference.linearity.size
+    makers = {
+        "gain": lambda: (dm.GainModel(data=np.full(shape, g, dtype=f32)),
+                         "gain (e-/DN) of the simulated ADC"),
+        "readnoise": lambda: (dm.ReadnoiseModel(data=np.asarray(
+            stcal_read_noise(reference.read_noise, g), dtype=f32)),
+            "white read noise: CDS of two frames, DN"),
+        "saturation": lambda: (dm.SaturationModel(
+            data=(reference.saturation / g).astype(f32), dq=dq0.copy()),
+            "full-well level, raw DN with bias"),
+        "superbias": lambda: (dm.SuperBiasModel(
+            data=(_superbias(reference) / g).astype(f32), err=np.zeros(shape, dtype=f32),
+            dq=dq0.copy()), "mean reset level (bias), DN"),
+        "linearity": lambda: (dm.LinearityModel(
+            coeffs=np.broadcast_to(reference.linearity.astype(f32)[:, None, None],
+                                   (nc,) + shape).copy(), dq=dq0.copy()),
+            "inverse of the simulated nonlinearity"),
+        "dark": lambda: (_dark_model(dm, reference, readout, t_frame),
+                         "dark current and hot pixels, DN per group"),
+        "mask": lambda: (dm.MaskModel(dq=reference.mask.astype(np.uint32)),
+                         "reference and hot pixels"),
+        "ipc": lambda: (dm.IPCModel(data=reference.ipc_inverse.astype(f32)),
+                        "IPC correction: inverse kernel, convolved"),
+    }
+    for t in types:
+        model, description = makers[t]()
+        _save_ref(model, t, ident, det, description, paths[t], overwrite)
+    return paths
+
+
+def _ipc_convolve(image, kernel, refmask):
+    """What JWST's ``ipc`` step does to one frame (``jwst.ipc.ipc_corr.ipc_convolve``):
+    the science region (inside the reference border) is convolved with ``kernel``,
+    zero outside it; reference pixels are left as they are."""
+    from scipy.ndimage import convolve
+    rows = np.flatnonzero(~refmask.all(axis=1))
+    cols = np.flatnonzero(~refmask.all(axis=0))
+    out = np.array(image, dtype=np.float64)
+    if rows.size and cols.size:
+        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        out[y0:y1, x0:x1] = convolve(out[y0:y1, x0:x1], kernel, mode="constant",
+                                     cval=0.0)
+    return out
+
+
+def _superbias(reference):
+    """The bias as the superbias step meets it: after the ``ipc`` step when the
+    detector has IPC (that step runs first and convolves the bias too)."""
+    if not reference.has_ipc:
+        return reference.bias
+    return _ipc_convolve(reference.bias, reference.ipc_inverse,
+                         reference.detector.reference_mask())
+
+
+def _dark_model(dm, reference, readout, t_frame):
+    """DarkModel in the exposure's MULTIACCUM pattern: group ``g`` is the mean over
+    its reads ``k`` of ``dark * (k + 1) * t_frame / gain`` (DN)."""
+    mean_k = np.array([np.mean(np.asarray(r, dtype=np.float64) + 1.0)
+                       for r in readout.resultants])
+    cube = (mean_k[:, None, None] * (float(t_frame) / reference.gain)) \
+        * reference.dark[None, :, :]
+    model = dm.DarkModel(data=cube.astype(np.float32),
+                         err=np.zeros(cube.shape, dtype=np.float32),
+                         dq=np.zeros(reference.detector.shape, dtype=np.uint32))
+    model.meta.exposure.nframes = int(readout.nframes)
+    model.meta.exposure.groupgap = int(readout.groupgap)
+    model.meta.exposure.ngroups = int(readout.ngroups)
+    model.meta.exposure.nints = 1
+    return model
+
+
+def _save_ref(model, reftype, ident, det, description, path, overwrite):
+    _ref_meta(model, reftype, ident, det, description)
+    model.validate()
+    _save_fits(model, path, overwrite)
+    # read back with strict validation: the file is what the step will open
+    dm = _datamodels()
+    with dm.open(path, strict_validation=True):
+        pass
+
+
+# ------------------------------------------------------------------ the pipeline
+#: The CRDS context recorded in the pipeline's outputs (``CRDS_CTX``): none was used.
+OFFLINE_CONTEXT = "N/A"
+
+
+@contextlib.contextmanager
+def offline_crds():
+    """Environment in which stpipe and CRDS never reach the network (module notes);
+    the previous values are restored afterwards.
+
+    Besides the environment, stpipe's ``crds_client.get_context_used`` (which asks
+    the CRDS server which context *would* apply, only to record it in the output
+    header) answers :data:`OFFLINE_CONTEXT` while inside: no context was used, since
+    every reference is an override.
+    """
+    from stpipe import crds_client
+    keys = ("CRDS_PATH", "CRDS_SERVER_URL", "CRDS_MODE", "STPIPE_DISABLE_CRDS_STEPPARS")
+    saved = {k: os.environ.get(k) for k in keys}
+    saved_context = crds_client.get_context_used
+    with tempfile.TemporaryDirectory(prefix="scenesim-crds-") as cache:
+        os.environ.update({"CRDS_PATH": cache,
+                           "CRDS_SERVER_URL": "https://crds.invalid",
+                           "CRDS_MODE": "local", "STPIPE_DISABLE_CRDS_STEPPARS": "True"})
+        crds_client.get_context_used = lambda observatory: OFFLINE_CONTEXT
+        try:
+            yield cache
+        finally:
+            crds_client.get_context_used = saved_context
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+
+def detector1_products(uncal, output_dir):
+    """``{'rate': path, 'rateints': path}`` that Detector1 writes for ``uncal`` in
+    ``output_dir`` (the stem without ``_uncal``)."""
+    stem = os.path.basename(os.fspath(uncal))
+    if stem.endswith(".fits"):
+        stem = stem[:-len(".fits")]
+    if stem.endswith("_uncal"):
+        stem = stem[:-len("_uncal")]
+    return {kind: os.path.join(os.fspath(output_dir), f"{stem}_{kind}.fits")
+            for kind in ("rate", "rateints")}
+
+
+def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
+                  steps=None, overwrite=False):
+    """Run ``calwebb_detector1`` on ``uncal`` offline with scenesim's references.
+
+    Parameters
+    ----------
+    uncal : str
+        A JWST uncal file (:func:`write_uncal`).
+    references : dict
+        ``{reftype: path}`` (:func:`write_reference_files`); a step whose reference is
+        missing is skipped (``ipc`` without IPC).
+    output_dir : str
+        Where the pipeline writes ``<stem>_rate.fits`` and ``<stem>_rateints.fits``.
+    save_calibrated_ramp : bool, keyword-only
+        Also keep the calibrated ramp (``<stem>_ramp.fits``).
+    steps : dict or None, keyword-only
+        Extra step parameters, merged over scenesim's (e.g.
+        ``{"jump": {"rejection_threshold": 5}}``).
+    overwrite : bool, keyword-only
+        Replace existing rate files (default: refuse them, before running).
+
+    Returns
+    -------
+    dict
+        ``rate`` and ``rateints`` paths (``rateints`` None when not written).
+    """
+    products = detector1_products(uncal, output_dir)
+    if os.path.isdir(output_dir):
+        for path in products.values():
+            check_writable("Detector1 output", path, overwrite=overwrite)
+    need = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark", "mask")
+    missing = [t for t in need if t not in references]
+    if missing:
+        raise ParameterError(f"'references' lacks {missing}; write them with "
+                             f"write_reference_files")
+    cfg = {name: {"skip": True} for name in SKIPPED_STEPS}
+    for step, reftypes in (("dq_init", ("mask",)),
+                           ("saturation", ("saturation", "superbias")),
+                           ("superbias", ("superbias",)), ("linearity", ("linearity",)),
+                           ("dark_current", ("dark",)), ("jump", ("gain", "readnoise")),
+                           ("ramp_fit", ("gain", "readnoise")), ("gain_scale", ("gain",)),
+                           ("ipc", ("ipc",))):
+        if all(t in references for t in reftypes):
+            cfg[step] = {f"override_{t}": os.fspath(references[t]) for t in reftypes}
+        else:
+            cfg[step] = {"skip": True}
+    for name, pars in (steps or {}).items():
+        cfg.setdefault(name, {}).update(pars)
+    os.makedirs(output_dir, exist_ok=True)
+    with offline_crds():
+        from jwst.pipeline import Detector1Pipeline
+        pipe = Detector1Pipeline(steps=cfg)
+        pipe.prefetch_references = False
+        pipe.output_dir = os.fspath(output_dir)
+        pipe.save_results = True
+        pipe.save_calibrated_ramp = save_calibrated_ramp
+        result = pipe.run(os.fspath(uncal))
+        result.close()
+    rate, rateints = products["rate"], products["rateints"]
+    if not os.path.exists(rate):
+        raise FileFormatError(f"Detector1 wrote no rate file {rate!r}")
+    return {"rate": rate, "rateints": rateints if os.path.exists(rateints) else None}

@@ -1,0 +1,165 @@
+"""Reading what the pipelines write, for ``compare``.
+
+* :func:`fit_header`: the primary header of a slope file: FITS (scenesim fits, JWST
+  ``rate``/``rateints``) or, for a Roman L2 ASDF file, the FITS-like cards ``compare``
+  reads (``S_IPC``/``S_DARK`` from its ``cal_step``).
+* :func:`subtracted_dark_rate`: the dark rate a JWST pipeline subtracted.  When
+  ``S_DARK = 'COMPLETE'`` the rate file lacks the dark current and hot pixels the
+  truth includes; the dark reference it names (``R_DARK``) gives what was taken out:
+  a linear dark ramp changes any linear fit's slope by exactly its own slope, which
+  is ``(SCI[-1] - SCI[0]) / ((ngroups - 1) (nframes + groupgap) t_frame)`` DN/s.
+* :func:`subtract_dark`: the truth with that dark removed (``RATE``, and ``RATE_IPC``
+  by the dark seen through the IPC kernel), so ``compare`` grades what the pipeline
+  was asked to recover.
+* :func:`read_roman_l2`: a Roman L2 (``ImageModel``) file as the dict of
+  :func:`scenesim.io.fitfile.read_slopes` (``data`` DN/s, ``var_poisson`` +
+  ``var_rnoise``, or ``err``, ``dq``), converted to e- with the truth's gain and put
+  back on the read-out grid: romancal trims a 4-pixel border from every side, which
+  comes back flagged ``REFERENCE_PIXEL | DO_NOT_USE`` (not graded).  romancal stores
+  the variances as float16 (3 significant digits), which ``chi2_rep`` inherits.
+"""
+
+import os
+
+import numpy as np
+from astropy.io import fits
+
+from noise.errors import FileFormatError, ParameterError
+
+from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
+from scenesim.detector.ipc import apply_ipc
+from scenesim.io.header import header_ipc_kernel, header_jwst_steps
+
+__all__ = ["fit_header", "subtracted_dark_rate", "subtract_dark", "read_roman_l2",
+           "is_asdf", "ROMAN_BORDER"]
+
+#: Border that romancal's ramp fit trims from every side of the L2 image, pixels
+#: (``romancal.ramp_fitting.ramp_fit_step``: ``[4:-4, 4:-4]``).
+ROMAN_BORDER = 4
+
+
+def is_asdf(path):
+    """True for a path ending in ``.asdf``."""
+    return os.fspath(path).lower().endswith(".asdf")
+
+
+def _open_roman(path):
+    try:
+        import roman_datamodels as rdm
+    except ImportError as exc:              # pragma: no cover - depends on the extra
+        raise ParameterError("reading a Roman L2 file needs the optional 'roman' "
+                             "extra (roman_datamodels)") from exc
+    try:
+        return rdm.open(os.fspath(path))
+    except Exception as exc:          # asdf raises many types for a bad file
+        raise FileFormatError(f"{os.fspath(path)!r} is not a Roman datamodels ASDF "
+                              f"file: {exc}") from exc
+
+
+def fit_header(path):
+    """The primary header of a slope file (FITS), or the cards ``compare`` reads from
+    a Roman L2 ASDF file (``S_IPC``, ``S_DARK``: ``'COMPLETE'`` when that step ran)."""
+    if not is_asdf(path):
+        return fits.getheader(os.fspath(path))
+    hdr = fits.Header()
+    with _open_roman(path) as m:
+        steps = m.meta.cal_step
+        for key, name in (("S_IPC", "ipc"), ("S_DARK", "dark")):
+            value = str(getattr(steps, name, "INCOMPLETE")) if name in steps else \
+                "INCOMPLETE"
+            hdr[key] = value
+    return hdr
+
+
+def subtracted_dark_rate(header, t_frame, gain):
+    """Dark rate (e-/s, (ny, nx)) a JWST pipeline took out of a rate file, or None.
+
+    Parameters
+    ----------
+    header : astropy.io.fits.Header
+        The rate file's primary header (``S_DARK``, ``R_DARK``).
+    t_frame : float
+        Frame time, s (the truth's ``TFRAME``).
+    gain : float
+        e-/DN.
+
+    Returns
+    -------
+    (ndarray or None, str)
+        The rate and a note for the report.
+    """
+    if "dark_current" not in header_jwst_steps(header):
+        return None, ""
+    path = str(header.get("R_DARK", "")).strip()
+    if path.startswith("crds://") or not os.path.isfile(path):
+        return None, (f"the pipeline subtracted a dark (R_DARK = {path!r}) that is not "
+                      f"readable here: the truth still includes dark current and hot "
+                      f"pixels")
+    with fits.open(path) as hdul:
+        sci = np.asarray(hdul["SCI"].data, dtype=np.float64)
+        h = hdul[0].header
+        nframes, groupgap = int(h.get("NFRAMES", 1)), int(h.get("GROUPGAP", 0))
+    if sci.ndim != 3 or sci.shape[0] < 2:
+        raise FileFormatError(f"dark reference {path!r}: SCI must be (ngroups >= 2, ny, "
+                              f"nx), got {sci.shape}")
+    span = (sci.shape[0] - 1) * (nframes + groupgap) * float(t_frame)
+    rate = (sci[-1] - sci[0]) / span * float(gain)
+    return rate, (f"the pipeline subtracted the dark {os.path.basename(path)}: compared "
+                  f"with the truth minus its rate")
+
+
+def subtract_dark(truth, dark):
+    """A copy of ``truth`` (:func:`scenesim.io.exposure.read_truth`) without ``dark``
+    (e-/s, before IPC): ``RATE - dark`` and ``RATE_IPC - IPC(dark)``."""
+    out = dict(truth)
+    if "RATE" in out:
+        out["RATE"] = np.asarray(out["RATE"], dtype=np.float64) - dark
+    if "RATE_IPC" in out:
+        kernel = header_ipc_kernel(truth["header"])
+        seen = dark if kernel is None else apply_ipc(dark, kernel)
+        out["RATE_IPC"] = np.asarray(out["RATE_IPC"], dtype=np.float64) - seen
+    return out
+
+
+def read_roman_l2(path, *, gain):
+    """A Roman L2 file as the dict :func:`scenesim.io.fitfile.read_slopes` returns.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ASDF file of a ``roman_datamodels`` ``ImageModel`` (``data`` DN/s, ``dq``,
+        ``var_poisson``, ``var_rnoise`` (DN/s)^2, or ``err``).
+    gain : float, keyword-only
+        e-/DN.
+
+    Returns
+    -------
+    dict
+        ``slope``, ``var`` (e-/s, (e-/s)^2), ``dq``, ``chi2`` (None), ``read_noise``
+        (None), ``layout`` (``'roman'``).
+    """
+    if not (gain is not None and np.isfinite(gain) and gain > 0):
+        raise ParameterError(f"'gain' (e-/DN, > 0) is needed to convert the Roman L2 "
+                             f"file {os.fspath(path)!r} to e-/s, got {gain!r}")
+    with _open_roman(path) as m:
+        slope = np.asarray(m.data, dtype=np.float64)
+        if "var_rnoise" in m and "var_poisson" in m:
+            var = np.asarray(m.var_poisson, dtype=np.float64) + np.asarray(
+                m.var_rnoise, dtype=np.float64)
+        else:
+            var = np.asarray(m.err, dtype=np.float64) ** 2
+        dq = np.asarray(m.dq).astype(np.uint32)
+    # romancal's ramp fit trims the 4-pixel border ([4:-4, 4:-4]) whatever the
+    # array; put the L2 back on the read-out grid, the border flagged as reference
+    # (not graded) and DO_NOT_USE
+    b = ROMAN_BORDER
+    full = tuple(n + 2 * b for n in slope.shape)
+    pad = ((b, b), (b, b))
+    slope = np.pad(slope, pad)
+    var = np.pad(var, pad, constant_values=np.inf)
+    dq = np.pad(dq, pad, constant_values=np.uint32(REFERENCE_PIXEL | DO_NOT_USE))
+    assert slope.shape == full
+    g = float(gain)
+    return {"slope": np.nan_to_num(slope * g, nan=0.0),
+            "var": np.nan_to_num(var * g * g, nan=np.inf, posinf=np.inf),
+            "dq": dq, "chi2": None, "read_noise": None, "layout": "roman"}

@@ -1,0 +1,269 @@
+"""Roman: Level 1 ASDF files, the detector's references, and romancal's ramp fit offline.
+
+Needs the optional ``roman`` extra (``roman_datamodels``, ``romancal``); imported only
+when used.
+
+The L1 file (:func:`write_l1`)
+------------------------------
+A ``roman_datamodels`` ``ScienceRawModel`` (``WfiScienceRaw``), made with the models'
+own ``create_fake_data`` (every required field present) and then filled:
+
+* ``data``: the exposure's resultants, uint16 DN, (nresultants, ny, nx) (Roman has
+  one integration per exposure: a multi-integration exposure is refused);
+* ``meta.exposure.read_pattern``: the reads of each resultant, counted from 1 as
+  romancal counts them (read ``k`` at ``k * frame_time`` after the reset): scenesim's
+  0-based read ``k`` (at ``(k + 1) t_frame``, rolling reset) is romancal's ``k + 1``,
+  so the resultant times agree exactly; ``frame_time`` = scenesim's ``TFRAME``;
+  ``nresultants``, ``ma_table_name`` (the pattern name), ``exposure_time`` and
+  ``effective_exposure_time``;
+* ``amp33``: the reference output (below), uint16 DN, (nresultants, ny, 128).
+
+The amp33 reference channel
+---------------------------
+What public documents say of it: the WFI's H4RG-10s are read through 32 science
+outputs of 128 columns each plus a 33rd output that reads no pixel, clocked in step
+with the others, so it records the electronics' noise without any charge (romancal's
+``refpix`` step uses it, with the reference pixels, against correlated read noise;
+the ``rad`` schema ``wfi_science_raw`` gives ``amp33`` the shape of one output,
+(n_resultants, 4096, 128)).  scenesim models only what follows from that: no charge,
+the bias offset (``BIASOFF``), the per-frame pedestal (``PEDESTAL``, common to every
+output) and white noise at the reference-pixel level (``RDNOISE * REFRATIO``), each
+read drawn independently (from the exposure seed's stream ``(33,)``), averaged over
+the resultant's reads and digitised like the pixels.  The correlated 1/f time line
+the real channel shares with the science outputs is **not** in it (the exposure's
+noise realisation is not kept), so romancal's ``refpix`` must not be run on these
+files: amp33 gives the file its complete layout, not a usable correction.
+
+References (:func:`write_reference_files`)
+------------------------------------------
+``roman_gain.asdf`` (``GainRefModel``, e-/DN), ``roman_readnoise.asdf``
+(``ReadnoiseRefModel``: DN **per read**, which is what romancal's ramp fitting
+multiplies by the gain and hands to stcal's Casertano/likelihood fitters) and
+``roman_mask.asdf`` (``MaskRefModel``: reference and hot pixels, the JWST/Roman DQ
+bits), from :func:`scenesim.pipelines.reffiles.detector_reference`.
+
+The ramp fit (:func:`run_ramp_fit`)
+-----------------------------------
+romancal's ``DQInitStep`` (``override_mask``: the L1 becomes a ``RampModel``, border
+reference pixels set aside) then ``RampFitStep`` (``override_gain``,
+``override_readnoise``), offline (CRDS disabled as in
+:func:`scenesim.pipelines.jwst.offline_crds`); the L2 ``ImageModel`` is saved as ASDF, and
+``scenesim compare L2.asdf TRUTH`` grades it
+(:func:`scenesim.pipelines.products.read_roman_l2`).
+The rest of romancal's ``ExposurePipeline`` (dq_init, saturation, refpix,
+linearity, dark, ...) needs Roman reference files in formats scenesim does not write
+yet, so it is not run: grade scenes without bias structure, nonlinearity or IPC, or
+read the result as "ramp fitting only".
+"""
+
+import os
+import tempfile
+
+import numpy as np
+
+from noise.clock import detector_from_header
+from noise.errors import ParameterError
+from noise.validate import check_writable
+
+from scenesim.io.exposure import Exposure
+from scenesim.io.header import readout_from_table
+
+__all__ = ["write_l1", "l1_model", "write_reference_files", "run_ramp_fit",
+           "read_pattern", "AMP33_COLUMNS"]
+
+#: Columns of the amp33 reference output (one science output's width on the WFI).
+AMP33_COLUMNS = 128
+
+
+def _rdm():
+    try:
+        import roman_datamodels.datamodels as rdd
+    except ImportError as exc:              # pragma: no cover - depends on the extra
+        raise ImportError("Roman files need the optional 'roman' extra: pip install "
+                          "'scenesim[roman]' (roman_datamodels, romancal)") from exc
+    return rdd
+
+
+def read_pattern(readout):
+    """romancal's ``read_pattern`` of a scenesim readout: 1-based read indices."""
+    return [[int(k) + 1 for k in res] for res in readout.resultants]
+
+
+def _amp33(header, readout, t_frame, det, shape, gain, adc_top, rng):
+    """The amp33 samples (module notes), uint16 DN, (nresultants, ny, 128)."""
+    from noise.params import NoiseParams
+    ny = shape[0]
+    rd = 0.0
+    nres = readout.ngroups
+    params = None
+    try:
+        rd = float(header.get("RDNOISE", 0.0)) if not isinstance(
+            header.get("RDNOISE", 0.0), str) else 0.0
+        params = NoiseParams().replace(
+            rd_noise=rd, ref_ratio=float(header.get("REFRATIO", 0.8)),
+            pedestal=float(header.get("PEDESTAL", 0.0)),
+            bias_offset=float(header.get("BIASOFF", 0.0)))
+    except (ValueError, TypeError):
+        params = None
+    out = np.zeros((nres, ny, AMP33_COLUMNS), dtype=np.float64)
+    if params is not None:
+        white = rd * params.ref_ratio
+        for r, reads in enumerate(readout.resultants):
+            acc = np.zeros((ny, AMP33_COLUMNS))
+            for _ in reads:
+                acc += rng.standard_normal((ny, AMP33_COLUMNS)) * white
+                acc += rng.standard_normal() * params.pedestal
+            out[r] = acc / len(reads) + params.bias_offset
+    return np.clip(np.rint(out / gain), 0, adc_top).astype(np.uint16)
+
+
+def l1_model(exposure, *, rng=None):
+    """The Roman L1 ``ScienceRawModel`` of a scenesim exposure (module notes).
+
+    Parameters
+    ----------
+    exposure : str, os.PathLike or scenesim.io.exposure.Exposure
+    rng : numpy.random.Generator, int, SeedSequence or None, keyword-only
+        Draws of the amp33 channel's white noise; default the exposure's seed.
+    """
+    rdd = _rdm()
+    exp = exposure if isinstance(exposure, Exposure) else Exposure.read(exposure)
+    hdr = exp.header
+    det = detector_from_header(hdr)
+    ro = readout_from_table(hdr, exp.reads)
+    if ro.nints != 1:
+        raise ParameterError(f"a Roman L1 file holds one integration; the exposure has "
+                             f"nints = {ro.nints}")
+    t_frame = float(hdr["TFRAME"])
+    gain = float(hdr["GAIN"])
+    sci = np.asarray(exp.sci[0], dtype=np.uint16)
+    nres, ny, nx = sci.shape
+    if rng is None:
+        rng = np.random.SeedSequence(int(hdr.get("SEED", 0)), spawn_key=(33,))
+    rng = np.random.default_rng(rng)
+    m = rdd.ScienceRawModel.create_fake_data(shape=(nres, ny, nx))
+    m.data = sci
+    m.amp33 = _amp33(hdr, ro, t_frame, det, (ny, nx), gain,
+                     int(2 ** int(hdr.get("ADCBITS", 16)) - 1), rng)
+    ex = m.meta.exposure
+    ex.type = "WFI_IMAGE"
+    ex.read_pattern = read_pattern(ro)
+    ex.nresultants = nres
+    ex.frame_time = t_frame
+    ex.ma_table_name = ro.name
+    ex.ma_table_number = 0
+    tbar = ro.mean_times(t_frame)
+    ex.exposure_time = float((ro.nreads + 1) * t_frame)
+    ex.effective_exposure_time = float(tbar[-1] - tbar[0])
+    m.meta.filename = "l1.asdf"
+    return m
+
+
+def _save_asdf(model, path, overwrite):
+    """Write ``model`` to ``path`` atomically: into a hidden temporary directory beside
+    it under its final name (the models record the name they are written under),
+    then renamed into place."""
+    path = os.fspath(path)
+    check_writable("output path", path, overwrite=overwrite)
+    parent = os.path.dirname(os.path.abspath(path))
+    with tempfile.TemporaryDirectory(prefix=".scenesim-", dir=parent) as tmpdir:
+        tmp = os.path.join(tmpdir, os.path.basename(path))
+        model.to_asdf(tmp)
+        os.replace(tmp, path)
+
+
+def write_l1(exposure, path, *, overwrite=False):
+    """Write the Roman L1 ASDF file of a scenesim exposure; returns ``path``."""
+    path = check_writable("L1 path", path, overwrite=overwrite)
+    if not os.fspath(path).endswith(".asdf"):
+        raise ParameterError(f"'path' of a Roman L1 file must end in '.asdf', got "
+                             f"{os.fspath(path)!r}")
+    m = l1_model(exposure)
+    m.validate()
+    _save_asdf(m, path, overwrite)
+    return path
+
+
+def write_reference_files(reference, directory, *, overwrite=False):
+    """Write ``roman_gain.asdf``, ``roman_readnoise.asdf`` and ``roman_mask.asdf``
+    (module notes).
+
+    Returns
+    -------
+    dict
+        ``{reftype: path}``.
+    """
+    rdd = _rdm()
+    os.makedirs(directory, exist_ok=True)
+    paths = {t: os.path.join(os.fspath(directory), f"roman_{t}.asdf")
+             for t in ("gain", "readnoise", "mask")}
+    for t, p in paths.items():
+        check_writable(f"{t} reference", p, overwrite=overwrite)
+    shape = reference.detector.shape
+    g = reference.gain
+    data = {"gain": np.full(shape, g, dtype=np.float32),
+            "readnoise": (reference.read_noise / g).astype(np.float32),
+            "mask": reference.mask.astype(np.uint32)}
+    for t, cls in (("gain", rdd.GainRefModel), ("readnoise", rdd.ReadnoiseRefModel),
+                   ("mask", rdd.MaskRefModel)):
+        m = cls.create_fake_data(shape=shape)
+        if t == "mask":
+            m.dq = data[t]
+        else:
+            m.data = data[t]
+        m.meta.description = f"scenesim: {t} of the simulated detector"
+        m.meta.author = "scenesim"
+        m.meta.pedigree = "DUMMY"
+        m.validate()
+        _save_asdf(m, paths[t], overwrite)
+    return paths
+
+
+def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
+    """Fit the ramps of a Roman L1 file with romancal, offline; write the L2 ASDF.
+
+    Parameters
+    ----------
+    l1 : str
+        L1 ASDF file (:func:`write_l1`).
+    references : dict
+        ``{'gain': path, 'readnoise': path, 'mask': path}``
+        (:func:`write_reference_files`).
+    path : str
+        Output L2 ``.asdf`` file.
+    algorithm : {'likely', 'ols_cas22'}, keyword-only
+        romancal's fitter (``ols_cas22`` is deprecated in romancal 1.1).
+    overwrite : bool, keyword-only
+
+    Returns
+    -------
+    str
+        ``path``.
+    """
+    rdd = _rdm()
+    missing = [t for t in ("gain", "readnoise", "mask") if t not in references]
+    if missing:
+        raise ParameterError(f"'references' lacks {missing}")
+    path = check_writable("L2 path", path, overwrite=overwrite)
+    from scenesim.pipelines.jwst import offline_crds
+    with offline_crds():
+        from romancal.dq_init import DQInitStep
+        from romancal.ramp_fitting import RampFitStep
+        dq_init = DQInitStep(override_mask=os.fspath(references["mask"]))
+        dq_init.prefetch_references = False
+        ramp = dq_init.run(os.fspath(l1))
+        step = RampFitStep(algorithm=algorithm, include_var_rnoise=True,
+                           override_gain=os.fspath(references["gain"]),
+                           override_readnoise=os.fspath(references["readnoise"]))
+        step.prefetch_references = False
+        result = step.run(ramp)
+    # an L2 file requires 'wcs' (null allowed) and 'photometry', which romancal's
+    # assign_wcs and photom steps (not run: no scenesim references) would add
+    meta = result.meta
+    if "wcs" not in meta:
+        meta["wcs"] = None
+    if "photometry" not in meta:
+        meta["photometry"] = rdd.ImageModel.create_fake_data(
+            shape=result.data.shape).meta.photometry
+    _save_asdf(result, path, overwrite)
+    return path

@@ -1,0 +1,157 @@
+"""JWST: strict-valid uncal files of every example scene, strict-valid reference files,
+and Detector1 run offline on a small subarray, graded by ``compare`` (needs the
+``jwst`` extra; skipped without it)."""
+
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stdatamodels")
+pytest.importorskip("jwst")
+
+from stdatamodels.jwst import datamodels as dm  # noqa: E402
+
+from scenesim.io.exposure import read_exposure  # noqa: E402
+from scenesim.pipelines import jwst  # noqa: E402
+from scenesim.pipelines.command import reference_paths  # noqa: E402
+from scenesim.validate.compare import compare_files  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+DATA = os.path.join(HERE, "..", "data", "pipelines")
+
+# third-party warnings of the pipeline packages (not scenesim's): deprecations inside
+# jwst/stpipe/asdf and numpy warnings of stcal on flagged pixels
+pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"),
+              pytest.mark.filterwarnings("ignore::PendingDeprecationWarning"),
+              pytest.mark.filterwarnings("ignore::RuntimeWarning"),
+              pytest.mark.filterwarnings("ignore::UserWarning")]
+
+SMALL = ("quick", "bright_star", "cosmic_rays", "transit")
+LARGE_JWST = ("h2rg_starfield", "nirspec_dark")
+
+
+def _scenesim(*args, cwd):
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", *args], cwd=cwd,
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    return res.stdout
+
+
+def _check_uncal(scene, tmp_path):
+    _scenesim("run", os.path.join(ROOT, "scenes", f"{scene}.toml"), "-o",
+              f"{scene}.fits", "--uncal", "-q", cwd=tmp_path)
+    path = tmp_path / f"{scene}_uncal.fits"
+    with dm.RampModel(str(path), strict_validation=True) as m:
+        sci, hdr, _ = read_exposure(str(tmp_path / f"{scene}.fits"))
+        # the resultants are the exposure's, unchanged
+        assert np.array_equal(m.data, sci.astype(np.float32))
+        assert m.meta.exposure.frame_time == hdr["TFRAME"]
+        assert m.meta.exposure.ngroups == hdr["NGROUPS"]
+        assert m.meta.exposure.nints == hdr["NINTS"]
+        assert m.meta.exposure.drop_frames1 == hdr["DROPFRM1"]
+        assert m.meta.exposure.frame_divisor == hdr["NFRAMES"]
+        assert len(m.int_times) == hdr["NINTS"]
+        assert m.meta.instrument.detector in ("NRCA1", "NRS1")
+    # the uncal is also a scenesim exposure
+    sci2, hdr2, reads2 = read_exposure(str(path))
+    assert np.array_equal(sci2, sci) and hdr2["GAIN"] == hdr["GAIN"]
+
+
+@pytest.mark.parametrize("scene", SMALL)
+def test_example_scene_uncal_passes_strict_validation(scene, tmp_path):
+    _check_uncal(scene, tmp_path)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", LARGE_JWST)
+def test_full_frame_scene_uncal_passes_strict_validation(scene, tmp_path):
+    _check_uncal(scene, tmp_path)
+
+
+def test_h4rg_has_no_jwst_uncal(tmp_path):
+    from scenesim.scene import load_scene
+    from scenesim.run import build_engine
+    scene = load_scene(os.path.join(DATA, "roman_loop.toml"))
+    engine, _ = build_engine(scene)
+    from noise.errors import ParameterError
+    from scenesim.pipelines.reffiles import detector_reference
+    with pytest.raises(ParameterError, match="Roman L1"):
+        jwst.write_reference_files(detector_reference(scene, engine), engine.readout,
+                                   engine.detector.frame_time, tmp_path / "r")
+
+
+@pytest.fixture(scope="module")
+def jwst_loop(tmp_path_factory):
+    """The CI loop: run (uncal + references), then Detector1 offline."""
+    d = tmp_path_factory.mktemp("jwst_loop")
+    shutil.copy(os.path.join(DATA, "jwst_loop.toml"), d)
+    _scenesim("run", "jwst_loop.toml", "--uncal", "--reffiles", "-q", cwd=d)
+    out = jwst.run_detector1(str(d / "jwst_loop_uncal.fits"),
+                             reference_paths(d / "jwst_loop_refs", "jwst"), str(d))
+    return d, out
+
+
+def test_reference_files_pass_strict_validation(jwst_loop):
+    d, _ = jwst_loop
+    refs = reference_paths(d / "jwst_loop_refs", "jwst")
+    assert set(refs) >= set(jwst.REFERENCE_TYPES)
+    for path in refs.values():
+        if path.endswith(".fits"):
+            with dm.open(path, strict_validation=True) as m:
+                assert m.meta.author == "scenesim"
+
+
+def test_detector1_runs_offline_and_compare_grades_it(jwst_loop):
+    d, out = jwst_loop
+    from astropy.io import fits
+    hdr = fits.getheader(out["rate"])
+    for key in ("S_DQINIT", "S_SATURA", "S_IPC", "S_SUPERB", "S_REFPIX", "S_LINEAR",
+                "S_DARK", "S_JUMP", "S_RAMP"):
+        assert hdr[key] == "COMPLETE", key
+    assert hdr["CRDS_CTX"] == jwst.OFFLINE_CONTEXT
+    report = compare_files(out["rate"], str(d / "jwst_loop_truth.fits"),
+                           exposure=str(d / "jwst_loop.fits"))
+    notes = " ".join(report.notes)
+    assert "subtracted the dark" in notes and "undid IPC" in notes
+    # every unsaturated flux bin holding >= 10 pixels: the pipeline's slopes are
+    # unbiased and its errors right, within what 1/f noise and one exposure allow
+    # (1 sigma of bias: se_bias is ~0.2-0.3 here; chi2 within 0.6..1.7)
+    graded = 0
+    for row in report.rows:
+        if row["n"] >= 10 and row["lo"] < 1e4:
+            graded += 1
+            assert abs(row["bias_rep"]) < 1.0, row
+            assert 0.6 < row["chi2_rep"] < 1.7, row
+    assert graded >= 3
+    # the bright star: aperture photometry within 1 %
+    assert report.photometry["median_ratio"] == pytest.approx(1.0, abs=0.01)
+
+
+def test_rateints_combine_to_the_rate(jwst_loop):
+    """A rateints file graded like the rate file: inverse-variance combination of the
+    integrations, the same bins to a few thousandths of sigma (saturated pixels
+    aside, which Detector1 combines over their usable groups instead)."""
+    d, out = jwst_loop
+    kw = dict(exposure=str(d / "jwst_loop.fits"))
+    rate = compare_files(out["rate"], str(d / "jwst_loop_truth.fits"), **kw)
+    ints = compare_files(out["rateints"], str(d / "jwst_loop_truth.fits"), **kw)
+    assert "fit layout: jwst-rateints" in ints.notes
+    for a, b in zip(rate.rows, ints.rows):
+        if a["n"] >= 10 and a["lo"] < 1e4:
+            assert b["n"] == a["n"]
+            assert abs(b["bias_rep"] - a["bias_rep"]) < 0.01
+            assert abs(b["chi2_rep"] / a["chi2_rep"] - 1) < 0.01
+
+
+def test_pipeline_command_prints_the_report(jwst_loop):
+    d, _ = jwst_loop
+    text = _scenesim("pipeline", "jwst", "jwst_loop_uncal.fits", "--refs",
+                     "jwst_loop_refs", "-o", "again", "--truth", "jwst_loop_truth.fits",
+                     "--exposure", "jwst_loop.fits", cwd=d)
+    assert "Slopes vs truth" in text and "fit layout: jwst" in text
+    assert os.path.exists(d / "again" / "jwst_loop_rate.fits")
