@@ -1,0 +1,67 @@
+"""``scenesim batch`` and ``scenesim compare --pool``: the command-line side.
+
+``scenesim batch SCENE_OR_BATCH --out DIR`` plans the batch
+(:func:`scenesim.batch.plan.plan_batch`), runs it (:func:`scenesim.batch.runner.run_batch`)
+and prints what ran and, with ``--compare``, the pooled tables
+(:func:`scenesim.batch.pool.format_pooled`); ``scenesim compare --pool DIR`` prints
+the pooled tables of a batch directory again.
+"""
+
+import os
+import sys
+
+from scenesim.batch.plan import plan_batch
+from scenesim.batch.pool import format_pooled, pool_directory
+from scenesim.batch.runner import run_batch
+
+__all__ = ["batch_command", "pool_command", "format_tables"]
+
+
+def format_tables(pooled, *, source=""):
+    """All pooled tables of a batch, one per grid point and fitter."""
+    blocks = []
+    for label, per in pooled.items():
+        for fitter, table in per.items():
+            where = f"{os.path.basename(source)} " if source else ""
+            point = f"grid point {label}, " if label else ""
+            blocks.append(format_pooled(table, title=f"Pooled: {where}{point}fitter "
+                                                      f"{fitter}"))
+    return "\n\n".join(blocks)
+
+
+def _fitters(values):
+    if values is None:
+        return None
+    return [f.strip() for v in values for f in v.split(",") if f.strip()]
+
+
+def batch_command(args):
+    """``scenesim batch``: run a batch; print its summary and pooled tables."""
+    plan = plan_batch(args.scene, out=args.out, realisations=args.realisations,
+                      seed=args.seed, fit=_fitters(args.fit), compare=args.compare,
+                      ramp=args.ramp, refpix=args.refpix)
+
+    def log(line):
+        if not args.quiet:
+            print(line, flush=True)
+
+    res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
+                    threads=args.threads, retries=args.retries,
+                    connect_timeout=args.connect_timeout,
+                    progress=not args.quiet and sys.stderr.isatty(), log=log)
+    n = len(res.ran)
+    rate = f" ({60 * n / res.seconds:.1f} exposures/min)" if n else ""
+    log(f"batch: {n} run, {len(res.skipped)} already finished, {len(res.failed)} "
+        f"failed, in {res.seconds:.1f} s{rate}; batch seed {plan.batch_seed} "
+        f"({plan.seed_source}); manifest {os.path.join(args.out, 'batch.json')}")
+    if res.pooled and not args.quiet:
+        print()
+        print(format_tables(res.pooled, source=plan.source))
+    return 0
+
+
+def pool_command(args):
+    """``scenesim compare --pool DIR``: the pooled tables of a batch directory."""
+    manifest, pooled = pool_directory(args.pool)
+    print(format_tables(pooled, source=manifest.get("source", "")))
+    return 0

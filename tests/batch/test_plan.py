@@ -1,0 +1,107 @@
+"""Batch planning: seeds spawned from the batch seed, grids over scene keys, and the
+errors of bad batch files, before anything runs (no dask needed)."""
+
+import numpy as np
+import pytest
+
+from noise.errors import ParameterError
+from scenesim.batch.plan import plan_batch, realisation_seed, spawn_key
+
+
+def test_realisation_seed_is_the_spawned_child():
+    """Realisation k of a one-point batch draws from SeedSequence(batch).spawn(N)[k]:
+    its seed is the top 63 bits of the first word that child generates."""
+    children = np.random.SeedSequence(2026).spawn(6)
+    for k, child in enumerate(children):
+        word = int(child.generate_state(1, np.uint64)[0])
+        assert realisation_seed(2026, spawn_key(0, k, 1)) == word >> 1
+    # grid point p, realisation k: spawn(P)[p].spawn(N)[k]
+    grand = np.random.SeedSequence(5).spawn(3)[2].spawn(4)[1]
+    assert realisation_seed(5, spawn_key(2, 1, 3)) == \
+        int(grand.generate_state(1, np.uint64)[0]) >> 1
+
+
+def test_seeds_are_distinct_and_do_not_depend_on_the_count(small_scene, tmp_path):
+    a = plan_batch(small_scene, out=tmp_path / "a", realisations=8).tasks()
+    b = plan_batch(small_scene, out=tmp_path / "b", realisations=3).tasks()
+    assert len({t.seed for t in a}) == 8
+    assert [t.seed for t in a[:3]] == [t.seed for t in b]
+    assert all(0 <= t.seed < 2 ** 63 for t in a)
+    # the scene's seed is the default batch seed; --seed overrides it
+    assert a[0].batch_seed == 777
+    c = plan_batch(small_scene, out=tmp_path / "c", realisations=2, seed=1).tasks()
+    assert c[0].seed != a[0].seed and c[0].batch_seed == 1
+
+
+def test_task_files_and_scene(small_scene, tmp_path):
+    plan = plan_batch(small_scene, out=tmp_path / "o", realisations=2,
+                      fit=["gls", "ols"], ramp=False)
+    t = plan.tasks()[1]
+    p = t.path
+    assert "exposure" not in p
+    assert p["truth"] == str(tmp_path / "o" / "r0001_truth.fits")
+    assert p["gls"] == str(tmp_path / "o" / "r0001_gls.fits")
+    assert p["record"] == str(tmp_path / "o" / "r0001.json")
+    assert t.scene.seed == t.seed
+
+
+def _batch_file(tmp_path, text):
+    path = tmp_path / "scenes" / "grid.toml"
+    path.write_text(text)
+    return path
+
+
+def test_grid_and_detectors_expand(small_scene, tmp_path):
+    path = _batch_file(tmp_path, """\
+scene = "small.toml"
+seed = 9
+realisations = 2
+[grid]
+"sources.background" = [0.5, 2.0]
+noise.rd_noise = [3.0, 6.0, 9.0]
+[[detectors]]
+name = "SCA01"
+[[detectors]]
+name = "SCA02"
+"sources.stars.1.flux" = 10.0
+""")
+    plan = plan_batch(path, out=tmp_path / "g")
+    assert len(plan.points) == 2 * 3 * 2 and plan.batch_seed == 9
+    tasks = plan.tasks()
+    assert len(tasks) == 24 and tasks[0].name == "p000/r0000"
+    assert len({t.seed for t in tasks}) == 24
+    scenes = {p.params: p.scene for p in plan.points}
+    sca2 = [s for k, s in scenes.items() if ("detector", "SCA02") in k]
+    assert all(s.sources.stars[1].flux == 10.0 for s in sca2)
+    assert {s.sources.background for s in scenes.values()} == {0.5, 2.0}
+    assert {float(np.atleast_1d(s.noise.rd_noise)[0]) for s in scenes.values()} == \
+        {3.0, 6.0, 9.0}
+
+
+@pytest.mark.parametrize("grid, match", [
+    ('"sources.backgroud" = [1.0]', r"'sources.backgroud'.*did you mean 'background'"),
+    ('"sourcs.background" = [1.0]', r"did you mean 'sources'"),
+    ('"seed" = [1, 2]', r"'seed'.*batch seed"),
+    ('"output.fit" = ["ols"]', r"'output.fit'.*batch"),
+    ('"sources.stars.5.flux" = [1.0]', r"'sources.stars.5.flux' is not a scene key"),
+    ('"sources.background.x" = [1.0]', r"is not a scene key"),
+    ('"sources.background" = []', r"non-empty list"),
+    ('"sources.background" = [-1.0]', r"background"),
+])
+def test_bad_grid_keys_are_refused_naming_the_key(small_scene, tmp_path, grid, match):
+    path = _batch_file(tmp_path, f'scene = "small.toml"\n[grid]\n{grid}\n')
+    with pytest.raises(ParameterError, match=match):
+        plan_batch(path, out=tmp_path / "g")
+    assert not (tmp_path / "g").exists()
+
+
+def test_bad_batch_files(small_scene, tmp_path):
+    with pytest.raises(ParameterError, match=r"unknown key 'realisation'.*realisations"):
+        plan_batch(_batch_file(tmp_path, 'scene = "small.toml"\nrealisation = 3\n'),
+                   out=tmp_path / "g")
+    with pytest.raises(ParameterError, match="'fit'.*'gls'"):
+        plan_batch(small_scene, out=tmp_path / "g", fit=["gsl"])
+    with pytest.raises(ParameterError, match="realisations"):
+        plan_batch(small_scene, out=tmp_path / "g", realisations=0)
+    with pytest.raises(ParameterError, match="compare.*fitter"):
+        plan_batch(small_scene, out=tmp_path / "g", fit=[], compare=True)
