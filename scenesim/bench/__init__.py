@@ -1,84 +1,99 @@
-"""Reference benchmarks: run time as a ratio to the random-number floor (DESIGN.md §7).
+"""Benchmarks: every number measured in the run that prints it (DESIGN.md §7, §9).
 
-Absolute times drift on a shared machine, so every number is reported next to a
-baseline measured in the same run, with the same number of threads:
+Absolute times drift on a shared machine, so every time is reported next to
+baselines measured in the same run, with the same number of threads:
 
 * the **random-number floor** of a workload (:mod:`scenesim.bench.floor`) is the time
   to draw, in bulk and with the same threads, the variates its exact model cannot
-  avoid;
+  avoid with numpy's samplers; a second floor draws them with scenesim's own;
+* the **limit** of a simulation workload (:mod:`scenesim.bench.limit`, issue 16) adds
+  to that second floor one inverse FFT per kept 1/f sample and one write of the output:
+  ``wall / limit`` is the distance left for the current method;
 * the ramp **fit** is not random-number bound: its baseline is the memory-bandwidth
   time of reading the resultant cube once (``np.sum``), labelled as such.
 
 The workloads themselves are :mod:`scenesim.bench.workloads`.  Each case runs in a
-fresh ``spawn`` subprocess, so ``ru_maxrss`` is the peak resident
-memory of that case alone (it includes the ~100 MB of the interpreter and imports,
-reported separately as ``base_rss``).  The floor is measured in the parent process
-right after the case.
+fresh process (``python -m scenesim.bench.child``, :mod:`scenesim.bench.process`):
+the **in-process** time is the work the workload times (engine and write, or the fit);
+the **process** time is what a user waits for: the interpreter, the imports, the
+set-up, the work and the write, from start to exit, with the process's CPU and peak
+resident memory (``os.wait4``) and the load average before and after.  Floors and
+limits are measured in this process right after the case.  With ``scaling`` each case
+runs once more on one thread (``wall_1thread``, ``speedup``).
 
-Reference numbers of other programs (from their authors / our earlier measurements,
-not re-measured here): the original NG program (Rauscher 2015) takes 5.5 s for 1 frame,
-54 s and 2.5 GB for 10 frames, 7 min and 9.5 GB for 40 frames of a 4-output H2RG;
-romanisim 0.15 L1 takes 83-108 s and 3.4 GB for a full 4096x4096 exposure; stcal 1.20
-ramp fitting of 2048x2048x20 takes ~11 s (C OLS) and 57-95 s (likelihood).
+**Peers** (:mod:`scenesim.bench.peers`) run only when asked (``--peers``, or the
+``peers`` workload), each in its own process on the very input of the scenesim case
+beside it (NG from a path the user gives, romanisim, stcal); a peer that did not run
+in this run is printed as "not measured".  This package holds no timing of any other
+program (a test scans it).
 """
 
 import json
-import multiprocessing as mp
 import os
+import pickle
 import resource
+import shutil
 import sys
+import tempfile
 import time
 
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.fast.memory import keep_freed_memory
 from scenesim.bench.floor import floor_counts, floor_seconds
-from scenesim.bench.workloads import OPTION_CASES, WORKLOADS
+from scenesim.bench.limit import limit_seconds
+from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
+from scenesim.bench.process import load_average, run_process, tail
+from scenesim.bench.workloads import OPTION_CASES, PREPARE, WORKLOADS
 
-__all__ = ["WORKLOADS", "OPTION_CASES", "main", "floor_seconds", "floor_counts", "run_case"]
+__all__ = ["WORKLOADS", "OPTION_CASES", "PEER_WORKLOADS", "main", "floor_seconds",
+           "floor_counts", "limit_seconds", "run_case"]
 
 _MB = 1024.0             # ru_maxrss is in KiB on Linux
 
-#: Reference numbers of other programs, used for the comparison columns.
-REFERENCES = {
-    ("noise", 1): ("NG original", 5.5, None),
-    ("noise", 10): ("NG original", 54.0, 2500.0),
-    ("noise", 40): ("NG original", 420.0, 9500.0),
-    ("roman", "full"): ("romanisim 0.15 L1", 83.0, 3400.0),
-    ("fit", "ols"): ("stcal 1.20 C OLS", 11.0, None),
-    ("fit", "gls"): ("stcal 1.20 likelihood", 57.0, None),
-}
+#: Workloads of ``scenesim bench peers``: those with a peer.
+PEER_WORKLOADS = ("noise", "roman", "fit")
 
 
 # ---------------------------------------------------------------------- running
-def run_case(name, case, threads):
-    """Run one case in this process; add peak and baseline RSS (MB) to its result."""
+def run_case(name, case, threads, **kwargs):
+    """Run one case in this process; add peak and baseline RSS (MB) to its result.
+
+    ``kwargs`` go to the workload (the prepared input of :data:`PREPARE`)."""
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / _MB
-    out = WORKLOADS[name][0](case, threads)
+    out = WORKLOADS[name][0](case, threads, **kwargs)
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / _MB
     out["base_rss_mb"] = base
     return out
 
 
-def _child(name, case, threads, queue):
-    keep_freed_memory()            # as the scenesim command does (noise.fast.memory)
+def _run_child(name, case, threads, work, kwargs):
+    """One case in a fresh process: its in-process result plus the process's own
+    measurement (``process_wall``, ``process_cpu``, ``peak_rss_mb``, loads)."""
+    tag = f"{name}_{_slug(case)}_{threads}t"
+    result = os.path.join(work, tag + ".pickle")
+    argv = [sys.executable, "-m", "scenesim.bench.child", name, repr(case), str(threads),
+            result] + ([repr(kwargs)] if kwargs else [])
+    err = os.path.join(work, tag + ".stderr")
+    m = run_process(argv, cwd=work, stdout_path=os.path.join(work, tag + ".stdout"),
+                    stderr_path=err)
     try:
-        queue.put(("ok", run_case(name, case, threads)))
-    except BaseException as exc:  # report any failure to the parent, then exit
-        queue.put(("error", f"{type(exc).__name__}: {exc}"))
-
-
-def _in_subprocess(name, case, threads):
-    ctx = mp.get_context("spawn")
-    q = ctx.Queue()
-    p = ctx.Process(target=_child, args=(name, case, threads, q))
-    p.start()
-    status, value = q.get()
-    p.join()
+        with open(result, "rb") as f:
+            status, value = pickle.load(f)
+    except OSError:
+        status, value = "error", f"exit {m['returncode']}: {tail(err) or 'no output'}"
     if status != "ok":
         raise RuntimeError(f"workload {name} {case!r} failed: {value}")
+    os.unlink(result)
+    value["inprocess_peak_rss_mb"] = value.pop("peak_rss_mb")
+    value.update(process_wall=m["wall"], process_cpu=m["cpu"],
+                 peak_rss_mb=m["peak_rss_mb"], load_before=m["load_before"],
+                 load_after=m["load_after"])
     return value
+
+
+def _slug(case):
+    return "".join(c if c.isalnum() else "_" for c in repr(case)).strip("_")
 
 
 def _label(case):
@@ -93,31 +108,23 @@ def _label(case):
     return f"{case:g}" if isinstance(case, float) else str(case)
 
 
-def _reference(name, case):
-    key = (name, case[1]) if name == "fit" and case[0] == 2048 else (name, case)
-    return REFERENCES.get(key)
-
-
-def _row(name, case, r, threads):
+def _row(name, case, r, threads, work):
     row = dict(workload=name, case=_label(case), threads=threads, **r)
     if name == "fit":
         row["ratio"] = r["wall"] / r["baseline"] if r["baseline"] > 0 else None
         row["ratio_kind"] = "time / memory-bandwidth baseline"
-    else:
-        row["floor"] = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads)
-        row["ratio"] = r["wall"] / row["floor"] if row["floor"] > 0 else None
-        if r["n_poisson"] or r["n_normal"]:
-            f2 = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads,
-                               sampler="scenesim")
-            row["floor_scenesim"] = f2
-            row["ratio_scenesim"] = r["wall"] / f2 if f2 > 0 else None
-        row["ratio_kind"] = "time / random-number floor"
-    ref = _reference(name, case)
-    if ref is not None:
-        prog, sec, mb = ref
-        row["reference"] = prog
-        row["speedup_vs_reference"] = sec / r["wall"]
-        row["reference_mb"] = mb
+        return row
+    row["floor"] = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads)
+    row["ratio"] = r["wall"] / row["floor"] if row["floor"] > 0 else None
+    row["ratio_kind"] = "time / random-number floor"
+    lim = limit_seconds(r["n_normal"], r["n_poisson"], r["lam"], r.get("n_pink", 0),
+                        r.get("output_bytes", 0), threads, directory=work)
+    if r["n_poisson"] or r["n_normal"]:
+        row["floor_scenesim"] = lim["draws"]
+        row["ratio_scenesim"] = r["wall"] / lim["draws"] if lim["draws"] > 0 else None
+    row["limit_parts"] = {k: lim[k] for k in ("draws", "fft", "write")}
+    row["limit"] = lim["limit"]
+    row["limit_ratio"] = r["wall"] / lim["limit"] if lim["limit"] > 0 else None
     return row
 
 
@@ -125,41 +132,82 @@ def _fmt(v, f):
     return "-" if v is None else format(v, f)
 
 
+def _load(v):
+    return "-" if not v else f"{v[0]:.2f}"
+
+
+def _notes(r):
+    notes = r["detail"]
+    if r.get("pixel_reads") and r.get("floor"):
+        notes += (f"; {r['pixel_reads'] / r['wall'] / 1e6:.0f} Mpixel-reads/s "
+                  f"(floor {r['pixel_reads'] / r['floor'] / 1e6:.0f})")
+    if "limit_parts" in r:
+        p = r["limit_parts"]
+        notes += (f"; limit = draws {p['draws']:.2f} + inverse FFTs {p['fft']:.2f} + "
+                  f"write {p['write']:.2f} s")
+    if "max_abs_bias" in r:
+        notes += (f"; speed-up vs exact {_fmt(r.get('speedup_vs_exact'), '.2f')}; "
+                  f"per decade of rate: max abs(bias) {r['max_abs_bias']:.3f} sigma_opt"
+                  f" (1 sigma {r['bias_noise']:.3f}), max abs(scatter/sigma_opt - 1) "
+                  f"{r['max_scatter_dev']:.3f} (1 sigma {r['scatter_noise']:.3f}), "
+                  f"max abs(chi2 - 1) {r['max_chi2_dev']:.3f}; max per-pixel slope "
+                  f"difference from exact {_fmt(r.get('max_diff_sigma'), '.2f')} sigma_opt")
+    if "max_psd_dev" in r:
+        notes += (f"; 1/f PSD vs theory, max per decade 30 Hz-30 kHz: designed "
+                  f"{r['max_design_dev']:.1e} dex, measured {r['max_psd_dev']:.3f} dex"
+                  f" (at most {r['psd_z']:.1f} sigma of its sampling noise); kurtosis "
+                  f"of first "
+                  f"differences {r['kurtosis']:.4f} +- {r['kurtosis_sigma']:.4f}")
+    return notes
+
+
 def _markdown(rows):
-    head = ("| workload | case | wall s | CPU s | peak RSS MB | floor s | ratio | "
-            "vs reference | notes |\n|---|---|---|---|---|---|---|---|---|\n")
+    """The table of the scenesim cases."""
+    head = ("| workload | case | in-process s | process s | CPU s | peak RSS MB | "
+            "floor s | ratio | own-sampler floor s | ratio | limit s | wall / limit | "
+            "1 thread s | speed-up | load | notes |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
-        base = r.get("floor", r.get("baseline"))
-        kind = "floor" if "floor" in r else "np.sum"
-        ref = "-"
-        if "reference" in r:
-            ref = f"{r['speedup_vs_reference']:.1f}x faster than {r['reference']}"
-            if r.get("reference_mb"):
-                ref += f" ({r['reference_mb']:.0f} MB)"
-        notes = r["detail"]
-        if r.get("ratio_scenesim"):
-            notes += (f"; ratio {r['ratio_scenesim']:.1f} against a floor drawn with "
-                      f"scenesim's own samplers ({r['floor_scenesim']:.2f} s)")
-        if r.get("pixel_reads") and r.get("floor"):
-            notes += (f"; {r['pixel_reads'] / r['wall'] / 1e6:.0f} Mpixel-reads/s "
-                      f"(floor {r['pixel_reads'] / r['floor'] / 1e6:.0f})")
-        if "max_abs_bias" in r:
-            notes += (f"; speed-up vs exact {_fmt(r.get('speedup_vs_exact'), '.2f')}; "
-                      f"per decade of rate: max abs(bias) {r['max_abs_bias']:.3f} sigma_opt"
-                      f" (1 sigma {r['bias_noise']:.3f}), max abs(scatter/sigma_opt - 1) "
-                      f"{r['max_scatter_dev']:.3f} (1 sigma {r['scatter_noise']:.3f}), "
-                      f"max abs(chi2 - 1) {r['max_chi2_dev']:.3f}; max per-pixel slope "
-                      f"difference from exact {_fmt(r.get('max_diff_sigma'), '.2f')} sigma_opt")
-        if "max_psd_dev" in r:
-            notes += (f"; 1/f PSD vs theory, max per decade 30 Hz-30 kHz: designed "
-                      f"{r['max_design_dev']:.1e} dex, measured {r['max_psd_dev']:.3f} dex"
-                      f" (at most {r['psd_z']:.1f} sigma of its sampling noise); kurtosis "
-                      f"of first "
-                      f"differences {r['kurtosis']:.4f} +- {r['kurtosis_sigma']:.4f}")
-        lines.append(f"| {r['workload']} | {r['case']} | {r['wall']:.2f} | "
-                     f"{r['cpu']:.2f} | {r['peak_rss_mb']:.0f} | {_fmt(base, '.2f')} "
-                     f"({kind}) | {_fmt(r['ratio'], '.1f')} | {ref} | {notes} |")
+        if r["workload"] == "fit":
+            base = f"{r['baseline']:.2f} (np.sum)"
+        else:
+            base = _fmt(r.get("floor"), ".2f")
+        lines.append(
+            f"| {r['workload']} | {r['case']} | {r['wall']:.2f} | "
+            f"{r['process_wall']:.2f} | {r['process_cpu']:.2f} | {r['peak_rss_mb']:.0f} | "
+            f"{base} | {_fmt(r['ratio'], '.1f')} | {_fmt(r.get('floor_scenesim'), '.2f')} "
+            f"| {_fmt(r.get('ratio_scenesim'), '.1f')} | {_fmt(r.get('limit'), '.2f')} | "
+            f"{_fmt(r.get('limit_ratio'), '.1f')} | {_fmt(r.get('wall_1thread'), '.2f')} | "
+            f"{_fmt(r.get('speedup'), '.2f')} | {_load(r.get('load_before'))} | "
+            f"{_notes(r)} |")
+    return head + "\n".join(lines) + "\n"
+
+
+def _peer_markdown(rows):
+    """Process against process: each peer beside the scenesim case of the same input."""
+    head = ("| workload | case | scenesim process s | scenesim peak RSS MB | peer | "
+            "peer process s | peer in-process s | peer peak RSS MB | time: peer / "
+            "scenesim | memory: peer / scenesim | load before / after | notes |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    lines = []
+    for r in rows:
+        for p in r.get("peers", ()):
+            pre = (f"| {r['workload']} | {r['case']} | {r['process_wall']:.2f} | "
+                   f"{r['peak_rss_mb']:.0f} | {p['label']}")
+            if p["status"] != "measured":
+                lines.append(f"{pre} | {NOT_MEASURED} | - | - | - | - | "
+                             f"{_load(p.get('load_before'))} | {p['reason']} |")
+                continue
+            lines.append(
+                f"{pre} {p['version']} | {p['wall']:.2f} | {p['inprocess']:.2f} | "
+                f"{p['peak_rss_mb']:.0f} | {p['wall'] / r['process_wall']:.1f} | "
+                f"{p['peak_rss_mb'] / r['peak_rss_mb']:.1f} | "
+                f"{_load(p['load_before'])} / {_load(p['load_after'])} | "
+                f"{p['detail']}; in-process scenesim {r['wall']:.2f} s, peer "
+                f"{p['inprocess']:.2f} s |")
+    if not lines:
+        return ""
     return head + "\n".join(lines) + "\n"
 
 
@@ -190,19 +238,29 @@ def _plot(rows, path):
     plt.close(fig)
 
 
-def main(workloads, *, quick=False, out_dir="bench_out", threads=None):
+def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=False,
+         ng=None, scaling=False, command=None):
     """Run the named workloads (all if empty), write ``bench.json``/``.md``/``.png``.
 
     Parameters
     ----------
     workloads : sequence of str
-        Names from :data:`WORKLOADS`; empty: all.
+        Names from :data:`WORKLOADS`, or ``'peers'`` (:data:`PEER_WORKLOADS` with
+        ``peers=True``); empty: all workloads.
     quick : bool
         Small sizes (seconds instead of minutes).
     out_dir : str
         Output directory (created).
     threads : int or None
-        Threads for the workloads and the floor (default: all cores).
+        Threads for the workloads, floors and limits (default: all cores).
+    peers : bool
+        Run each case's peers (:mod:`scenesim.bench.peers`) beside it.
+    ng : str or None
+        Path of the original NG program, ``nghxrg.py`` (with ``peers``).
+    scaling : bool
+        Run each case again on one thread (when ``threads`` > 1).
+    command : str or None
+        The command line, recorded in the outputs.
 
     Returns
     -------
@@ -210,32 +268,82 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None):
         Exit status (0).
     """
     names = list(workloads) or list(WORKLOADS)
+    if "peers" in names:
+        names = [n for n in names if n != "peers"]
+        names += [n for n in PEER_WORKLOADS if n not in names]
+        peers = True
     bad = [n for n in names if n not in WORKLOADS]
     if bad:
-        raise ParameterError(f"'workloads' must be among {list(WORKLOADS)}, got {bad}")
+        raise ParameterError(f"'workloads' must be among {list(WORKLOADS) + ['peers']}, "
+                             f"got {bad}")
     threads = int(threads) if threads is not None else (os.cpu_count() or 1)
     if threads < 1:
         raise ParameterError(f"'threads' must be >= 1, got {threads}")
+    if ng is not None and not peers:
+        raise ParameterError("'--ng' runs NG as a peer: give it with --peers (or the "
+                             "'peers' workload)")
+    ng = check_ng_path(ng)
     os.makedirs(out_dir, exist_ok=True)
+    meta = dict(command=command or f"scenesim.bench.main({names!r}, quick={quick}, "
+                                   f"threads={threads}, peers={peers}, ng={ng!r}, "
+                                   f"scaling={scaling})",
+                threads=threads, quick=quick, peers=peers, scaling=scaling,
+                nproc=os.cpu_count(), load_average_start=load_average(),
+                python=sys.version.split()[0], numpy=np.__version__,
+                date=time.strftime("%Y-%m-%d %H:%M:%S"))
     rows = []
     exact = {}
-    for name in names:
-        fn, full, small = WORKLOADS[name]
-        for case in (small if quick else full):
-            print(f"[bench] {name} {_label(case)} ...", flush=True)
-            r = _in_subprocess(name, case, threads)
-            arrays = {k: r.pop(k) for k in ("slope", "sigma_opt") if k in r}
-            row = _row(name, case, r, threads)
-            if name == "options":
-                _versus_exact(row, arrays, exact)
-            rows.append(row)
-            extra = f" floor {row['floor']:.2f} s" if "floor" in row else \
-                f" np.sum {row['baseline']:.3f} s"
-            print(f"[bench] {name} {_label(case)}: wall {row['wall']:.2f} s, cpu "
-                  f"{row['cpu']:.2f} s, peak {row['peak_rss_mb']:.0f} MB,{extra}, "
-                  f"ratio {_fmt(row['ratio'], '.1f')}", flush=True)
-            _write(rows, out_dir, threads, quick)
+    work = tempfile.mkdtemp(prefix="scenesim-bench-")
+    try:
+        for name in names:
+            fn, full, small = WORKLOADS[name]
+            for case in (small if quick else full):
+                rows.append(_run_one(name, case, threads, work, scaling=scaling,
+                                     peers=peers, ng=ng, exact=exact))
+                _write(rows, out_dir, meta)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     return 0
+
+
+def _run_one(name, case, threads, work, *, scaling, peers, ng, exact):
+    """One case: the scenesim process, floors and limit, one-thread run, peers."""
+    print(f"[bench] {name} {_label(case)} ...", flush=True)
+    kwargs = PREPARE[name](case, work) if name in PREPARE else {}
+    r = _run_child(name, case, threads, work, kwargs)
+    arrays = {k: r.pop(k) for k in ("slope", "sigma_opt") if k in r}
+    row = _row(name, case, r, threads, work)
+    if name == "options":
+        _versus_exact(row, arrays, exact)
+    extra = (f" floor {row['floor']:.2f} s, limit {row['limit']:.2f} s (wall/limit "
+             f"{_fmt(row['limit_ratio'], '.1f')})" if "floor" in row
+             else f" np.sum {row['baseline']:.3f} s")
+    print(f"[bench] {name} {_label(case)}: in-process {row['wall']:.2f} s, process "
+          f"{row['process_wall']:.2f} s, peak {row['peak_rss_mb']:.0f} MB,{extra}, "
+          f"ratio {_fmt(row['ratio'], '.1f')}, load {_load(row['load_before'])}",
+          flush=True)
+    if scaling and threads > 1:
+        r1 = _run_child(name, case, 1, work, kwargs)
+        row.update(wall_1thread=r1["wall"], process_wall_1thread=r1["process_wall"],
+                   speedup=r1["wall"] / row["wall"])
+        print(f"[bench] {name} {_label(case)}: 1 thread {r1['wall']:.2f} s, speed-up "
+              f"with {threads} threads {row['speedup']:.2f}", flush=True)
+    row["peers"] = []
+    for plan in peer_plan(name, case, peers=peers, ng_path=ng):
+        if plan["status"] == "run":
+            print(f"[bench] {name} {_label(case)}: peer {plan['label']} ...", flush=True)
+            plan = run_peer(plan, name, case, work, ng_path=ng)
+        row["peers"].append(plan)
+        if plan["status"] == "measured":
+            print(f"[bench] {name} {_label(case)}: {plan['label']} {plan['version']}: "
+                  f"process {plan['wall']:.2f} s ({plan['wall'] / row['process_wall']:.1f}"
+                  f" x scenesim's {row['process_wall']:.2f} s), peak "
+                  f"{plan['peak_rss_mb']:.0f} MB, load {_load(plan['load_before'])}",
+                  flush=True)
+        else:
+            print(f"[bench] {name} {_label(case)}: {plan['label']}: {NOT_MEASURED} "
+                  f"({plan['reason']})", flush=True)
+    return row
 
 
 def _versus_exact(row, arrays, exact):
@@ -252,16 +360,24 @@ def _versus_exact(row, arrays, exact):
         row["speedup_vs_exact"] = exact["wall"] / row["wall"]
 
 
-def _write(rows, out_dir, threads, quick):
-    meta = dict(threads=threads, quick=quick, nproc=os.cpu_count(),
-                load_average=os.getloadavg(),
-                python=sys.version.split()[0], numpy=np.__version__,
-                date=time.strftime("%Y-%m-%d %H:%M:%S"))
+def _write(rows, out_dir, meta):
+    meta = dict(meta, load_average_end=load_average(),
+                end=time.strftime("%Y-%m-%d %H:%M:%S"))
     with open(os.path.join(out_dir, "bench.json"), "w") as f:
         json.dump(dict(meta=meta, rows=rows), f, indent=1)
+    peer_table = _peer_markdown(rows)
     with open(os.path.join(out_dir, "bench.md"), "w") as f:
-        f.write(f"Benchmarks ({meta['date']}, {threads} threads, "
-                f"{'quick' if quick else 'full'})\n\n" + _markdown(rows))
+        f.write(f"Benchmarks ({meta['date']} - {meta['end']}, {meta['threads']} threads, "
+                f"{'quick' if meta['quick'] else 'full'}; load average "
+                f"{'/'.join(map(str, meta['load_average_start']))} at the start, "
+                f"{'/'.join(map(str, meta['load_average_end']))} at the end)\n\n"
+                f"    {meta['command']}\n\n" + _markdown(rows))
+        if peer_table:
+            f.write("\nPeers, process against process, on the same input:\n\n"
+                    + peer_table)
+        else:
+            f.write("\nPeers: none of these workloads has one (NG: noise, romanisim: "
+                    f"roman, stcal: fit); {NOT_MEASURED}.\n")
     if any(r["workload"] in ("options", "pink") for r in rows):
         try:
             _plot(rows, os.path.join(out_dir, "bench.png"))

@@ -1,10 +1,15 @@
 """The benchmark workloads: what is timed, on which scene, and with what floor.
 
 Each workload is a function ``bench_<name>(case, threads)`` returning a dict of its
-wall and CPU times, its floor counts and details; :data:`WORKLOADS` maps each name to
-its function and cases (full and ``--quick``).  The simulation workloads run the
-charge engine (``ChargeEngine.simulate``) to a FITS file as a user's run would; the fit
-workload times :func:`scenesim.rampfit.fit_ramps` on a cube made in memory.
+wall and CPU times, its floor counts (and, for the simulation workloads, its kept 1/f
+samples and output bytes for the limit of :mod:`scenesim.bench.limit`) and details;
+:data:`WORKLOADS` maps each name to its function and cases (full and ``--quick``).
+The simulation workloads run the charge engine (``ChargeEngine.simulate``) to a FITS
+file as a user's run would; the fit workload times :func:`scenesim.rampfit.fit_ramps`
+on a cube loaded from a file that the runner prepares once per size
+(:data:`PREPARE`, :func:`fit_input`), the very file the stcal peer fits
+(:mod:`scenesim.bench.peers`).  :func:`roman_scene` and :func:`fit_input` are the
+inputs the peers share.
 """
 
 import os
@@ -23,8 +28,12 @@ from scenesim.rampfit import fit_ramps, optimal_variance
 from scenesim.run import write_exposure
 from scenesim.sky.psf import GaussianPSF, render_point_sources
 from scenesim.bench.floor import floor_counts, typical_lambda
+from scenesim.batch.bench import bench_batch
+from scenesim.bench.limit import pink_samples
 
-__all__ = ['WORKLOADS', 'OPTION_CASES', 'bench_noise', 'bench_jwst', 'bench_roman', 'bench_timeseries', 'bench_fit', 'bench_options', 'bench_pink', 'bench_skips']
+__all__ = ['WORKLOADS', 'OPTION_CASES', 'PREPARE', 'FIT_JUMP_SIGMA', 'bench_noise',
+           'bench_jwst', 'bench_roman', 'bench_timeseries', 'bench_fit', 'bench_options',
+           'bench_pink', 'bench_skips', 'roman_scene', 'fit_input', 'prepare_fit']
 
 
 # --------------------------------------------------------------------- workloads
@@ -48,10 +57,13 @@ def bench_noise(frames, threads):
     det, params = noise.preset("H2RG"), noise.NoiseParams()
     gen = noise.NoiseGenerator(det, params, rng=1, threads=threads)
     with tempfile.TemporaryDirectory() as tmp:
-        wall, cpu, _ = _timed(lambda: noise.write_noise_fits(
-            os.path.join(tmp, "noise.fits"), gen, frames, unit="DN", gain=1.0))
+        path = os.path.join(tmp, "noise.fits")
+        wall, cpu, _ = _timed(lambda: noise.write_noise_fits(path, gen, frames,
+                                                             unit="DN", gain=1.0))
+        nbytes = os.path.getsize(path)
     nn, npo = floor_counts(det, params, frames)
     return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo, lam=0.0,
+                n_pink=pink_samples(det, params, frames), output_bytes=nbytes,
                 detail=f"H2RG 2048x2048, 4 outputs, {frames} frames, NG defaults, "
                        f"uint16 DN to FITS")
 
@@ -59,7 +71,9 @@ def bench_noise(frames, threads):
 def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
                 on_resultant=None):
     """Run a ChargeEngine (to a temp FITS file unless ``on_resultant`` is given: then
-    each :class:`scenesim.engine.Resultant` goes to it)."""
+    each :class:`scenesim.engine.Resultant` goes to it).
+
+    Returns ``((wall, cpu, output bytes), engine)``."""
     opts = options if options is not None else EngineOptions(threads=threads)
     eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
                        options=opts)
@@ -68,19 +82,23 @@ def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
             with eng.simulate() as run:
                 for res in run:
                     on_resultant(res)
-        return _timed(consume), eng
+        wall, cpu, _ = _timed(consume)
+        return (wall, cpu, 0), eng
     with tempfile.TemporaryDirectory() as tmp:
-        return _timed(lambda: write_exposure(eng, os.path.join(tmp, "exp.fits"))), eng
+        path = os.path.join(tmp, "exp.fits")
+        wall, cpu, _ = _timed(lambda: write_exposure(eng, path))
+        return (wall, cpu, os.path.getsize(path)), eng
 
 
 def _engine_result(det, readout, rate, params, timing, detail):
-    wall, cpu, _ = timing
+    wall, cpu, nbytes = timing
     nints = readout.nints
     n_reads = nints * len(readout.needed_reads)
     charged = int(np.count_nonzero(rate[~det.reference_mask()] > 0))
     nn, npo = floor_counts(det, params, n_reads, nints, charged, n_reads)
     return dict(wall=wall, cpu=cpu, n_normal=nn, n_poisson=npo,
                 lam=typical_lambda(rate, det.frame_time), detail=detail,
+                n_pink=pink_samples(det, params, n_reads), output_bytes=nbytes,
                 pixel_reads=int(det.ny * det.nx * n_reads))
 
 
@@ -110,8 +128,14 @@ def bench_jwst(size, threads):
                              else "whole exposure (uncal file written)"))
 
 
-def bench_roman(size, threads):
-    """H4RG-10 with a 9-resultant / 44-read MA table, 0.5 % bright pixels, full noise."""
+def roman_scene(size):
+    """Detector, readout and rate map (e-/s, float64 (ny, nx)) of the Roman workload.
+
+    ``size`` ``'full'``: H4RG-10 4096x4096; otherwise a 1024x1024 corner.  Readout:
+    :data:`scenesim.detector.readout.ROMAN_LIKE_TABLE` (9 resultants, 44 reads).
+    Rates: 1 e-/s everywhere, 0.5 % of the pixels at 100-1000 e-/s (seed 4); the
+    reference border collects no charge in the engine.
+    """
     quick = size != "full"
     det = noise.preset("H4RG-10", naxis1=1024, naxis2=1024) if quick \
         else noise.preset("H4RG-10")
@@ -120,6 +144,12 @@ def bench_roman(size, threads):
     rate = np.ones(det.shape)
     bright = g.random(det.shape) < 0.005
     rate[bright] = g.uniform(100, 1000, int(bright.sum()))
+    return det, ro, rate
+
+
+def bench_roman(size, threads):
+    """H4RG-10 with a 9-resultant / 44-read MA table, 0.5 % bright pixels, full noise."""
+    det, ro, rate = roman_scene(size)
     params = noise.NoiseParams()
     timing, _ = _run_engine(det, ro, rate, threads, params)
     return _engine_result(det, ro, rate, params, timing,
@@ -139,27 +169,76 @@ def bench_timeseries(nints, threads):
                           f"full noise")
 
 
-def bench_fit(spec, threads):
-    """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter."""
-    size, fitter = spec
-    ngroups, rate, rn = 20, 10.0, 10.0
+#: Jump threshold (sigma) of the ``gls-jump`` fit case: stcal LIKELY's own default
+#: one-omit threshold, sqrt(20.25) (its jump detection cannot be switched off).
+FIT_JUMP_SIGMA = 4.5
+
+_FIT_NGROUPS, _FIT_RATE, _FIT_RN = 20, 10.0, 10.0
+
+
+def fit_input(size):
+    """The cube every fit case (and the stcal peer) fits.
+
+    ``size`` x ``size`` pixels, 20 RAPID resultants (one read each, at ``(k + 1)
+    t_frame`` of the H2RG preset), 10 e-/s, white read noise 10 e- per read (seed 6).
+
+    Returns
+    -------
+    cube : ndarray (20, size, size), float32, e-
+    meta : dict
+        ``t_frame`` (s), ``read_noise`` (e- per read), ``rate`` (e-/s).
+    """
     tf = noise.preset("H2RG").frame_time
     g = np.random.default_rng(6)
-    cube = np.empty((ngroups, size, size), dtype=np.float32)
+    cube = np.empty((_FIT_NGROUPS, size, size), dtype=np.float32)
     acc = np.zeros((size, size), dtype=np.float32)
-    for k in range(ngroups):
-        acc += g.poisson(rate * tf, (size, size)).astype(np.float32)
-        cube[k] = acc + np.float32(rn) * g.standard_normal((size, size), dtype=np.float32)
+    for k in range(_FIT_NGROUPS):
+        acc += g.poisson(_FIT_RATE * tf, (size, size)).astype(np.float32)
+        cube[k] = acc + np.float32(_FIT_RN) * g.standard_normal((size, size),
+                                                                dtype=np.float32)
+    return cube, dict(t_frame=tf, read_noise=_FIT_RN, rate=_FIT_RATE)
+
+
+def prepare_fit(spec, directory):
+    """Write :func:`fit_input` of this case's size to ``directory`` once; return the
+    keyword arguments of :func:`bench_fit` (``cube`` = the ``.npy`` path; the slopes
+    are saved in ``directory`` too)."""
+    path = os.path.join(directory, f"fit_cube_{spec[0]}.npy")
+    if not os.path.exists(path):
+        cube, _ = fit_input(spec[0])
+        np.save(path, cube)
+    return dict(cube=path, out_dir=directory)
+
+
+def bench_fit(spec, threads, *, cube=None, out_dir=None):
+    """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter.
+
+    ``spec`` = ``(size, fitter)``, fitter ``'cds'``, ``'ols'``, ``'gls'`` or
+    ``'gls-jump'`` (GLS with jump detection at :data:`FIT_JUMP_SIGMA`).  ``cube``: the
+    ``.npy`` file of :func:`prepare_fit` (made in memory when None).  ``out_dir``:
+    where the slopes and variances are saved (``.npy``, after the timed fit), as the
+    stcal peer saves its own.
+    """
+    size, fitter = spec
+    _, meta = fit_input(0)
+    tf, rn = meta["t_frame"], meta["read_noise"]
+    data = np.load(cube) if cube is not None else fit_input(size)[0]
+    ngroups = data.shape[0]
     times = [np.array([(k + 1) * tf]) for k in range(ngroups)]
     t0 = time.perf_counter()
-    cube.sum(dtype=np.float64)
+    data.sum(dtype=np.float64)
     baseline = time.perf_counter() - t0
-    wall, cpu, res = _timed(lambda: fit_ramps(cube, times, read_noise=rn, fitter=fitter,
-                                              threads=threads))
+    name, thr = (("gls", FIT_JUMP_SIGMA) if fitter == "gls-jump" else (fitter, None))
+    wall, cpu, res = _timed(lambda: fit_ramps(data, times, read_noise=rn, fitter=name,
+                                              jump_threshold=thr, threads=threads))
     slope = np.asarray(res.slope, dtype=np.float64)
+    if out_dir is not None:
+        np.save(os.path.join(out_dir, "slope.npy"), np.asarray(res.slope, np.float32))
+        np.save(os.path.join(out_dir, "var.npy"), np.asarray(res.var, np.float32))
     return dict(wall=wall, cpu=cpu, baseline=baseline,
                 baseline_kind="memory bandwidth: one np.sum over the cube",
-                detail=f"{size}x{size}x{ngroups}, 10 e-/s, 10 e- per read, {fitter}",
+                detail=f"{size}x{size}x{ngroups}, 10 e-/s, 10 e- per read, {fitter}"
+                       + (f" ({FIT_JUMP_SIGMA} sigma)" if thr else ""),
                 median_slope=float(np.nanmedian(slope)))
 
 
@@ -313,8 +392,8 @@ WORKLOADS = {
     "noise": (bench_noise, [10, 40, 88], [1, 5]),
     "jwst": (bench_jwst, ["full", "full-engine"], ["quick", "quick-engine"]),
     "roman": (bench_roman, ["full"], ["quick"]),
-    "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls")],
-            [(512, f) for f in ("cds", "ols", "gls")]),
+    "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls", "gls-jump")],
+            [(512, f) for f in ("cds", "ols", "gls", "gls-jump")]),
     "timeseries": (bench_timeseries, [300], [30]),
     "options": (bench_options, [(c, "full") for c in OPTION_CASES],
                 [(c, "quick") for c in OPTION_CASES]),
@@ -323,4 +402,10 @@ WORKLOADS = {
                                               "unused_frames", "no_ramp_file")
                             for d in (False, True)],
               [("zero_amplitude", False), ("zero_amplitude", True)]),
+    # exposures per minute on dask (1 and 2 workers) against a loop of runs
+    "batch": (bench_batch, [24], [4]),
 }
+
+#: Workload name -> function(case, directory) that writes the case's input to
+#: ``directory`` (once) and returns extra keyword arguments of the workload.
+PREPARE = {"fit": prepare_fit}

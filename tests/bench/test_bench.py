@@ -19,6 +19,13 @@ def test_quick_timeseries_writes_json_and_markdown(tmp_path):
     assert row["workload"] == "timeseries" and row["case"] == "30"
     assert row["wall"] > 0 and row["floor"] > 0 and row["peak_rss_mb"] > 0
     assert row["ratio"] == pytest.approx(row["wall"] / row["floor"])
+    # the whole process contains the in-process work; the limit is the sum of its parts
+    assert row["process_wall"] > row["wall"] and row["process_cpu"] > 0
+    assert row["limit"] == pytest.approx(sum(row["limit_parts"].values()))
+    assert row["limit_ratio"] == pytest.approx(row["wall"] / row["limit"])
+    assert row["limit_parts"]["fft"] > 0 and row["limit_parts"]["write"] > 0
+    assert len(row["load_before"]) == 3 and len(data["meta"]["load_average_start"]) == 3
+    assert row["peers"] == []
     md = (out / "bench.md").read_text()
     assert "| timeseries | 30 |" in md
 
@@ -40,6 +47,12 @@ def test_floor_counts_follow_design_section_7():
 def test_bad_arguments_raise_before_work(tmp_path):
     with pytest.raises(ParameterError, match="workloads"):
         bench.main(["nope"], quick=True, out_dir=str(tmp_path / "x"))
+    with pytest.raises(ParameterError, match="--ng"):
+        bench.main(["noise"], quick=True, out_dir=str(tmp_path / "x"),
+                   ng=str(tmp_path / "nghxrg.py"))
+    with pytest.raises(ParameterError, match="nghxrg.py"):
+        bench.main(["noise"], quick=True, out_dir=str(tmp_path / "x"), peers=True,
+                   ng=str(tmp_path / "nghxrg.py"))
     assert not os.path.exists(tmp_path / "x")
     with pytest.raises(ParameterError, match="n_normal"):
         bench.floor_seconds(-1, 0, 1.0, 1)
