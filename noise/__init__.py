@@ -44,6 +44,7 @@ _EXPORTS = {
     "template_for": "noise.template",
     "ScenesimError": "noise.errors",
     "ParameterError": "noise.errors",
+    "ParameterTypeError": "noise.errors",
     "FileFormatError": "noise.errors",
 }
 

@@ -17,10 +17,22 @@ import math
 
 import numpy as np
 
-from noise.errors import ParameterError
-from noise.validate import check_int, check_map
+from noise.errors import ParameterError, ParameterTypeError
+from noise.validate import check_int, check_map, describe, is_sequence
+
 
 __all__ = ["ADC", "to_dn", "from_dn"]
+
+
+def _check_shape(name, shape):
+    """``shape`` as a tuple of ints >= 0 (an image or cube shape, ``(..., ny, nx)``)."""
+    if not is_sequence(shape) or isinstance(shape, np.ndarray) or not all(
+            isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+            and v >= 0 for v in shape):
+        raise ParameterTypeError(
+            f"{name!r} must be a tuple of integers >= 0 (an image shape), got "
+            f"{describe(shape)}")
+    return tuple(int(v) for v in shape)
 
 
 class ADC:
@@ -45,6 +57,8 @@ class ADC:
 
     def __init__(self, gain, bits=16, *, shape=None):
         self.bits = check_int("adc_bits", bits, minimum=1, maximum=32)
+        if shape is not None:
+            shape = _check_shape("shape", shape)
         if shape is None and np.ndim(gain):
             shape = np.shape(gain)
         self.gain = check_map("gain", gain, shape or (1, 1), minimum=0.0,
@@ -172,7 +186,14 @@ def from_dn(dn, gain):
     -------
     ndarray, shape of ``dn``, float64, e-
     """
-    d = np.asarray(dn)
+    try:
+        d = np.asarray(dn)
+    except (TypeError, ValueError) as exc:          # ragged nested sequences
+        raise ParameterTypeError(
+            f"'dn' must be an array of real numbers (DN), got {describe(dn)}") from exc
+    if d.dtype.kind not in "iuf":
+        raise ParameterTypeError(
+            f"'dn' must be an array of real numbers (DN), got {d.dtype} {describe(dn)}")
     g = check_map("gain", gain, d.shape if d.ndim >= 2 else (1, 1), minimum=0.0,
                   strict_min=True)
     return np.multiply(d, g, dtype=np.float64)

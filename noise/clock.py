@@ -50,8 +50,9 @@ from functools import cached_property
 
 import numpy as np
 
-from noise.validate import check_float, check_int
-from noise.errors import FileFormatError, ParameterError
+from noise.validate import (check_bool, check_float, check_instance, check_int, check_str,
+                            describe)
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 
 __all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header",
            "frame_slot", "exposure_slots"]
@@ -97,9 +98,10 @@ class Subarray:
     name: str = ""
 
     def __post_init__(self):
-        if self.kind not in ("window", "stripe"):
-            raise ParameterError(
-                f"'subarray.kind' must be 'window' or 'stripe', got {self.kind!r}")
+        if not isinstance(self.kind, str) or self.kind not in ("window", "stripe"):
+            cls = ParameterError if isinstance(self.kind, str) else ParameterTypeError
+            raise cls(f"'subarray.kind' must be 'window' or 'stripe', got "
+                      f"{describe(self.kind)}")
         for field in ("x0", "y0"):
             check_int(f"subarray.{field}", getattr(self, field), minimum=0)
         for field in ("nx", "ny"):
@@ -155,6 +157,10 @@ class Detector:
         check_int("ref_border", self.ref_border, minimum=0)
         check_float("dt", self.dt, minimum=0.0, strict_min=True)
         check_float("pixel_pitch", self.pixel_pitch, minimum=0.0, strict_min=True)
+        check_str("name", self.name)
+        check_bool("reverse_scan", self.reverse_scan)
+        check_instance("subarray", self.subarray, Subarray, "a noise.clock.Subarray",
+                       allow_none=True)
         if self.naxis1 % self.n_out:
             raise ParameterError(
                 f"'n_out'={self.n_out} must divide 'naxis1'={self.naxis1} "
@@ -262,6 +268,12 @@ class Detector:
 
     @cached_property
     def _sample_index(self):
+        if self.frame_samples >= 2 ** 31:
+            raise ParameterError(
+                f"a frame of {self.frame_samples} pixel times per output ('naxis2' or "
+                f"the subarray's 'ny' + 'nfoh', times the columns per output + 'nroh') "
+                f"is beyond the clock's int32 sample index (< 2**31); use more outputs "
+                f"('n_out') or a smaller array")
         ncol = self.ncols_out
         col = np.arange(self.nx)
         out = col // ncol
@@ -385,6 +397,23 @@ def detector_from_header(header):
 #: (128+20)*(4096+1)*5 us = 3.032 s, is close to Roman's 3.04 s frame.
 #: ``H4RG-15``: 4096x4096, 15 um, 64 outputs at 100 kHz, nroh=12, nfoh=1, border 4:
 #: a ground-based configuration; frame time (64+12)*4097*10 us = 3.114 s.
+#: ``NIRCAM``, ``NIRSPEC``: the H2RG clock under the JWST instrument names (JDox,
+#: "NIRCam Detector Subarrays": 10 us per pixel, 12 pixel times per row, and a frame
+#: of ``((ncols/4 + 12)(nrows + 1) + 1)`` pixel times with 4 outputs, ``(ncols +
+#: 12)(nrows + 2)`` with 1).  The full frame is 10.73676 s, one pixel time (10 us)
+#: short of JWST's ``+ 1``, which a clock of whole rows cannot add; a 1-output window
+#: matches exactly with ``nfoh = 2`` (:func:`scenesim.pipelines.jwst.jwst_frame_time`).
+#: ``WFI``: the Roman Wide Field Instrument's H4RG-10 as romancal times it
+#: (``romancal.lib.basic_utils``, romancal 1.1): 4096x4096, 10 um, 32 outputs of 128
+#: columns with alternating scan directions, ``nroh = 14`` clock cycles between rows
+#: (romancal's ``npad``), border 4 (romanisim's ``nborder``), and the frame time
+#: romancal and Roman WFI use, 3.04 s (``ROMAN_READ_TIME``; the L1 ``frame_time``).
+#: romancal's pixel time is 4.915263 us and the rest of the 3.04 s is spent on
+#: guide-window reads, one excursion every 256 rows; a whole-row clock puts that time
+#: in ``nfoh = 260`` rows at the end of the frame and takes ``dt = 3.04 s / (4356 x
+#: 142)`` = 4.914704 us (114 ppm shorter), so the frame is exactly 3.04 s.  Pixel read
+#: times within a frame differ from romancal's by up to the guide-window time
+#: (~0.18 s); resultant times, which use only the frame time, agree exactly.
 PRESETS = {
     "H1RG": Detector(name="H1RG", naxis1=1024, naxis2=1024, n_out=16, nroh=12, nfoh=1,
                      dt=1e-5, ref_border=4, pixel_pitch=18.0),
@@ -394,6 +423,12 @@ PRESETS = {
                         nfoh=1, dt=5e-6, ref_border=4, pixel_pitch=10.0),
     "H4RG-15": Detector(name="H4RG-15", naxis1=4096, naxis2=4096, n_out=64, nroh=12,
                         nfoh=1, dt=1e-5, ref_border=4, pixel_pitch=15.0),
+    "NIRCAM": Detector(name="NIRCAM", naxis1=2048, naxis2=2048, n_out=4, nroh=12, nfoh=1,
+                       dt=1e-5, ref_border=4, pixel_pitch=18.0),
+    "NIRSPEC": Detector(name="NIRSPEC", naxis1=2048, naxis2=2048, n_out=4, nroh=12,
+                        nfoh=1, dt=1e-5, ref_border=4, pixel_pitch=18.0),
+    "WFI": Detector(name="WFI", naxis1=4096, naxis2=4096, n_out=32, nroh=14, nfoh=260,
+                    dt=3.04 / (4356 * 142), ref_border=4, pixel_pitch=10.0),
 }
 
 
@@ -404,7 +439,7 @@ def preset(name, **changes):
     --------
     >>> preset("H2RG", naxis1=256, naxis2=256).frame_time  # doctest: +SKIP
     """
-    key = str(name).upper()
+    key = check_str("preset", name).upper()
     if key not in PRESETS:
         close = difflib.get_close_matches(key, PRESETS, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else ""

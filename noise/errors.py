@@ -4,8 +4,8 @@ Every error raised for bad input names the parameter, the bad value and what is
 allowed, and is raised before any work starts (and before any file is opened).
 """
 
-__all__ = ["ScenesimError", "ParameterError", "FileFormatError", "OutputError",
-           "HelperProcessError"]
+__all__ = ["ScenesimError", "ParameterError", "ParameterTypeError", "FileFormatError",
+           "OutputError", "HelperProcessError"]
 
 
 class ScenesimError(Exception):
@@ -14,6 +14,15 @@ class ScenesimError(Exception):
 
 class ParameterError(ScenesimError, ValueError):
     """A parameter has a value outside what is allowed."""
+
+
+class ParameterTypeError(ParameterError, TypeError):
+    """A parameter has the wrong type (a string where a number or an array is
+    expected, a list where a ``Detector`` is expected, ``None``, ...).
+
+    A :class:`ParameterError` (so a ``ValueError``) and a ``TypeError``: code that
+    catches either keeps working.
+    """
 
 
 class FileFormatError(ScenesimError, ValueError):

@@ -79,10 +79,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise.validate import check_float, check_int
+from noise.validate import check_float, check_int, describe
 from noise.adc import ADC
 from noise.clock import Detector, frame_slot
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.pink import PinkSeries
 from noise.fast.producer import ForkedProducer, available as producer_available
@@ -195,17 +195,19 @@ class NoiseGenerator:
                  layout=None):
         self.layout = layout if layout is not None else Layout()
         if not isinstance(self.layout, Layout):
-            raise ParameterError(f"'layout' must be a noise.generator.Layout, got {layout!r}")
+            raise ParameterTypeError(
+                f"'layout' must be a noise.generator.Layout, got {describe(layout)}")
         self.detector = detector if detector is not None else Detector()
         self.params = params if params is not None else NoiseParams()
         if not isinstance(self.detector, Detector):
-            raise ParameterError(f"'detector' must be a noise.Detector, got {detector!r}")
+            raise ParameterTypeError(
+                f"'detector' must be a noise.Detector, got {describe(detector)}")
         if not isinstance(self.params, NoiseParams):
-            raise ParameterError(f"'params' must be a noise.NoiseParams, got {params!r}")
+            raise ParameterTypeError(
+                f"'params' must be a noise.NoiseParams, got {describe(params)}")
         self.entropy, self.key = root_seed(rng)
-        self.threads = int(threads) if threads is not None else (os.cpu_count() or 1)
-        if self.threads < 1:
-            raise ParameterError(f"'threads' must be >= 1, got {threads!r}")
+        self.threads = check_int("threads", threads, minimum=1) if threads is not None \
+            else (os.cpu_count() or 1)
         self._validate()
         self._setup()
 
@@ -213,8 +215,7 @@ class NoiseGenerator:
     def _validate(self):
         det, p = self.detector, self.params
         nout = det.n_out_active
-        for name in ("rd_noise", "u_pink", "acn"):
-            p.per_output(name, nout)
+        p.check_detector(det)          # per-output values, f_min below every Nyquist
         if p.enabled("acn"):
             if det.ncols_out % 2:
                 raise ParameterError(

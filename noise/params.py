@@ -31,6 +31,33 @@ between two levels ``rtn_amp`` apart, with mean dwell times ``rtn_tau_low`` and
 (``pink_spectrum``: pairs of frequency in Hz and relative PSD, interpolated in log-log;
 the amplitude definition above still sets the level), per-output amplitudes for
 ``rd_noise``, ``u_pink`` and ``acn`` (a sequence of ``n_out`` values).
+
+Limits
+------
+Frames are float32 (largest value 3.4e38), so every amplitude, ``|bias_offset|`` and
+the reference-pixel noise ``rd_noise * ref_ratio`` must be at most
+:data:`MAX_AMPLITUDE` = 1e30 e-: the sum of every component, tails included, then stays
+far inside the float32 range (it used to overflow to inf with a RuntimeWarning, e.g.
+``c_pink = 1e300``).  Two limits need more than the amplitudes, and are checked where
+that is known:
+
+* :meth:`NoiseParams.check_detector` (the noise generator, a scene): ``f_min`` must be
+  below the Nyquist frequency of every 1/f series it shapes (``1 / (2 dt)`` for the
+  pink series, ``1 / (4 dt)`` for ACN, ``1 / (2 row time)`` for picture-frame noise);
+* :meth:`NoiseParams.check_adc` (a scene, which knows the gain and the ADC bits): no
+  amplitude that reaches every pixel (all but ``rtn_amp``) may exceed
+  :data:`ADC_CLIP_FACTOR` = 100 times the ADC range in electrons, ``gain * (2**bits -
+  1)``.  Above it every pixel clips at the ADC: a constant ``bias_offset`` beyond it
+  puts every pixel at code 0 or the top code, and at most ``0.4 / 100`` = 0.4 % of a
+  Gaussian component's values (density at most ``1 / (sqrt(2 pi) sigma)``) fall inside
+  the range.
+
+The 1/f synthesis bounds two options: ``f_min >= 1e-20`` Hz (:data:`MIN_F_MIN`; a
+flat PSD below a period of 3e12 years; lower values need hundreds of filter bands and
+overflow the PSD table near 1e-300), and ``pink_spectrum`` PSD values in ``[1e-30,
+1e30]`` (:data:`PSD_RANGE`; its filters are float32, which 1e300 overflows and a
+uniform 1e-300 turns into an overflowing scale; only the shape matters, so rescale
+the values).
 """
 
 import dataclasses
@@ -39,10 +66,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise.validate import check_float
-from noise.errors import ParameterError
+from noise.validate import check_float, describe, is_real, is_sequence
+from noise.errors import ParameterError, ParameterTypeError
 
-__all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE"]
+__all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE", "MAX_AMPLITUDE",
+           "ADC_CLIP_FACTOR", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
+
+#: Largest amplitude (and ``|bias_offset|``, ``rd_noise * ref_ratio``), e-: float32
+#: frames stay finite (module notes).
+MAX_AMPLITUDE = 1e30
+#: Amplitudes above this multiple of the ADC range (e-) clip every pixel at the ADC
+#: (module notes, :meth:`NoiseParams.check_adc`).
+ADC_CLIP_FACTOR = 100.0
+#: Smallest ``f_min``, Hz (module notes).
+MIN_F_MIN = 1e-20
+#: ``pink_spectrum`` PSD values lie in ``[1 / PSD_RANGE, PSD_RANGE]`` (module notes).
+PSD_RANGE = 1e30
 
 _PER_OUTPUT = ("rd_noise", "u_pink", "acn")
 _SCALAR_AMPS = ("c_pink", "pca0", "pedestal", "ktc", "bias_amp", "rtn_amp")
@@ -52,10 +91,42 @@ _OPTIONS = ("ref_ratio", "rtn_fraction", "rtn_tau_low", "rtn_tau_high", "f_min",
             "pink_spectrum", "pca0_file")
 
 
-def _freeze(value):
-    if isinstance(value, (list, np.ndarray)):
-        return tuple(float(v) for v in np.asarray(value, dtype=float).ravel())
+def _freeze(name, value):
+    """A per-output amplitude as a float or a tuple of floats (checked types)."""
+    if isinstance(value, (list, tuple, np.ndarray)):
+        items = list(np.ravel(value)) if isinstance(value, np.ndarray) else list(value)
+        if not items or not all(is_real(v) for v in items):
+            raise ParameterTypeError(
+                f"{name!r} must be a number or a non-empty sequence of numbers (one per "
+                f"output, e-), got {describe(value)}")
+        return tuple(float(v) for v in items)
     return value
+
+
+def check_pink_spectrum(name, value):
+    """``value`` as a tuple of ``(f_Hz, psd)`` float pairs: at least two, frequencies
+    finite, > 0 and strictly increasing, PSD values finite and > 0."""
+    if isinstance(value, (str, bytes, dict)) or not is_sequence(value) or not all(
+            is_sequence(pair) and len(pair) == 2 and all(is_real(v) for v in pair)
+            for pair in value):
+        raise ParameterTypeError(
+            f"{name!r} must be a sequence of (f_Hz, psd) pairs of numbers, got "
+            f"{describe(value)}")
+    spec = np.asarray(value, dtype=float).reshape(-1, 2)
+    if spec.shape[0] < 2:
+        raise ParameterError(
+            f"{name!r} must be a sequence of at least two (f_Hz, psd) pairs, got "
+            f"{spec.shape[0]}")
+    if (not np.all(np.isfinite(spec)) or np.any(spec[:, 0] <= 0)
+            or np.any(spec[:, 1] <= 0) or np.any(np.diff(spec[:, 0]) <= 0)):
+        raise ParameterError(
+            f"{name!r} needs finite frequencies > 0, strictly increasing, and PSD "
+            f"values > 0, got {describe(value)}")
+    if np.any(spec[:, 1] < 1.0 / PSD_RANGE) or np.any(spec[:, 1] > PSD_RANGE):
+        raise ParameterError(
+            f"{name!r} PSD values must lie in [{1.0 / PSD_RANGE:g}, {PSD_RANGE:g}] (a "
+            f"relative shape: rescale them), got {describe(value)}")
+    return tuple((float(f), float(p)) for f, p in spec)
 
 
 @dataclass(frozen=True)
@@ -119,7 +190,7 @@ class NoiseParams:
 
     def __post_init__(self):
         for name in _PER_OUTPUT:
-            object.__setattr__(self, name, _freeze(getattr(self, name)))
+            object.__setattr__(self, name, _freeze(name, getattr(self, name)))
         for name in _PER_OUTPUT:
             value = getattr(self, name)
             if isinstance(value, tuple):
@@ -133,23 +204,84 @@ class NoiseParams:
             check_float(name, getattr(self, name), minimum=0.0)
         check_float("ref_ratio", self.ref_ratio, minimum=0.0)
         check_float("bias_offset", self.bias_offset)
+        for name in _PER_OUTPUT + _SCALAR_AMPS + ("bias_offset",):
+            if max(abs(v) for v in self._values(name)) > MAX_AMPLITUDE:
+                raise ParameterError(
+                    f"{name!r} = {getattr(self, name)!r} e- is beyond what float32 frames "
+                    f"hold: amplitudes (and |bias_offset|) must be <= {MAX_AMPLITUDE:g} e-")
         check_float("rtn_fraction", self.rtn_fraction, minimum=0.0, maximum=1.0)
         check_float("rtn_tau_low", self.rtn_tau_low, minimum=0.0, strict_min=True)
         check_float("rtn_tau_high", self.rtn_tau_high, minimum=0.0, strict_min=True)
-        check_float("f_min", self.f_min, minimum=0.0, strict_min=True)
+        check_float("f_min", self.f_min, minimum=MIN_F_MIN)
+        ref_noise = max(self._values("rd_noise")) * self.ref_ratio
+        if ref_noise > MAX_AMPLITUDE:
+            raise ParameterError(
+                f"'ref_ratio' x 'rd_noise' (the reference pixels' white noise) must be "
+                f"<= {MAX_AMPLITUDE:g} e- (float32 frames), got {self.ref_ratio!r} x "
+                f"{max(self._values('rd_noise'))!r} = {ref_noise:g}")
         if self.pink_spectrum is not None:
-            spec = np.asarray(self.pink_spectrum, dtype=float)
-            if spec.ndim != 2 or spec.shape[1] != 2 or spec.shape[0] < 2:
-                raise ParameterError(
-                    f"'pink_spectrum' must be a sequence of at least two (f_Hz, psd) "
-                    f"pairs, got shape {spec.shape}")
-            if (not np.all(np.isfinite(spec)) or np.any(spec[:, 0] <= 0)
-                    or np.any(spec[:, 1] <= 0) or np.any(np.diff(spec[:, 0]) <= 0)):
-                raise ParameterError(
-                    "'pink_spectrum' needs finite frequencies > 0, strictly increasing, "
-                    "and PSD values > 0")
             object.__setattr__(self, "pink_spectrum",
-                               tuple((float(f), float(p)) for f, p in spec))
+                               check_pink_spectrum("pink_spectrum", self.pink_spectrum))
+        if self.pca0_file is not None and not isinstance(self.pca0_file, str):
+            raise ParameterTypeError(
+                f"'pca0_file' must be a path string or None, got {describe(self.pca0_file)}")
+
+    def _values(self, name):
+        value = getattr(self, name)
+        return value if isinstance(value, tuple) else (value,)
+
+    def nyquist_limits(self, detector):
+        """``{component: Nyquist frequency (Hz)}`` of the 1/f series that ``f_min``
+        shapes on ``detector``, for the enabled components (empty when none is)."""
+        out = {}
+        if self.c_pink > 0 or self.enabled("u_pink"):
+            out["pink"] = 0.5 / detector.dt
+        if self.enabled("acn"):
+            out["acn"] = 0.25 / detector.dt
+        if self.pca0 > 0:
+            out["pca0"] = 0.5 / detector.row_time
+        return out
+
+    def check_detector(self, detector, *, where="the detector's"):
+        """Raise :class:`~noise.errors.ParameterError` if these amplitudes cannot be
+        generated on ``detector``: per-output values that do not match its active
+        outputs, or ``f_min`` not below the Nyquist frequency of an enabled 1/f series
+        (module notes).  ``where`` names the detector's keys in the message (a scene
+        passes ``'[detector]'``)."""
+        n_out = detector.n_out_active
+        for name in _PER_OUTPUT:
+            value = getattr(self, name)
+            if isinstance(value, tuple) and len(value) != n_out:
+                raise ParameterError(
+                    f"{name!r} has {len(value)} per-output values but the detector "
+                    f"reads through {n_out} outputs")
+        how = {"pink": "1 / (2 'dt')", "acn": "1 / (4 'dt')",
+               "pca0": "1 / (2 row time), row time = (columns per output + 'nroh') x "
+                       "'dt'"}
+        for comp, nyq in self.nyquist_limits(detector).items():
+            if self.f_min >= nyq:
+                raise ParameterError(
+                    f"'f_min' = {self.f_min!r} Hz must be below the Nyquist frequency "
+                    f"of the {comp} series, {how[comp]} = {nyq:.6g} Hz with {where} "
+                    f"'dt' = {detector.dt!r} s and 'nroh' = {detector.nroh}")
+
+    def check_adc(self, gain, adc_bits):
+        """Raise :class:`~noise.errors.ParameterError` naming the first amplitude that
+        would clip every pixel at an ADC of ``gain`` e-/DN and ``adc_bits`` bits: above
+        :data:`ADC_CLIP_FACTOR` times its range ``gain * (2**adc_bits - 1)`` e-
+        (module notes).  ``rtn_amp`` is not checked: it reaches only RTN pixels."""
+        adc_range = float(gain) * (2.0 ** int(adc_bits) - 1.0)
+        limit = ADC_CLIP_FACTOR * adc_range
+        for f in dataclasses.fields(self):
+            if f.name in _OPTIONS or f.name == "rtn_amp":
+                continue
+            value = max(abs(v) for v in self._values(f.name))
+            if value > limit:
+                raise ParameterError(
+                    f"{f.name!r} = {getattr(self, f.name)!r} e- would clip every pixel "
+                    f"at the ADC: its size must be <= {ADC_CLIP_FACTOR:g} x the ADC range "
+                    f"('gain' {float(gain):g} e-/DN x {2 ** int(adc_bits) - 1} DN of "
+                    f"'adc_bits' {int(adc_bits)} = {adc_range:g} e-), i.e. <= {limit:g} e-")
 
     def per_output(self, name, n_out):
         """Amplitude ``name`` as an array of ``n_out`` values (e-)."""

@@ -76,6 +76,8 @@ import numpy as np
 import scipy.fft as sfft
 
 from noise.errors import ParameterError
+from noise.params import check_pink_spectrum
+from noise.validate import check_array, check_float, check_int
 from noise.fast.normal import standard_normal
 from noise.streams import generator, root_seed
 
@@ -98,13 +100,41 @@ _QUAD = 4        # blocks per FFT batch at the two finest levels (one at coarser
 _PAD = 64        # zero-padding factor when evaluating a filter's realised response
 
 
+def _check_psd_args(rate, f_min, spectrum, *, with_rate=True):
+    """The checked ``(rate, f_min, spectrum)`` of the public PSD functions: ``rate``
+    > 0 (unless not ``with_rate``), ``0 < f_min < rate / 2``, ``spectrum`` None or
+    pairs."""
+    f_min = check_float("f_min", f_min, minimum=0.0, strict_min=True)
+    if with_rate:
+        rate = check_float("rate", rate, minimum=0.0, strict_min=True)
+        if f_min >= rate / 2:
+            raise ParameterError(
+                f"'f_min' = {f_min!r} Hz must be below the Nyquist frequency "
+                f"rate / 2 = {rate / 2:g} Hz")
+    if spectrum is not None:
+        spectrum = check_pink_spectrum("spectrum", spectrum)
+    return rate, f_min, spectrum
+
+
 def pink_psd_shape(f, f_min, spectrum=None):
     """Unit-level one-sided PSD shape at frequencies ``f`` (Hz).
 
     ``1/f`` for ``f >= f_min`` and ``1/f_min`` below (stationary), or, if ``spectrum``
     (pairs of (f_Hz, psd)) is given, its log-log interpolation, constant beyond the
     table's ends and flat below ``f_min``.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        ``f`` not finite real numbers, ``f_min`` not > 0, or a bad ``spectrum``.
     """
+    f = check_array("f", f)
+    _, f_min, spectrum = _check_psd_args(None, f_min, spectrum, with_rate=False)
+    return _psd_shape(f, f_min, spectrum)
+
+
+def _psd_shape(f, f_min, spectrum=None):
+    """:func:`pink_psd_shape` without the argument checks."""
     f = np.maximum(np.asarray(f, dtype=float), f_min)
     if spectrum is None:
         return 1.0 / f
@@ -190,7 +220,7 @@ def _design(rate, f_min, spectrum):
             weight *= _lowpass(f, rate / _D ** i / (2 * _K))
         if j < nband - 1:                   # high-pass at this band's lower crossover
             weight *= 1.0 - _lowpass(f, r / _D / (2 * _K))
-        target = pink_psd_shape(f, f_min, spectrum) * weight
+        target = _psd_shape(f, f_min, spectrum) * weight
         amp = np.sqrt(target * r / 2.0)     # (2/r)|H|^2 = S for unit white input
         h = sfft.irfft(amp, n=ngrid)
         h = np.roll(h, _NTAPS // 2)[:_NTAPS] * _taper(_NTAPS)
@@ -214,7 +244,15 @@ def _fejer(f, n, rate):
 def realised_psd(f, rate, f_min, spectrum=None):
     """One-sided PSD (per Hz) at ``f`` of a unit-scale series as actually synthesised.
 
+    ``rate`` (Hz, > 0) is the series' sample rate; ``0 < f_min < rate / 2``.
     """
+    f = check_array("f", f)
+    rate, f_min, spectrum = _check_psd_args(rate, f_min, spectrum)
+    return _realised_psd(f, rate, f_min, spectrum)
+
+
+def _realised_psd(f, rate, f_min, spectrum=None):
+    """:func:`realised_psd` without the argument checks."""
     f = np.asarray(f, dtype=float)
     s = np.zeros(f.shape)
     for r, _, fg, psd, _ in _design(float(rate), float(f_min), spectrum):
@@ -223,14 +261,21 @@ def realised_psd(f, rate, f_min, spectrum=None):
     return s
 
 
-@functools.lru_cache(maxsize=64)
 def unit_frame_variance(rate, n, f_min, spectrum=None):
     """Expected variance over ``n`` samples (mean removed) of a unit-scale series.
 
-    ``integral S(f) (1 - F_n(f)) df`` of the realised PSD, on a log grid.
+    ``integral S(f) (1 - F_n(f)) df`` of the realised PSD, on a log grid; ``rate``
+    (Hz, > 0) is the sample rate, ``n >= 1``, ``0 < f_min < rate / 2``.
     """
+    rate, f_min, spectrum = _check_psd_args(rate, f_min, spectrum)
+    return _unit_frame_variance(rate, check_int("n", n, minimum=1), f_min, spectrum)
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_frame_variance(rate, n, f_min, spectrum=None):
+    """:func:`unit_frame_variance` without the argument checks (cached)."""
     f = np.geomspace(f_min * 1e-3, rate / 2, 40000)
-    integrand = realised_psd(f, rate, f_min, spectrum) * (1.0 - _fejer(f, n, rate))
+    integrand = _realised_psd(f, rate, f_min, spectrum) * (1.0 - _fejer(f, n, rate))
     return float(np.trapezoid(integrand, f))
 
 
@@ -445,14 +490,14 @@ class PinkSeries:
             level = _Level(H.astype(np.complex64), [tuple(k) + (j,) for k in seed_keys],
                            entropy, group, quad, level, _nfft(j))
         self._top = level
-        self.unit_sigma = np.sqrt(unit_frame_variance(self.rate, int(frame_samples),
+        self.unit_sigma = np.sqrt(_unit_frame_variance(self.rate, int(frame_samples),
                                                       self.f_min, spectrum))
         self.scale = (self.amplitudes / self.unit_sigma).astype(np.float32)
 
     def psd(self, f):
         """One-sided PSD (e-^2/Hz) of each series at ``f`` (Hz), shape (nseries,) + f.shape.
         """
-        unit = realised_psd(f, self.rate, self.f_min, self.spectrum)
+        unit = _realised_psd(f, self.rate, self.f_min, self.spectrum)
         return (self.scale.astype(float) ** 2)[(...,) + (None,) * np.ndim(unit)] * unit
 
     def get(self, start, n):
@@ -597,7 +642,7 @@ def measure_psd_error(*, rate=1e5, frame_samples=1073676, f_min=1e-4,
     for lo, hi in decades:
         key = f"{lo:g}-{hi:g} Hz"
         f = np.geomspace(lo, hi, 400)
-        p_real = float(series.scale[0]) ** 2 * realised_psd(f, rate, f_min)
+        p_real = float(series.scale[0]) ** 2 * _realised_psd(f, rate, f_min)
         design[key] = float(np.max(np.abs(np.log10(p_real * f / c_theory))))
         edges = np.geomspace(lo, hi, 11)
         worst, worst_sigma = 0.0, 0.0

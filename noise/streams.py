@@ -32,7 +32,8 @@ once, bit-identical to :func:`generator`.
 
 import numpy as np
 
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ParameterTypeError
+from noise.validate import describe
 
 __all__ = ["ENGINE", "NOISE", "POISSON", "POISSON_2D", "COSMIC_RAYS", "HOT_PIXELS",
            "NOISE_COMPONENTS", "root_seed", "generator"]
@@ -70,8 +71,8 @@ def root_seed(rng):
             raise ParameterError(f"'rng' seed must be >= 0, got {rng!r}")
         ss = np.random.SeedSequence(None if rng is None else int(rng))
     else:
-        raise ParameterError(
-            f"'rng' must be an int, SeedSequence, Generator or None, got {rng!r}")
+        raise ParameterTypeError(
+            f"'rng' must be an int, SeedSequence, Generator or None, got {describe(rng)}")
     return ss.entropy, tuple(ss.spawn_key)
 
 

@@ -15,9 +15,11 @@ import functools
 import os
 
 import numpy as np
-from astropy.io import fits
 
+from noise.clock import Detector
 from noise.errors import FileFormatError
+from noise.fitsio import open_fits
+from noise.validate import check_instance, check_int, check_path
 
 __all__ = ["synthetic_template", "load_template", "template_for"]
 
@@ -135,6 +137,8 @@ def synthetic_template(naxis2, naxis1):
     sigma (the statistics are computed without building the image, see
     :func:`_synthetic_stats`; cached per array size).
     """
+    naxis2 = check_int("naxis2", naxis2, minimum=1)
+    naxis1 = check_int("naxis1", naxis1, minimum=1)
     return _synthetic_region(naxis2, naxis1, 0, naxis2, 0, naxis1)
 
 
@@ -146,7 +150,7 @@ def load_template(path, detector):
     """
     if not os.path.isfile(path):
         raise FileFormatError(f"'pca0_file': {path!r} does not exist")
-    with fits.open(path) as hdul:
+    with open_fits(path, "'pca0_file'") as hdul:
         data = next((h.data for h in hdul if h.data is not None and h.data.ndim == 2),
                     None)
         if data is None:
@@ -163,9 +167,14 @@ def load_template(path, detector):
 
 
 def template_for(detector, path=None):
-    """Template for the read-out image of ``detector``, shape (ny, nx), float32."""
-    if path:
-        return load_template(path, detector).astype(np.float32)
+    """Template for the read-out image of ``detector``, shape (ny, nx), float32.
+
+    ``path``: a FITS template (:func:`load_template`), or None (or ``""``) for the
+    synthetic one.
+    """
+    check_instance("detector", detector, Detector, "a noise.Detector")
+    if path is not None and not (isinstance(path, str) and not path):
+        return load_template(check_path("pca0_file", path), detector).astype(np.float32)
     return _synthetic_region32(detector.naxis2, detector.naxis1,
                                detector.y0, detector.y0 + detector.ny,
                                detector.x0, detector.x0 + detector.nx)

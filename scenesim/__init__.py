@@ -69,6 +69,8 @@ _EXPORTS = {
     "compare_files": "scenesim.validate.compare",
     "build_engine": "scenesim.run",
     "run_scene": "scenesim.run",
+    "check_budget": "scenesim.budget",
+    "check_noise_budget": "scenesim.budget",
 }
 
 __all__ = list(_EXPORTS)

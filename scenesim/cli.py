@@ -4,9 +4,13 @@ Subcommands::
 
     scenesim noise --preset H2RG --frames 5 -o dark.fits     empty ramp (noise only)
     scenesim run SCENE.toml [-o OUT] [--seed N]              simulate a scene (+fit, compare)
+        [--uncal] [--l1] [--reffiles]                        + JWST uncal, Roman L1, references
     scenesim fit EXPOSURE.fits [-o OUT] [--refpix none|median|jwst] [--fitter cds|ols|gls]
     scenesim compare FIT.fits TRUTH.fits [--plots DIR]       fit vs. injected truth
-    scenesim bench [WORKLOAD ...] [--quick]                  run time against error
+    scenesim bench [WORKLOAD ...] [--quick] [--peers [--ng PATH]] [--scaling]
+    scenesim pipeline jwst|roman INPUT --refs DIR [--truth T]  the real pipelines, offline
+    scenesim batch SCENE.toml --realisations N --out DIR     many realisations on dask
+    scenesim compare --pool DIR                              pooled over a batch
 
 Errors in the input are reported in one line (exit status 2) before any work starts.
 No existing file is replaced without ``--overwrite``, and never a file the command
@@ -21,6 +25,7 @@ import signal
 import sys
 
 from noise.errors import ScenesimError
+from scenesim.batch.options import add_batch_arguments
 from noise.fast.memory import keep_freed_memory
 
 __all__ = ["main"]
@@ -64,6 +69,15 @@ def _parser():
                    help="charge arrivals: 'time' (exact, Poisson per read) or '2d' (the "
                         "paper's fast shortcut: one Poisson image spread over the reads)")
     r.add_argument("--threads", type=int, default=None)
+    r.add_argument("--uncal", action="store_true",
+                   help="also write the JWST uncal file STEM_uncal.fits (needs the "
+                        "[jwst] extra)")
+    r.add_argument("--l1", action="store_true",
+                   help="also write the Roman L1 file STEM_l1.asdf (needs the [roman] "
+                        "extra)")
+    r.add_argument("--reffiles", action="store_true",
+                   help="also write the detector's reference files into STEM_refs/ "
+                        "(JWST FITS and/or Roman ASDF)")
     r.add_argument("-q", "--quiet", action="store_true")
     r.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
     r.set_defaults(target="scenesim.commands:run_command")
@@ -81,20 +95,54 @@ def _parser():
     f.set_defaults(target="scenesim.commands:fit_command")
 
     c = sub.add_parser("compare", help="compare a slope file with the truth file")
-    c.add_argument("fit")
-    c.add_argument("truth")
+    c.add_argument("fit", nargs="?")
+    c.add_argument("truth", nargs="?")
+    c.add_argument("--pool", default=None, metavar="DIR",
+                   help="instead: pool the comparisons of the batch in DIR over its "
+                        "realisations (scenesim batch --compare)")
     c.add_argument("--exposure", default=None, help="exposure (for photometry errors)")
     c.add_argument("--plots", default=None)
     c.add_argument("--overwrite", action="store_true",
                    help="replace existing figures in --plots")
     c.set_defaults(target="scenesim.commands:compare_command")
 
-    b = sub.add_parser("bench", help="benchmarks: run time against error")
-    b.add_argument("workloads", nargs="*")
+    b = sub.add_parser("bench", help="benchmarks: run time against error; peers "
+                                     "measured beside scenesim (--peers)")
+    b.add_argument("workloads", nargs="*",
+                   help="workloads (default: all); 'peers' = noise, roman and fit with "
+                        "their peers")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--out", default="bench_out")
     b.add_argument("--threads", type=int, default=None)
+    b.add_argument("--peers", action="store_true",
+                   help="time each case's peers (NG, romanisim, stcal) in their own "
+                        "processes on the same input; absent ones print 'not measured'")
+    b.add_argument("--ng", default=None, metavar="PATH/nghxrg.py",
+                   help="the original NG program (not on the package index), with --peers")
+    b.add_argument("--scaling", action="store_true",
+                   help="run each case again on one thread (1- and N-thread times)")
     b.set_defaults(target="scenesim.commands:bench_command")
+
+    pl = sub.add_parser("pipeline", help="run JWST Detector1 or romancal's ramp fit "
+                                         "offline on a scenesim exposure")
+    pl.add_argument("pipeline", choices=("jwst", "roman"))
+    pl.add_argument("input", help="JWST uncal (STEM_uncal.fits) or Roman L1 "
+                                  "(STEM_l1.asdf), from 'scenesim run --uncal/--l1'")
+    pl.add_argument("--refs", required=True,
+                    help="reference directory from 'scenesim run --reffiles'")
+    pl.add_argument("-o", "--output", default=None,
+                    help="jwst: output directory (default: the input's); roman: the "
+                         "L2 file (default STEM_l2.asdf)")
+    pl.add_argument("--truth", default=None, help="truth file: compare the result")
+    pl.add_argument("--exposure", default=None,
+                    help="scenesim exposure (exact read times for compare)")
+    pl.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
+    pl.set_defaults(target="scenesim.pipelines.command:pipeline_command")
+
+    m = sub.add_parser("batch", help="many realisations or a grid of scenes on dask "
+                                     "(needs the [batch] extra)")
+    add_batch_arguments(m)
+    m.set_defaults(target="scenesim.batch.command:batch_command")
     return p
 
 

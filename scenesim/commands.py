@@ -4,13 +4,18 @@ in :mod:`scenesim.cli`, which imports this module once its handlers are installe
 
 import dataclasses
 import os
+import shlex
+import sys
 import time
 
 import noise
 from scenesim.adapters.stcal import fit_exposure_stcal
+from noise.errors import ParameterError
+from scenesim.batch.command import pool_command
 from scenesim.bench import main as bench_main
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import EngineOptions
+from scenesim.pipelines.command import check_run_products, write_run_products
 from scenesim.outputs import check_outputs, check_plot_dir, clean_stale_temps, fit_path_for
 from scenesim.run import progress_bar, run_scene
 from scenesim.scene import load_scene
@@ -66,10 +71,15 @@ def run_command(args):
     scene = load_scene(args.scene)
     options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
                             arrivals=args.arrivals)
+    products = dict(uncal=getattr(args, "uncal", False), l1=getattr(args, "l1", False),
+                    reffiles=getattr(args, "reffiles", False))
+    check_run_products(scene, args.output, overwrite=args.overwrite, **products)
     res = run_scene(scene, output=args.output, seed=args.seed, options=options,
                     progress=not args.quiet, fit=args.fit, refpix=args.refpix,
                     compare=True if args.compare else None, plots=args.plots,
                     overwrite=args.overwrite)
+    written = write_run_products(scene if args.seed is None else scene.replace(
+        seed=args.seed), res, overwrite=args.overwrite, **products)
     if res.cleaned and not args.quiet:
         print(res.cleaned)
     if not args.quiet:
@@ -82,6 +92,8 @@ def run_command(args):
                             ("fit", res.fit)):
             if path:
                 print(f"  {label}: {path}")
+        for path in written:
+            print(f"  pipeline: {path}")
         if res.report is not None:
             print(res.report.format())
     return 0
@@ -104,7 +116,16 @@ def fit_command(args):
 
 
 def compare_command(args):
-    """``scenesim compare``: grade a slope file against the truth."""
+    """``scenesim compare``: grade a slope file against the truth (or, with
+    ``--pool DIR``, print the comparisons of a batch pooled over realisations)."""
+    if getattr(args, "pool", None) is not None:
+        if args.fit is not None or args.plots or args.exposure:
+            raise ParameterError("'--pool' reads the batch directory alone; give no "
+                                 "FIT, TRUTH, --exposure or --plots with it")
+        return pool_command(args)
+    if args.fit is None or args.truth is None:
+        raise ParameterError("compare needs a slope file and a truth file (FIT TRUTH), "
+                             "or --pool DIR for a batch")
     if args.plots:
         check_plot_dir(args.plots, overwrite=args.overwrite)
         os.makedirs(args.plots, exist_ok=True)
@@ -115,6 +136,7 @@ def compare_command(args):
 
 
 def bench_command(args):
-    """``scenesim bench``: run the benchmarks."""
+    """``scenesim bench``: run the benchmarks (and, with ``--peers``, their peers)."""
     return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
-                      threads=args.threads)
+                      threads=args.threads, peers=args.peers, ng=args.ng,
+                      scaling=args.scaling, command=shlex.join(["scenesim"] + sys.argv[1:]))

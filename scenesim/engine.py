@@ -60,20 +60,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise.validate import check_float, check_int, check_map
-from noise.errors import ParameterError
+from noise.validate import (check_bool, check_choice, check_float, check_instance,
+                            check_int, check_map, describe, is_sequence)
+from noise.errors import ParameterError, ParameterTypeError
 from noise import streams
 from noise.adc import ADC
-from noise.clock import exposure_slots, frame_slot
+from noise.clock import Detector, exposure_slots, frame_slot
 from noise.generator import NoiseGenerator
+from noise.params import NoiseParams
 from noise.streams import root_seed
 
 from noise.fast.poisson import poisson
 from scenesim.detector.ipc import apply_ipc, check_kernel
+from scenesim.detector.nonlinearity import Nonlinearity
+from scenesim.detector.readout import Readout
 from scenesim.detector.saturation import FullWell
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
-           "ARRIVALS"]
+           "ARRIVALS", "MAX_CHARGE"]
+
+#: Most charge a pixel may collect in one integration, e-: 2**53 = 9.0e15, the largest
+#: count float64 (the Poisson means, the saved charge) holds exactly; the int64
+#: accumulator and numpy's Poisson sampler (9.2e18) are beyond it.
+MAX_CHARGE = 2.0 ** 53
 
 # Poisson stream layout (fixed by the detector and readout, never by the threads):
 _ROWS = 32               # at least this many rows per stream chunk ...
@@ -147,9 +156,8 @@ class EngineOptions:
     threads: int | None = None
 
     def __post_init__(self):
-        if self.arrivals not in ARRIVALS:
-            raise ParameterError(
-                f"'arrivals' must be one of {ARRIVALS}, got {self.arrivals!r}")
+        check_choice("arrivals", self.arrivals, ARRIVALS)
+        check_bool("shot_noise", self.shot_noise)
         if self.gauss_above is not None:
             check_float("gauss_above", self.gauss_above, minimum=0.0)
         if self.threads is not None:
@@ -272,15 +280,32 @@ class ChargeEngine:
                  variable_sources=(), cosmic_rays=None, full_well=None,
                  nonlinearity=None, ipc_kernel=None, gain=1.0, adc_bits=16,
                  rng=None, options=EngineOptions()):
-        self.detector = detector
-        self.readout = readout
+        self.detector = check_instance("detector", detector, Detector, "a noise.Detector")
+        self.readout = check_instance("readout", readout, Readout,
+                                      "a scenesim.detector.readout.Readout")
+        check_instance("noise_params", noise_params, NoiseParams, "a noise.NoiseParams",
+                       allow_none=True)
+        check_instance("nonlinearity", nonlinearity, Nonlinearity,
+                       "a scenesim.detector.nonlinearity.Nonlinearity", allow_none=True)
+        check_instance("options", options, EngineOptions, "a scenesim.engine.EngineOptions")
+        check_instance("cosmic_rays", cosmic_rays, CosmicRayHits,
+                       "a scenesim.engine.CosmicRayHits", allow_none=True)
+        if isinstance(variable_sources, (str, bytes, dict, np.ndarray)) or \
+                not is_sequence(variable_sources):
+            raise ParameterTypeError(
+                f"'variable_sources' must be a sequence of VariableSource, got "
+                f"{describe(variable_sources)}")
+        for v in variable_sources:
+            check_instance("variable_sources", v, VariableSource,
+                           "a sequence of scenesim.engine.VariableSource")
         shape = detector.shape
         self.refmask = detector.reference_mask()
         # reference pixels collect no charge
         self.rate = np.array(np.broadcast_to(check_map("rate", rate, shape), shape))
         self.rate[self.refmask] = 0.0
         self.variable = [self._check_variable(v) for v in variable_sources]
-        cr = cosmic_rays if cosmic_rays is not None else CosmicRayHits.empty()
+        cr = self._check_cosmic_rays(cosmic_rays) if cosmic_rays is not None else \
+            CosmicRayHits.empty()
         if cr.index.size:
             keep = ~self.refmask.reshape(-1)[cr.index]
             cr = CosmicRayHits(cr.time[keep], cr.index[keep], cr.charge[keep])
@@ -312,6 +337,7 @@ class ChargeEngine:
             self._var_uniq, self._var_inv = np.unique(
                 np.concatenate([v.index for v in self.variable]), return_inverse=True)
         self._cr_tpix = self._pixel_time_flat(self.cosmic_rays.index)
+        self._check_charge()
         self._dtype = np.int64 if self._max_charge() > 2e9 else np.int32
         if not options.shot_noise or options.arrivals == "2d":
             self._dtype = np.float64
@@ -364,14 +390,64 @@ class ChargeEngine:
     # ----------------------------------------------------------------- checks
     def _check_variable(self, v):
         n = self.detector.ny * self.detector.nx
-        idx = np.asarray(v.index, dtype=np.int64)
-        w = np.asarray(v.weight, dtype=np.float64)
+        idx = _as_1d("variable_sources index", v.index, np.int64)
+        w = _as_1d("variable_sources weight", v.weight, np.float64)
         if idx.shape != w.shape or (idx.size and (idx.min() < 0 or idx.max() >= n)):
-            raise ParameterError("variable source stamp indices are out of range")
+            raise ParameterError(
+                f"'variable_sources' stamp indices are out of range: they must be flat "
+                f"pixel indices in [0, {n - 1}] with one weight each, got {idx.size} "
+                f"indices (range "
+                f"{idx.min() if idx.size else '-'}..{idx.max() if idx.size else '-'}) "
+                f"and {w.size} weights")
         if not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise ParameterError("variable source weights must be finite and >= 0 e-/s")
+            raise ParameterError(
+                "'variable_sources' weights must be finite and >= 0 e-/s")
+        if not callable(getattr(v.light_curve, "integral", None)) or \
+                not hasattr(v.light_curve, "flux"):
+            raise ParameterTypeError(
+                f"'variable_sources' light_curve must be a "
+                f"scenesim.sky.lightcurve.LightCurve, got {describe(v.light_curve)}")
         keep = ~self.refmask.ravel()[idx]
         return VariableSource(idx[keep], w[keep], v.light_curve)
+
+    def _check_cosmic_rays(self, cr):
+        """The deposits of ``cr`` as 1-D arrays of one length (time s, flat pixel
+        index, charge e-): finite, indices on the image, charges in [0, MAX_CHARGE]."""
+        n = self.detector.ny * self.detector.nx
+        t = _as_1d("cosmic_rays time", cr.time, np.float64)
+        idx = _as_1d("cosmic_rays index", cr.index, np.int64)
+        q = _as_1d("cosmic_rays charge", cr.charge, np.float64)
+        if not t.size == idx.size == q.size:
+            raise ParameterError(
+                f"'cosmic_rays' needs one time, index and charge per deposit, got "
+                f"{t.size}, {idx.size} and {q.size}")
+        if idx.size and (idx.min() < 0 or idx.max() >= n):
+            raise ParameterError(
+                f"'cosmic_rays' indices must be flat pixel indices in [0, {n - 1}], got "
+                f"{idx.min()}..{idx.max()}")
+        if not np.all(np.isfinite(t)) or not np.all(np.isfinite(q)) or np.any(q < 0) \
+                or np.any(q > MAX_CHARGE):
+            raise ParameterError(
+                f"'cosmic_rays' times must be finite and charges in [0, {MAX_CHARGE:.3g}] "
+                f"e-")
+        if t is cr.time and idx is cr.index and q is cr.charge:
+            return cr
+        return CosmicRayHits(t, idx, q)
+
+    def _check_charge(self):
+        """Refuse rates whose brightest pixel would collect more than
+        :data:`MAX_CHARGE` in one integration."""
+        t_int = exposure_slots(1, self.readout.nreads) * self.detector.frame_time
+        peak = float(self.rate.max()) if self.rate.size else 0.0
+        for v in self.variable:
+            if v.weight.size:
+                peak += float(v.weight.max()) * float(np.max(v.light_curve.flux))
+        if not peak * t_int <= MAX_CHARGE:
+            raise ParameterError(
+                f"'rate' (with the variable sources at their peak) is {peak:.3g} e-/s in "
+                f"the brightest pixel, which would collect {peak * t_int:.3g} e- over an "
+                f"integration of {t_int:.6g} s; at most {MAX_CHARGE:.3g} e- (2**53) per "
+                f"pixel are allowed")
 
     def _max_charge(self):
         t_total = exposure_slots(1, self.readout.nreads) * self.detector.frame_time
@@ -594,6 +670,11 @@ class ChargeEngine:
         sum per open resultant; everything per pixel is done in row blocks on the
         thread pool (elementwise, so the blocks do not change the result).
         """
+        save_charge = check_bool("save_charge", save_charge)
+        save_noise = check_bool("save_noise", save_noise)
+        if progress is not None and not callable(progress):
+            raise ParameterTypeError(
+                f"'progress' must be a callable or None, got {describe(progress)}")
         return EngineRun(self, save_charge=save_charge, save_noise=save_noise,
                          progress=progress)
 
@@ -729,6 +810,18 @@ class ChargeEngine:
         if self.ipc_kernel is not None:
             out = apply_ipc(out, self.ipc_kernel)
         return out
+
+
+def _as_1d(name, value, dtype):
+    """``value`` as a 1-D array of ``dtype`` (the same object when it already is)."""
+    try:
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "iuf" or arr.ndim != 1:
+            raise TypeError
+        return arr.astype(dtype, copy=False)
+    except (TypeError, ValueError) as exc:
+        raise ParameterTypeError(
+            f"{name!r} must be a 1-D array of numbers, got {describe(value)}") from exc
 
 
 def _poisson_or_gauss(g, lam, threshold):

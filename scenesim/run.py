@@ -39,7 +39,7 @@ from noise.errors import ParameterError
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
-from scenesim.io.header import psf_cards
+from scenesim.io.header import instrument_cards, psf_cards
 from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps,
                               fit_path_for, scene_inputs)
 from scenesim.validate.compare import compare_files
@@ -233,7 +233,8 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
                                                    plots=plots)
     cleaned = clean_stale_temps([exp_path, truth_path, fit_path])
     engine, rendered = build_engine(scene, options=options)
-    cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf)
+    cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf) + \
+        instrument_cards(scene.instrument)
     ro = engine.readout
     with _progress(ro.nints * len(ro.needed_reads), progress) as cb:
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,

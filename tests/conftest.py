@@ -134,3 +134,14 @@ def spaced_bins():
 def fit_loglog():
     """Log-log slope fit with its standard error, :func:`_fit_loglog`."""
     return _fit_loglog
+
+
+def pytest_collection_modifyitems(config, items):
+    """Run the tests marked ``leaves_threads`` last.
+
+    A dask.distributed client leaves process-wide threads behind (its IO loop and
+    offload executor) that live until the interpreter exits.  With other threads
+    running, :func:`noise.fast.producer.available` rightly refuses to fork, so the
+    tests that check the forked producer in this process must run before them.
+    """
+    items.sort(key=lambda item: item.get_closest_marker("leaves_threads") is not None)

@@ -58,7 +58,7 @@ import numpy as np
 
 from noise.clock import Detector
 from noise.errors import ParameterError
-from noise.validate import check_choice, check_float, check_int
+from noise.validate import check_choice, check_float, check_instance, check_int
 
 __all__ = ["SCHEMES", "correct_reference", "reference_layout", "reference_edges",
            "check_correction_options", "running_mean", "window_bounds",
@@ -103,6 +103,7 @@ def reference_edges(detector):
         of the left/right reference columns (0-based; empty where the readout has
         none).
     """
+    check_instance("detector", detector, Detector, "a noise.clock.Detector")
     b = detector.ref_border
     ys = np.arange(detector.y0, detector.y0 + detector.ny)
     xs = np.arange(detector.x0, detector.x0 + detector.nx)

@@ -86,7 +86,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from noise.errors import ParameterError
-from noise.validate import check_float, check_int, check_mask
+from noise.validate import check_float, check_int, check_mask, describe
 
 from scenesim.detector.nonlinearity import Nonlinearity
 
@@ -226,11 +226,14 @@ def _check_ramp_args(e, tbar, t_last, n_reads, refmask):
     nres = e.shape[1]
 
     def times(name, value):
-        arr = np.asarray(value, dtype=np.float64)
-        if arr.shape != (nres,) or not np.all(np.isfinite(arr)):
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            arr = None
+        if arr is None or arr.shape != (nres,) or not np.all(np.isfinite(arr)):
             raise ParameterError(
                 f"{name!r} must be {nres} finite times (s), one per resultant, got "
-                f"{value!r}")
+                f"{describe(value)}")
         return arr
 
     tbar = times("tbar", tbar)
@@ -241,12 +244,15 @@ def _check_ramp_args(e, tbar, t_last, n_reads, refmask):
         refmask = check_mask("refmask", refmask, e.shape[2:])
     if n_reads is None:
         return tbar, t_last, np.ones(nres), refmask
-    n_reads = np.asarray(n_reads, dtype=np.float64)
+    try:
+        n_reads = np.asarray(n_reads, dtype=np.float64)
+    except (TypeError, ValueError):
+        n_reads = np.zeros(0)
     if n_reads.shape != (nres,) or np.any(n_reads < 1) \
             or np.any(n_reads != np.round(n_reads)):
         raise ParameterError(
             f"'n_reads' must be {nres} integers >= 1 (reads per resultant), got "
-            f"{n_reads!r}")
+            f"{describe(n_reads)}")
     return tbar, t_last, n_reads, refmask
 
 

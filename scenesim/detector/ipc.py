@@ -27,19 +27,26 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from noise.errors import ParameterError
-from noise.validate import check_image
+from noise.errors import ParameterError, ParameterTypeError
+from noise.validate import check_image, describe
 
 __all__ = ['ipc_kernel', 'apply_ipc', 'ipc_keep', 'undo_ipc', 'ipc_noise_gain', 'check_kernel']
 
 
 # -------------------------------------------------------------------------------- IPC
 def check_kernel(kernel):
-    k = np.asarray(kernel, dtype=np.float64) if not isinstance(kernel, str) else None
-    if k is None or k.shape != (3, 3):
-        raise ParameterError(
-            f"'ipc_kernel' must be a 3x3 array, got "
-            f"{'a string' if k is None else f'shape {k.shape}'}")
+    """``kernel`` as a 3x3 float64 array of finite values >= 0, renormalised to sum
+    exactly 1 (it must sum to 1 within 1e-9), or a ParameterError."""
+    try:
+        k = np.asarray(kernel, dtype=np.float64) \
+            if not isinstance(kernel, (str, bytes, dict)) else None
+    except (TypeError, ValueError):
+        k = None
+    if k is None:
+        raise ParameterTypeError(
+            f"'ipc_kernel' must be a 3x3 array of numbers, got {describe(kernel)}")
+    if k.shape != (3, 3):
+        raise ParameterError(f"'ipc_kernel' must be a 3x3 array, got shape {k.shape}")
     if not np.all(np.isfinite(k)) or np.any(k < 0):
         raise ParameterError(
             f"'ipc_kernel' entries must be finite and >= 0, got {k.tolist()!r}")
@@ -74,7 +81,7 @@ def ipc_kernel(alpha, alpha_diag=0.0):
     for name, v in (("ipc_alpha", alpha), ("ipc_alpha_diag", alpha_diag)):
         if isinstance(v, bool) or not isinstance(v, (numbers.Real, np.number)) \
                 or not math.isfinite(v) or v < 0:
-            raise ParameterError(f"{name!r} must be a finite number >= 0, got {v!r}")
+            raise ParameterError(f"{name!r} must be a finite number >= 0, got {describe(v)}")
     a, ad = float(alpha), float(alpha_diag)
     if 4 * a + 4 * ad > 1:
         raise ParameterError(
@@ -385,13 +392,17 @@ def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1, out=None):
     if isinstance(tolerance, bool) or not isinstance(tolerance, numbers.Real) \
             or not math.isfinite(tolerance) or tolerance <= 0:
         raise ParameterError(
-            f"'tolerance' must be a finite number > 0, got {tolerance!r}")
+            f"'tolerance' must be a finite number > 0, got {describe(tolerance)}")
     if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) \
             or threads < 1:
-        raise ParameterError(f"'threads' must be an integer >= 1, got {threads!r}")
+        raise ParameterError(f"'threads' must be an integer >= 1, got {describe(threads)}")
     dtype = np.float32 if img.dtype == np.float32 else np.float64
     if out is None:
         out = img.astype(dtype, copy=True)
+    elif not isinstance(out, np.ndarray):
+        raise ParameterTypeError(
+            f"'out' must be a {np.dtype(dtype)} array of shape {img.shape} or None, got "
+            f"{describe(out)}")
     elif out.shape != img.shape or out.dtype != dtype:
         raise ParameterError(
             f"'out' must be a {np.dtype(dtype)} array of shape {img.shape}, got "

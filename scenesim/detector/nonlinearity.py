@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ParameterTypeError
+from noise.validate import check_image, check_instance, describe
 
 __all__ = ['Nonlinearity', 'linearize_resultants']
 
@@ -146,7 +147,12 @@ class Nonlinearity:
         -------
         ndarray, same shape, float64, e-
         """
-        q = np.asarray(charge, dtype=np.float64)
+        try:
+            q = np.asarray(charge, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ParameterTypeError(
+                f"'charge' must be a number or an array of numbers (e-), got "
+                f"{describe(charge)}") from exc
         return self._p(q)
 
     @property
@@ -291,6 +297,19 @@ def linearize_resultants(e, nl, tbar):
     -------
     ndarray, same shape, float32, e-
     """
+    check_instance("nl", nl, Nonlinearity, "a scenesim.detector.nonlinearity.Nonlinearity")
+    e = check_image("e", e)
+    if e.ndim != 4:
+        raise ParameterError(
+            f"'e' must have shape (nints, nres, ny, nx), got shape {e.shape}")
+    try:
+        t = np.asarray(tbar, dtype=np.float64)
+    except (TypeError, ValueError):
+        t = None
+    if t is None or t.shape != (e.shape[1],) or not np.all(np.isfinite(t)):
+        raise ParameterError(
+            f"'tbar' must hold {e.shape[1]} finite mean times (s), one per resultant, "
+            f"got {describe(tbar)}")
     e = np.asarray(e, dtype=np.float32)
     lo, hi = nl.measured_range
     lo, hi = np.nextafter(lo, np.inf), np.nextafter(hi, -np.inf)   # strictly inside

@@ -90,7 +90,8 @@ from astropy.table import Table
 
 from noise.clock import frame_slot
 from noise.errors import FileFormatError, ParameterError
-from noise.validate import check_choice, check_float, check_int, check_str, is_sequence
+from noise.validate import (check_choice, check_float, check_int, check_str, describe,
+                            is_sequence)
 
 __all__ = [
     "Readout",
@@ -98,8 +99,15 @@ __all__ = [
     "ROMAN_LIKE_TABLE",
     "ROMAN_LIKE_SKIP_TABLE",
     "RESET_MODES",
+    "MAX_READS",
     "resultant_moments",
 ]
+
+#: Most reads per integration (read indices run from 0 to ``MAX_READS - 1``): about a
+#: million frames, far beyond any instrument's pattern, and a bound that keeps building
+#: a readout (a tuple per resultant) cheap; a 64x64 window reads one in ~5 ms, so the
+#: limit is ~1.4 hours of continuous reads in one integration.
+MAX_READS = 2 ** 20
 
 #: Reset modes accepted by :class:`Readout`.
 RESET_MODES = ("rolling", "global")
@@ -147,7 +155,8 @@ def _check_pixel_time(value):
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ParameterError(
-            f"'pixel_time' must be a number or array of seconds >= 0, got {value!r}"
+            f"'pixel_time' must be a number or array of seconds >= 0, got "
+            f"{describe(value)}"
         ) from exc
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         bad = arr if arr.ndim == 0 else arr[~(np.isfinite(arr) & (arr >= 0))][0]
@@ -161,25 +170,29 @@ def _check_resultants(name, value):
     if isinstance(value, (str, bytes)) or not is_sequence(value):
         raise ParameterError(
             f"{name!r} must be a non-empty sequence of read-index sequences, "
-            f"got {value!r}")
+            f"got {describe(value)}")
     out = []
     previous = -1
     for r, res in enumerate(value):
         if isinstance(res, (str, bytes)) or not is_sequence(res):
             raise ParameterError(
                 f"{name!r}: resultant {r} must be a sequence of read indices, "
-                f"got {res!r}")
+                f"got {describe(res)}")
         reads = []
         for k in res:
             if isinstance(k, bool) or not isinstance(k, numbers.Integral):
                 raise ParameterError(
                     f"{name!r}: resultant {r} read indices must be integers >= 0, "
-                    f"got {k!r}")
+                    f"got {describe(k)}")
             k = int(k)
             if k < 0:
                 raise ParameterError(
                     f"{name!r}: resultant {r} read indices must be >= 0 (0 is the "
                     f"first read after reset), got {k}")
+            if k >= MAX_READS:
+                raise ParameterError(
+                    f"{name!r}: resultant {r} read index {k} is beyond the limit of "
+                    f"{MAX_READS} reads per integration (indices 0 to {MAX_READS - 1})")
             if k <= previous:
                 raise ParameterError(
                     f"{name!r}: read indices must be strictly increasing within and "
@@ -192,7 +205,7 @@ def _check_resultants(name, value):
                 f"{name!r}: resultant {r} is empty; every resultant needs >= 1 read")
         out.append(tuple(reads))
     if not out:
-        raise ParameterError(f"{name!r} must contain >= 1 resultant, got {value!r}")
+        raise ParameterError(f"{name!r} must contain >= 1 resultant, got {describe(value)}")
     return tuple(out)
 
 
@@ -311,6 +324,12 @@ class Readout:
         ngroups = check_int("ngroups", ngroups, minimum=1)
         groupgap = check_int("groupgap", groupgap, minimum=0)
         nskip = check_int("nskip", nskip, minimum=0)
+        nreads = nskip + (ngroups - 1) * (nframes + groupgap) + nframes
+        if nreads > MAX_READS:
+            raise ParameterError(
+                f"'ngroups' = {ngroups} groups of 'nframes' = {nframes} frames (+ "
+                f"'groupgap' = {groupgap}, 'nskip' = {nskip}) take {nreads} reads per "
+                f"integration; at most {MAX_READS} are allowed")
         return cls(_multiaccum_reads(nframes, ngroups, groupgap, nskip), nints=nints,
                    reset_mode=reset_mode, name=name, nframes=nframes,
                    groupgap=groupgap, nskip=nskip)
@@ -335,11 +354,11 @@ class Readout:
         """
         key = pattern.upper() if isinstance(pattern, str) else None
         if key not in NAMED_PATTERNS:
-            close = difflib.get_close_matches(str(key or pattern), NAMED_PATTERNS, n=1)
+            close = difflib.get_close_matches(key, NAMED_PATTERNS, n=1) if key else []
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ParameterError(
                 f"'pattern' must be one of {sorted(NAMED_PATTERNS)} (case-insensitive), "
-                f"got {pattern!r}{hint}")
+                f"got {describe(pattern)}{hint}")
         nframes, groupgap = NAMED_PATTERNS[key]
         return cls.multiaccum(nframes, ngroups, groupgap=groupgap, nskip=0,
                               nints=nints, reset_mode=reset_mode, name=key)
@@ -366,7 +385,7 @@ class Readout:
         if isinstance(table, (str, bytes)) or not is_sequence(table) or len(table) == 0:
             raise ParameterError(
                 f"'table' must be a non-empty sequence of (first_read, nreads) pairs, "
-                f"got {table!r}")
+                f"got {describe(table)}")
         reads = []
         previous_last = -1
         for r, entry in enumerate(table):
@@ -374,7 +393,7 @@ class Readout:
                     or len(entry) != 2:
                 raise ParameterError(
                     f"'table' entry {r} must be a (first_read, nreads) pair, "
-                    f"got {entry!r}")
+                    f"got {describe(entry)}")
             first = check_int(f"table[{r}] first_read", entry[0], minimum=0)
             n = check_int(f"table[{r}] nreads", entry[1], minimum=1)
             if first <= previous_last:
@@ -382,6 +401,10 @@ class Readout:
                     f"'table' has non-increasing reads: entry {r} starts at read "
                     f"{first} but the previous resultant ends at read {previous_last}; "
                     f"first_read must be >= {previous_last + 1}")
+            if first + n > MAX_READS:
+                raise ParameterError(
+                    f"'table' entry {r} ({first}, {n}) reads up to read {first + n - 1}, "
+                    f"beyond the limit of {MAX_READS} reads per integration")
             reads.append(tuple(range(first, first + n)))
             previous_last = first + n - 1
         return cls(tuple(reads), nints=nints, reset_mode=reset_mode, name=name)

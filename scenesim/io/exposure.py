@@ -27,6 +27,13 @@ its well during skipped frames reports the next read that is actually taken),
 read saw it), ``SOURCES`` (the catalogue as rendered), and optionally ``CHARGE``
 (noise-free charge resultants, e-) and ``NOISE`` (noise-only resultants, e-).
 
+What this plain writer lacks for the JWST pipeline (so ``calwebb_detector1`` does not
+take its files; with the ``jwst`` extra, :func:`scenesim.pipelines.jwst.write_uncal`
+writes the uncal file that it does take): ``INSTRUME``, ``EXP_TYPE``, a JWST
+``DETECTOR`` name (``DETECTOR`` is the HxRG preset's), ``DATE-OBS``, ``FASTAXIS`` and
+``SLOWAXIS``, ``FRMDIVSR``, ``DRPFRMS1`` (it writes ``DROPFRM1``), the ``INT_TIMES``
+table, ``GROUPDQ``/``PIXELDQ`` and the ``ASDF`` extension the data models write.
+
 In memory: :class:`Exposure` holds what an exposure file holds (``SCI``, the primary
 header and the ``READS`` table, exactly as :func:`read_exposure` returns them from a
 file).  ``ExposureWriter(engine, None)`` returns one, so a run that wants slopes but

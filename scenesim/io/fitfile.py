@@ -20,7 +20,10 @@ extensions: ``SLOPE`` (e-/s), ``SLOPE_DN`` (DN/s), ``VAR_READ`` and ``VAR_POIS``
 ``SLOPEINT`` (e-/s, per integration), ``VARINT`` ((e-/s)^2), ``DOF``, ``NJUMPS``.
 
 JWST rate files (``SCI`` in DN/s, ``DQ``, ``VAR_POISSON`` + ``VAR_RNOISE`` or
-``ERR``) are converted to e- with a gain (e-/DN) the caller supplies.
+``ERR``) are converted to e- with a gain (e-/DN) the caller supplies; a ``rateints``
+file (3-D ``SCI``) is combined over integrations with inverse-variance weights
+first.  Roman L2 files (``.asdf``) are read by
+:func:`scenesim.pipelines.products.read_roman_l2`.
 
 Files are written atomically (a ``.gz`` name gzip-compressed; an OS error such as a
 full disk raises :class:`noise.errors.OutputError` and leaves nothing) and read
@@ -39,6 +42,7 @@ from noise.fitsio import atomic_file, check_output_name, input_path, open_fits
 from noise.validate import check_writable
 
 from scenesim.io.header import check_file_kind, filetype_card, nextend_card
+from scenesim.pipelines.products import is_asdf, read_roman_l2
 
 __all__ = ["FitResult", "write_fit", "read_fit", "read_slopes", "fit_arrays"]
 
@@ -262,11 +266,12 @@ def read_slopes(path, *, gain=None):
     Parameters
     ----------
     path : str or os.PathLike
-        scenesim fit file (``SLOPE``, ``VAR_READ``, ``VAR_POIS``, ``CHI2``, ``DQ``) or
+        scenesim fit file (``SLOPE``, ``VAR_READ``, ``VAR_POIS``, ``CHI2``, ``DQ``),
         JWST rate file (``SCI`` DN/s, ``DQ``, ``VAR_POISSON`` + ``VAR_RNOISE`` or
-        ``ERR``).
+        ``ERR``) or Roman L2 ASDF file (a name ending in ``.asdf``:
+        :func:`scenesim.pipelines.products.read_roman_l2`).
     gain : float, keyword-only
-        e-/DN; required for a JWST rate file.
+        e-/DN; required for a JWST rate file and a Roman L2 file.
 
     Returns
     -------
@@ -276,6 +281,8 @@ def read_slopes(path, *, gain=None):
         ``layout`` ('scenesim' or 'jwst').
     """
     path = input_path(path, "slope file")
+    if is_asdf(path):                           # a Roman L2 file
+        return read_roman_l2(path, gain=gain)
     with open_fits(path, "slope file", memmap=False) as hdul:
         check_file_kind(hdul, path, "slopes")
         names = [h.name for h in hdul]
@@ -302,8 +309,11 @@ def read_slopes(path, *, gain=None):
                        + np.asarray(hdul["VAR_RNOISE"].data, dtype=np.float64))
             else:
                 var = np.asarray(hdul["ERR"].data, dtype=np.float64) ** 2
-            out = {"slope": sci * g, "var": var * g * g,
-                   "dq": np.asarray(hdul["DQ"].data).astype(np.uint32),
+            dq = np.asarray(hdul["DQ"].data).astype(np.uint32)
+            if sci.ndim == 3:                   # a rateints file: one plane per int
+                sci, var, dq = _combine_integrations(sci, var, dq)
+                layout = "jwst-rateints"
+            out = {"slope": sci * g, "var": var * g * g, "dq": dq,
                    "chi2": None, "read_noise": None, "layout": layout}
             for key in ("slope", "var"):
                 out[key] = np.nan_to_num(out[key], nan=0.0 if key == "slope"
@@ -315,6 +325,19 @@ def read_slopes(path, *, gain=None):
                 f"JWST rate file (extension 'SCI'); found {names}")
     fit = read_fit(path)
     return fit_arrays(fit)
+
+
+def _combine_integrations(sci, var, dq):
+    """The rates of a JWST ``rateints`` file (nints, ny, nx) combined as ``rate``
+    files combine them: inverse-variance weights per pixel, variance ``1 / sum(1 /
+    var)``, DQ the OR over integrations (an integration with no valid variance gets
+    no weight)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(np.isfinite(var) & (var > 0), 1.0 / var, 0.0)
+        wsum = w.sum(axis=0)
+        slope = np.where(wsum > 0, (w * np.nan_to_num(sci)).sum(axis=0) / wsum, np.nan)
+        total = np.where(wsum > 0, 1.0 / wsum, np.inf)
+    return slope, total, np.bitwise_or.reduce(dq, axis=0) if dq.ndim == 3 else dq
 
 
 def _positive(value):

@@ -34,7 +34,16 @@ Exposure and truth primary header (:func:`exposure_cards`):
   row, ``k[1+dy, 1+dx]``, :func:`header_ipc_kernel`);
 * the engine options (``GAUSSAB``, ``ARRIVALS``), ``SEEDENT``, and the scene's own
   cards (``SEED``, ``SCENE``, ...), then the PSF (:func:`psf_cards`: ``PSFFWHM`` for a
-  Gaussian, ``PSFAIRY`` for an Airy disk; :func:`header_psf`).
+  Gaussian, ``PSFAIRY`` for an Airy disk; :func:`header_psf`);
+* the JWST identity chosen in the scene's ``[instrument]`` table, when it has one
+  (:func:`instrument_cards`: ``JWSTINST``, ``JWSTDET``, ``JWSTEXPT``, ``JWSTSUBA``;
+  read back by :func:`header_instrument`).  They are scenesim names: the plain
+  exposure keeps ``DETECTOR`` for the HxRG preset, and only the JWST uncal
+  (:mod:`scenesim.pipelines.jwst`) carries ``INSTRUME``, a JWST ``DETECTOR``,
+  ``EXP_TYPE``...
+
+JWST rate files are read by their own keywords: :func:`header_jwst_steps` gives the
+calibration steps that ran (``S_IPC``, ``S_DARK``, ... = ``'COMPLETE'``).
 
 Fit files copy :data:`COPIED_KEYS` from the exposure; every card is made to fit
 one 80-character card (:func:`card`).  Every header passes astropy's verification
@@ -57,7 +66,8 @@ __all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
            "readout_from_header", "readout_from_table", "header_nonlinearity", "header_ipc_kernel",
            "header_psf", "exposure_settings", "preparation_cards",
            "header_ipc_deconvolved", "FILETYPES", "filetype_card", "nextend_card",
-           "file_kind", "check_file_kind"]
+           "file_kind", "check_file_kind", "instrument_cards", "header_instrument",
+           "header_jwst_steps"]
 
 
 #: Exposure header keywords copied into the header of a fit.
@@ -424,8 +434,59 @@ def preparation_cards(name, hdr, options, rdn_model, decon, rn_gain, linearized)
 
 
 def header_ipc_deconvolved(header):
-    """True when a fit file's header says the fit undid IPC (``IPCDECON``)."""
-    return bool(header.get("IPCDECON", False))
+    """True when a fit file's header says the fit undid IPC: scenesim's ``IPCDECON``,
+    or a JWST rate file whose ``ipc`` step ran (``S_IPC = 'COMPLETE'``)."""
+    return bool(header.get("IPCDECON", False)) or "ipc" in header_jwst_steps(header)
+
+
+#: JWST step-status keywords (``S_<KEY> = 'COMPLETE'`` once the step ran) -> step.
+JWST_STEP_KEYWORDS = {"S_GRPSCL": "group_scale", "S_DQINIT": "dq_init",
+                      "S_SATURA": "saturation", "S_IPC": "ipc", "S_SUPERB": "superbias",
+                      "S_REFPIX": "refpix", "S_LINEAR": "linearity",
+                      "S_DARK": "dark_current", "S_JUMP": "jump",
+                      "S_RAMP": "ramp_fit", "S_GANSCL": "gain_scale"}
+
+
+def header_jwst_steps(header):
+    """The JWST calibration steps a file's header says ran (``S_* = 'COMPLETE'``).
+
+    Returns
+    -------
+    set of str
+        Step names (``'ipc'``, ``'dark_current'``, ...); empty for scenesim files.
+    """
+    return {step for key, step in JWST_STEP_KEYWORDS.items()
+            if str(header.get(key, "")).strip().upper() == "COMPLETE"}
+
+
+def instrument_cards(instrument):
+    """Cards recording a scene's ``[instrument]`` table (an
+    :class:`scenesim.pipelines.instrument.InstrumentConfig`); none when it is empty."""
+    if instrument is None or not instrument.is_set:
+        return []
+    return [("JWSTINST", instrument.name, "JWST instrument ('' = inferred)"),
+            ("JWSTDET", instrument.detector, "JWST detector ('' = inferred)"),
+            ("JWSTEXPT", instrument.exp_type, "JWST EXP_TYPE ('' = inferred)"),
+            ("JWSTSUBA", instrument.subarray, "JWST subarray ('' = inferred)")]
+
+
+def header_instrument(header):
+    """The :class:`~scenesim.pipelines.instrument.InstrumentConfig` recorded by
+    :func:`instrument_cards` (all fields empty when there is none).
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        The cards name no valid JWST instrument or detector.
+    """
+    from scenesim.pipelines.instrument import InstrumentConfig
+    try:
+        return InstrumentConfig(name=str(header.get("JWSTINST", "")),
+                                detector=str(header.get("JWSTDET", "")),
+                                exp_type=str(header.get("JWSTEXPT", "")),
+                                subarray=str(header.get("JWSTSUBA", "")))
+    except ParameterError as exc:
+        raise FileFormatError(f"header JWST identity cards are invalid: {exc}") from exc
 
 
 def psf_cards(psf):

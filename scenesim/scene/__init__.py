@@ -17,6 +17,7 @@ TOML table                 dataclass
                            :class:`StarConfig`, :class:`LightCurveConfig`
 ``[effects]``              :class:`EffectsConfig`
 ``[output]``               :class:`OutputConfig`
+``[instrument]``           :class:`~scenesim.pipelines.instrument.InstrumentConfig`
 top level                  :class:`Scene` (``seed``, ``description``)
 =========================  ==================================================
 
@@ -32,8 +33,11 @@ Top level
 
 ``[detector]`` -- the array and its clock (:class:`noise.clock.Detector`)
 
-* ``preset``: ``"H1RG"``, ``"H2RG"``, ``"H4RG-10"`` or ``"H4RG-15"``
-  (case-insensitive); default ``"H2RG"``.  Every key below defaults to the preset's
+* ``preset``: ``"H1RG"``, ``"H2RG"``, ``"H4RG-10"``, ``"H4RG-15"``, or an
+  instrument's clock: ``"NIRCAM"``, ``"NIRSPEC"`` (JWST; a one-output window matches
+  JWST's frame time with ``nfoh = 2``) or ``"WFI"`` (Roman, 3.04 s frames)
+  (case-insensitive); default ``"H2RG"``.  ``noise.clock.PRESETS`` cites the source
+  of every value.  Every key below defaults to the preset's
   value (``noise.clock.PRESETS``; H2RG values in brackets).
 * ``name``: label [``"H2RG"``].
 * ``naxis1``, ``naxis2``: full-array columns and rows, reference pixels included
@@ -150,6 +154,20 @@ curves* (:class:`LightCurveConfig`).
   (:mod:`scenesim.detector.flat`).
 * ``gain``: e-/DN (> 0); default 1.
 * ``adc_bits``: ADC resolution, 1 to 16; default 16.
+
+``[instrument]`` -- the JWST identity of the exposure, used by the JWST uncal file
+(``scenesim run --uncal``; :class:`scenesim.pipelines.instrument.InstrumentConfig`).
+Every key is optional and inferred when absent:
+
+* ``name``: ``"NIRCAM"``, ``"NIRSPEC"``, ``"NIRISS"`` or ``"FGS"``; default NIRSpec
+  for the ``NRSRAPID``/``NRS`` patterns, else NIRCam.
+* ``detector``: one of the instrument's (``"NRCA1"`` ... ``"NRCBLONG"``, ``"NRS1"``,
+  ``"NRS2"``, ``"NIS"``, ``"GUIDER1"``, ``"GUIDER2"``); default the first.
+* ``exp_type``: JWST ``EXP_TYPE`` with the instrument's prefix (``"NRC_IMAGE"``,
+  ``"NRS_DARK"``, ...); default ``NRC_IMAGE``, ``NRS_IMAGE``, ``NIS_IMAGE`` or
+  ``FGS_IMAGE``.
+* ``subarray``: a JWST subarray name; default ``"FULL"`` for a full frame, else
+  ``"GENERIC"`` (the place is in ``SUBSTRT``/``SUBSIZE``).
 
 ``[output]`` -- what to write (:class:`OutputConfig`)
 

@@ -19,16 +19,18 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 from noise.clock import Detector, Subarray, preset as detector_preset
-from noise.errors import FileFormatError, ParameterError
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
-from noise.validate import (check_bool, check_choice, check_existing_file, check_str,
-                            is_real, suggest)
+from noise.validate import (check_bool, check_choice, check_existing_file, check_int,
+                            check_path, check_str, describe, is_real, suggest)
 
 from scenesim.scene.schema import (LIGHT_CURVE_OPTIONAL, LIGHT_CURVE_REQUIRED,
                                    PSF_COMMON_KEYS, PSF_KEYS, READOUT_FORMS,
+                                   check_nonlinearity_range,
                                    EffectsConfig, LightCurveConfig, OutputConfig,
                                    PSFConfig, ReadoutConfig, Scene, SourcesConfig,
                                    StarConfig)
+from scenesim.pipelines.instrument import InstrumentConfig
 from scenesim.sky.maps import FITS_EXTENSIONS, check_map_file, load_map
 
 __all__ = ["NOISE_PRESETS", "parse_scene", "load_scene", "check_files"]
@@ -59,7 +61,7 @@ def _check_keys(table, allowed, where, *, elsewhere=()):
 
 def _table(where, value):
     if not isinstance(value, dict):
-        raise ParameterError(f"{where} must be a table, got {value!r}")
+        raise ParameterTypeError(f"{where} must be a table, got {describe(value)}")
     return value
 
 
@@ -81,7 +83,8 @@ def _resolve(base_dir, value):
 
 # ============================================================================ tables
 _TOP_KEYS = ("seed", "description", "detector", "noise", "readout", "sources",
-             "effects", "output")
+             "effects", "output", "instrument")
+_INSTRUMENT_KEYS = tuple(f.name for f in dataclasses.fields(InstrumentConfig))
 _DETECTOR_FIELDS = tuple(f.name for f in dataclasses.fields(Detector)
                          if f.name != "subarray")
 _NOISE_FIELDS = tuple(f.name for f in dataclasses.fields(NoiseParams))
@@ -113,10 +116,12 @@ def _parse_detector(tab):
             for key in ("ny",) + (("nx",) if kind == "window" else ()):
                 if key not in sub:
                     raise ParameterError(f"{key!r} is required for a {kind!r} subarray")
-            x0 = sub.get("x0", 0)
-            nx = sub.get("nx", det.naxis1 if kind == "stripe" else None)
-            subarray = Subarray(kind, x0, sub.get("y0", 0), nx, sub["ny"],
-                                check_str("name", sub.get("name", "")))
+            x0 = check_int("x0", sub.get("x0", 0), minimum=0)
+            y0 = check_int("y0", sub.get("y0", 0), minimum=0)
+            nx = check_int("nx", sub.get("nx", det.naxis1 if kind == "stripe" else None),
+                           minimum=1)
+            ny = check_int("ny", sub["ny"], minimum=1)
+            subarray = Subarray(kind, x0, y0, nx, ny, check_str("name", sub.get("name", "")))
             det = dataclasses.replace(det, subarray=subarray)
     return det
 
@@ -250,6 +255,13 @@ def _parse_effects(tab, base_dir):
         return EffectsConfig(**values)
 
 
+def _parse_instrument(tab):
+    where = "[instrument]"
+    _check_keys(tab, _INSTRUMENT_KEYS, where)
+    with _section(where):
+        return InstrumentConfig(**tab)
+
+
 def _parse_output(tab):
     where = "[output]"
     _check_keys(tab, _OUTPUT_KEYS, where)
@@ -304,7 +316,7 @@ def check_files(scene):
     if isinstance(eff.full_well, str) and not nl.is_linear:
         with _section("[effects]"):
             full_well = load_map(eff.full_well, det, name="full_well", allow_zero=False)
-            nl.check_monotonic(float(full_well.max()))
+            check_nonlinearity_range(nl, float(full_well.max()))
 
 
 def _parse(mapping, base_dir, path):
@@ -325,6 +337,7 @@ def _parse(mapping, base_dir, path):
         sources=_parse_sources(sections["sources"], base_dir),
         effects=_parse_effects(sections["effects"], base_dir),
         output=_parse_output(sections["output"]),
+        instrument=_parse_instrument(_table("[instrument]", top.get("instrument", {}))),
         seed=top.get("seed"),
         description=top.get("description", ""),
         path=path,
@@ -358,7 +371,7 @@ def parse_scene(mapping, *, base_dir="."):
     FileFormatError
         A file named by the scene is missing or has the wrong layout.
     """
-    return _parse(mapping, base_dir, None)
+    return _parse(mapping, check_path("base_dir", base_dir), None)
 
 
 def load_scene(path):
@@ -382,7 +395,7 @@ def load_scene(path):
     ParameterError
         As :func:`parse_scene`.  Messages start with the scene file's path.
     """
-    path = os.path.abspath(os.fspath(path))
+    path = os.path.abspath(check_path("path", path))
     try:
         with open(path, "rb") as fh:
             mapping = tomllib.load(fh)

@@ -14,6 +14,7 @@ docstring.
 """
 
 import dataclasses
+import math
 import os
 import secrets
 from dataclasses import dataclass, field
@@ -21,15 +22,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy.table import Table
 
-from noise.clock import Detector
-from noise.errors import ParameterError
+from noise.clock import Detector, exposure_slots
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.validate import (check_bool, check_choice, check_existing_file, check_float,
-                            check_int, check_str, is_real, is_sequence, suggest)
+                            check_int, check_str, describe, is_real, is_sequence, suggest)
 
 from scenesim.detector.ipc import check_kernel, ipc_kernel as _kernel_from_alpha
 from scenesim.detector.nonlinearity import Nonlinearity
-from scenesim.detector.readout import Readout
+from scenesim.detector.readout import MAX_READS, Readout
+from scenesim.engine import MAX_CHARGE
+from scenesim.pipelines.instrument import InstrumentConfig
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.sky.maps import FITS_EXTENSIONS
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF
@@ -51,6 +54,7 @@ __all__ = [
     "LIGHT_CURVE_OPTIONAL",
     "READOUT_FORMS",
     "MAX_SEED",
+    "check_nonlinearity_range",
 ]
 
 #: Largest seed: fits a signed 64-bit integer (TOML and FITS).
@@ -117,6 +121,10 @@ class PSFConfig:
         set_(self, "fwhm", check_float("fwhm", self.fwhm, minimum=0.0, strict_min=True))
         set_(self, "radius",
              check_float("radius", self.radius, minimum=0.0, strict_min=True))
+        if self.kind == "gaussian":
+            GaussianPSF(self.fwhm)             # its bounds (pixels)
+        elif self.kind == "airy":
+            AiryPSF(self.radius)
         if self.oversample is not None:
             set_(self, "oversample", check_int("oversample", self.oversample, minimum=1))
         set_(self, "normalize", check_bool("normalize", self.normalize))
@@ -138,7 +146,10 @@ class PSFConfig:
             return GaussianPSF(self.fwhm)
         if self.kind == "airy":
             return AiryPSF(self.radius)
-        return ImagePSF.from_fits(self.file, self.oversample, self.normalize)
+        try:
+            return ImagePSF.from_fits(self.file, self.oversample, self.normalize)
+        except (ParameterError, FileFormatError) as exc:
+            raise type(exc)(f"'file': {exc}") from exc
 
 
 # ======================================================================= stars
@@ -308,6 +319,32 @@ class LightCurveConfig:
             set_(self, "flux", tuple(f.tolist()))
         else:  # file: its table is read by build()
             set_(self, "file", check_existing_file("file", self.file, TABLE_EXTENSIONS))
+        if kind in ("transit", "step", "flare"):
+            # the breakpoints must be distinct floats (e.g. t0 = 1e300 with a 1 s
+            # duration is not): build the curve now, naming the keys if it fails
+            try:
+                self.build()
+            except ParameterError as exc:
+                keys = LIGHT_CURVE_REQUIRED[kind] + LIGHT_CURVE_OPTIONAL[kind]
+                given = ", ".join(f"{k!r} = {getattr(self, k)!r}" for k in keys)
+                raise ParameterError(
+                    f"light curve {self.name!r} ({given}) cannot be represented: "
+                    f"{exc}") from exc
+
+    def peak(self):
+        """``(factor, key)``: the largest factor of an analytic or table curve and the
+        key that sets it (``(None, None)`` for a ``file`` curve, whose table is read
+        by :meth:`build`)."""
+        if self.kind == "transit":
+            return 1.0, "depth"
+        if self.kind == "step":
+            return (self.after, "after") if self.after > self.before else \
+                (self.before, "before")
+        if self.kind == "flare":
+            return 1.0 + self.amplitude, "amplitude"
+        if self.kind == "table":
+            return max(self.flux), "flux"
+        return None, None
 
     def build(self):
         """The :class:`scenesim.sky.lightcurve.LightCurve` this entry describes.
@@ -383,8 +420,9 @@ class SourcesConfig:
                     f"'hot_pixel_rate' [min, max] needs min <= max, got {list(rate)!r}")
             set_(self, "hot_pixel_rate", (lo, hi))
         else:
+            # > 0, as for [min, max] (draw_hot_pixels refused 0 only at run time)
             set_(self, "hot_pixel_rate",
-                 check_float("hot_pixel_rate", rate, minimum=0.0))
+                 check_float("hot_pixel_rate", rate, minimum=0.0, strict_min=True))
         if not isinstance(self.psf, PSFConfig):
             raise ParameterError(f"'psf' must be a PSFConfig, got {self.psf!r}")
         stars = tuple(self.stars)
@@ -567,14 +605,19 @@ class ReadoutConfig:
                     raise ParameterError(
                         f"'ma_table' rows must be [first_read >= 0, nreads >= 1], "
                         f"got {list(row)!r}")
+                if row[0] + row[1] > MAX_READS:
+                    raise ParameterError(
+                        f"'ma_table' row {list(row)!r} reads up to read "
+                        f"{row[0] + row[1] - 1}; at most {MAX_READS} reads per "
+                        f"integration are allowed")
             set_(self, "ma_table", rows)
         else:
             rows = _int_rows("resultants", self.resultants)
             for row in rows:
-                if not row or min(row) < 0:
+                if not row or min(row) < 0 or max(row) >= MAX_READS:
                     raise ParameterError(
                         f"'resultants' entries must be non-empty lists of read indices "
-                        f">= 0, got {list(row)!r}")
+                        f"in [0, {MAX_READS - 1}], got {describe(list(row))}")
             set_(self, "resultants", rows)
 
     @property
@@ -660,6 +703,18 @@ class EffectsConfig:
         set_(self, "cosmic_ray_charge",
              (check_float("cosmic_ray_charge", crc[0], minimum=0.0, strict_min=True),
               check_float("cosmic_ray_charge", crc[1], minimum=0.0)))
+        median, sigma_ln = self.cosmic_ray_charge
+        # the log-normal's mean median * exp(sigma_ln**2 / 2) (what the cosmic-ray
+        # model takes) must be a charge the engine can count; the check is on logs,
+        # so no overflow warning for a wide sigma
+        log_mean = math.log(median) + sigma_ln * sigma_ln / 2
+        if log_mean > math.log(MAX_CHARGE):
+            raise ParameterError(
+                f"'cosmic_ray_charge' = {[median, sigma_ln]!r} ([median_e, sigma_ln]) "
+                f"has a mean charge per hit median * exp(sigma_ln**2 / 2) = "
+                f"exp({log_mean:.4g}) e-; at most {MAX_CHARGE:.3g} e- (2**53) is allowed "
+                f"(sigma_ln <= {math.sqrt(2 * max(math.log(MAX_CHARGE / median), 0)):.3g} "
+                f"for this median)")
         set_(self, "full_well",
              _rate_or_map("full_well", self.full_well, allow_zero=False,
                           allow_none=True))
@@ -683,7 +738,7 @@ class EffectsConfig:
                     f"is only used, and checked monotonic, below it; it turns over at "
                     f"{nl.q_hi:.6g} e-)")
             if not isinstance(self.full_well, str):      # a map: checked on loading
-                nl.check_monotonic(self.full_well)
+                check_nonlinearity_range(nl, self.full_well)
         for key in ("ipc_alpha", "ipc_alpha_diag"):
             set_(self, key, check_float(key, getattr(self, key), minimum=0.0))
         if self.ipc_kernel is not None:
@@ -723,6 +778,23 @@ class EffectsConfig:
         """``{name: path}`` of the parameters given as FITS maps."""
         return {k: getattr(self, k) for k in ("full_well", "flat")
                 if isinstance(getattr(self, k), str)}
+
+
+def check_nonlinearity_range(nl, full_well):
+    """Raise unless the polynomial ``nl`` is monotonic up to ``full_well`` (e-) and
+    maps it to a signal of at most :data:`scenesim.engine.MAX_CHARGE` (a huge positive
+    coefficient would send every charged pixel to inf in the float32 frames)."""
+    try:
+        nl.check_monotonic(full_well)
+    except ParameterError as exc:
+        raise ParameterError(f"{exc} (given 'full_well' = {full_well!r} e-)") from exc
+    with np.errstate(over="ignore", invalid="ignore"):
+        top = float(nl.apply(full_well))
+    if not top <= MAX_CHARGE:
+        raise ParameterError(
+            f"'nonlinearity' coefficients {nl.coeffs!r} map the 'full_well' of "
+            f"{float(full_well):g} e- to {top:.3g} e-; the measured signal must stay "
+            f"<= {MAX_CHARGE:.3g} e- (2**53)")
 
 
 # ====================================================================== output
@@ -813,6 +885,8 @@ class Scene:
         Free text.
     path : str or None
         Absolute path of the scene file, ``None`` if built in memory.
+    instrument : scenesim.pipelines.instrument.InstrumentConfig
+        The JWST identity of the exposure (``[instrument]``; every field optional).
     """
 
     detector: Detector
@@ -824,27 +898,76 @@ class Scene:
     seed: int | None = None
     description: str = ""
     path: str | None = None
+    instrument: InstrumentConfig = field(default_factory=InstrumentConfig)
 
     def __post_init__(self):
         for name, cls in (("detector", Detector), ("noise", NoiseParams),
                           ("readout", ReadoutConfig), ("sources", SourcesConfig),
-                          ("effects", EffectsConfig), ("output", OutputConfig)):
+                          ("effects", EffectsConfig), ("output", OutputConfig),
+                          ("instrument", InstrumentConfig)):
             if not isinstance(getattr(self, name), cls):
-                raise ParameterError(
-                    f"{name!r} must be a {cls.__name__}, got {getattr(self, name)!r}")
+                raise ParameterTypeError(
+                    f"{name!r} must be a {cls.__name__}, got "
+                    f"{describe(getattr(self, name))}")
         if self.seed is not None:
             object.__setattr__(self, "seed",
                                check_int("seed", self.seed, minimum=0, maximum=MAX_SEED))
         check_str("description", self.description)
         if self.path is not None:
             check_str("path", self.path)
-        n_out = self.detector.n_out_active
-        for name in ("rd_noise", "u_pink", "acn"):
-            value = getattr(self.noise, name)
-            if isinstance(value, tuple) and len(value) != n_out:
+        eff = self.effects
+        try:
+            # per-output values, f_min below every Nyquist frequency, no amplitude
+            # that clips every pixel at the ADC (noise.params module notes)
+            self.noise.check_detector(self.detector, where="[detector]")
+            self.noise.check_adc(eff.gain, eff.adc_bits)
+        except ParameterError as exc:
+            raise type(exc)(f"[noise] {exc}") from exc
+        self._check_charge()
+
+    def _check_charge(self):
+        """Refuse scalar rates whose pixel would collect more than
+        :data:`scenesim.engine.MAX_CHARGE` in one integration (FITS maps are checked by
+        the engine when the run loads them)."""
+        try:
+            ro = self.readout.build()
+        except ParameterError as exc:
+            raise type(exc)(f"[readout] {exc}") from exc
+        t_int = exposure_slots(1, ro.nreads) * self.detector.frame_time
+        src, eff = self.sources, self.effects
+        flat = eff.flat if not isinstance(eff.flat, str) else None
+
+        det = self.detector
+        span = (f"{ro.nreads + 1} frames of {det.frame_time:.6g} s: [readout], and "
+                f"[detector] 'dt' x (rows + 'nfoh') x (columns per output + 'nroh')")
+
+        def check(where, key, rate, what):
+            if rate > 0 and not rate * t_int <= MAX_CHARGE:
                 raise ParameterError(
-                    f"[noise] {name!r} has {len(value)} per-output values but the "
-                    f"detector reads through {n_out} output(s)")
+                    f"{where} {key!r} = {what} collects {rate * t_int:.3g} e- per pixel "
+                    f"over an integration of {t_int:.6g} s ({span}); at most "
+                    f"{MAX_CHARGE:.3g} e- (2**53) per pixel is allowed")
+
+        if not isinstance(src.dark_current, str):
+            check("[sources]", "dark_current", src.dark_current,
+                  f"{src.dark_current!r} e-/s")
+        if src.hot_pixel_fraction > 0:
+            top = max(np.atleast_1d(src.hot_pixel_rate))
+            check("[sources]", "hot_pixel_rate", float(top), f"{src.hot_pixel_rate!r} e-/s")
+        if flat is not None and not isinstance(src.background, str):
+            check("[sources]", "background", src.background * flat,
+                  f"{src.background!r} e-/s x [effects] 'flat' {flat!r}")
+        for i, star in enumerate(src.stars):
+            peak, curve = 1.0, ""
+            if star.light_curve is not None:
+                value, key = src.light_curve(star.light_curve).peak()
+                if value is not None:
+                    peak = value
+                    curve = (f" x [sources.light_curves.{star.light_curve}] {key!r} "
+                             f"peak {value!r}")
+            if flat is not None:
+                check(f"[[sources.stars]] #{i}", "flux", star.flux * peak * flat,
+                      f"{star.flux!r} e-/s{curve} x [effects] 'flat' {flat!r}")
 
     def replace(self, **changes):
         """Return a copy with ``changes`` applied (validated again; no file is read)."""

@@ -46,10 +46,16 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.table import Table
 
-from noise.validate import check_choice, check_float, check_int, check_mask, check_shape
+from noise.validate import (check_choice, check_float, check_int, check_mask, check_rng,
+                            check_shape)
 from noise.errors import ParameterError
 
-__all__ = ["CosmicRayModel", "draw_cosmic_rays"]
+__all__ = ["CosmicRayModel", "draw_cosmic_rays", "MAX_EVENTS"]
+
+#: Most hits drawn at once (expected number, ``rate * area * time``): drawing takes
+#: ~0.7 kB per hit (offsets, multinomial split and table of its 9 deposits), so 1e10
+#: hits is 7 TB, beyond any machine; numpy's Poisson sampler itself stops at 9.2e18.
+MAX_EVENTS = 1e10
 
 _DEFAULT_FOOTPRINT = ((0.01, 0.04, 0.01),
                       (0.04, 0.80, 0.04),
@@ -150,7 +156,7 @@ class CosmicRayModel:
             Whole electrons (the continuous draw rounded to the nearest integer).
         """
         n = check_int("n", n, minimum=0)
-        rng = np.random.default_rng(rng)
+        rng = check_rng("rng", rng)
         if self.charge_distribution == "lognormal":
             s2 = math.log1p((self.charge_sigma / self.charge_mean) ** 2)
             mu = math.log(self.charge_mean) - 0.5 * s2
@@ -221,9 +227,18 @@ def draw_cosmic_rays(model, shape, pixel_pitch_um, t_start, t_stop, *, rng,
     if refmask is not None:
         refmask = check_mask("refmask", refmask, (ny, nx))
 
-    rng = np.random.default_rng(rng)
-    area = ny * nx * (pitch * 1e-4) ** 2
-    n = int(rng.poisson(model.rate * area * (t_stop - t_start)))
+    try:
+        area = ny * nx * (pitch * 1e-4) ** 2
+    except OverflowError:                 # a pitch beyond 1e150 um
+        area = math.inf
+    expected = model.rate * area * (t_stop - t_start) if model.rate else 0.0
+    if not expected <= MAX_EVENTS:
+        raise ParameterError(
+            f"'rate' = {model.rate!r} /cm^2/s over {area:.3g} cm^2 and "
+            f"{t_stop - t_start:.6g} s gives {expected:.3g} expected hits; at most "
+            f"{MAX_EVENTS:.3g} can be drawn (~0.7 kB each)")
+    rng = check_rng("rng", rng)
+    n = int(rng.poisson(expected))
     times = np.sort(rng.uniform(t_start, t_stop, size=n))
     hy = rng.integers(0, ny, size=n)
     hx = rng.integers(0, nx, size=n)

@@ -44,12 +44,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy import units as u
 
-from noise.errors import ParameterError
-from noise.validate import check_float
+from noise.errors import ParameterError, ParameterTypeError
+from noise.validate import check_float, describe
 
 from scenesim.sky.tables import column_values, find_columns, read_table
 
 __all__ = ["LightCurve"]
+
+
+def _seconds(name, value):
+    """``value`` as a float64 array of times (s), or a ParameterTypeError."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ParameterTypeError(
+            f"{name!r} must be a time or an array of times (s), got {describe(value)}"
+        ) from exc
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,7 +168,7 @@ class LightCurve:
         -------
         float or ndarray (shape of ``t``), float64
         """
-        t = np.asarray(t, dtype=np.float64)
+        t = _seconds("t", t)
         k = np.searchsorted(self.time, t, side="right")
         out = self._f_anchor[k] + self._slope[k] * (t - self._t_anchor[k])
         return out[()] if out.ndim == 0 else out
@@ -176,11 +186,16 @@ class LightCurve:
         float or ndarray (broadcast shape), float64, seconds
             Signed: negative when ``t2 < t1``.
         """
-        t1 = np.asarray(t1, dtype=np.float64)
-        t2 = np.asarray(t2, dtype=np.float64)
+        t1 = _seconds("t1", t1)
+        t2 = _seconds("t2", t2)
         if not (np.all(np.isfinite(t1)) and np.all(np.isfinite(t2))):
             raise ParameterError("'t1' and 't2' must be finite (seconds)")
-        t1, t2 = np.broadcast_arrays(t1, t2)
+        try:
+            t1, t2 = np.broadcast_arrays(t1, t2)
+        except ValueError as exc:
+            raise ParameterError(
+                f"'t1' and 't2' must have broadcastable shapes, got {t1.shape} and "
+                f"{t2.shape}") from exc
         k1, d1, a1 = self._local(t1)
         k2, d2, a2 = self._local(t2)
         out = (self._base[k2] - self._base[k1]) + (a2 - a1)
@@ -200,8 +215,8 @@ class LightCurve:
         -------
         float or ndarray, float64, dimensionless
         """
-        t1 = np.asarray(t1, dtype=np.float64)
-        t2 = np.asarray(t2, dtype=np.float64)
+        t1 = _seconds("t1", t1)
+        t2 = _seconds("t2", t2)
         integ = np.asarray(self.integral(t1, t2))
         width = np.broadcast_to(t2 - t1, integ.shape)
         safe = np.where(width == 0, 1.0, width)

@@ -20,7 +20,9 @@ import numpy as np
 from astropy.io import fits
 
 from noise.errors import FileFormatError, ParameterError
-from noise.validate import check_existing_file, check_map
+from noise.fitsio import open_fits
+from noise.clock import Detector
+from noise.validate import check_existing_file, check_instance, check_map
 
 __all__ = ["FITS_EXTENSIONS", "image_hdu", "check_map_file", "load_map"]
 
@@ -50,15 +52,11 @@ def image_hdu(name, path):
     FileFormatError
         The file is not readable FITS or has no 2-D image HDU.
     """
-    try:
-        with fits.open(path) as hdul:
-            for i, hdu in enumerate(hdul):
-                if isinstance(hdu, (fits.PrimaryHDU, fits.ImageHDU, fits.CompImageHDU)) \
-                        and hdu.header.get("NAXIS") == 2:
-                    return i, (int(hdu.header["NAXIS2"]), int(hdu.header["NAXIS1"]))
-    except OSError as exc:
-        raise FileFormatError(f"{name!r} file {path!r} is not a readable FITS file: "
-                              f"{exc}") from exc
+    with open_fits(path, f"{name!r} file") as hdul:
+        for i, hdu in enumerate(hdul):
+            if isinstance(hdu, (fits.PrimaryHDU, fits.ImageHDU, fits.CompImageHDU)) \
+                    and hdu.header.get("NAXIS") == 2:
+                return i, (int(hdu.header["NAXIS2"]), int(hdu.header["NAXIS1"]))
     raise FileFormatError(f"{name!r} file {path!r} has no 2-D image HDU")
 
 
@@ -119,13 +117,14 @@ def load_map(value, detector, *, name, allow_zero=True):
     FileFormatError
         The file is missing, not FITS, or has the wrong shape.
     """
+    check_instance("detector", detector, Detector, "a noise.Detector")
     if not isinstance(value, str):
         return np.float64(check_map(name, value, detector.shape, minimum=0.0,
                                     strict_min=not allow_zero))
     path = check_existing_file(name, value, FITS_EXTENSIONS)
     index, shape = image_hdu(name, path)
     _check_shape(name, path, shape, detector)
-    with fits.open(path) as hdul:
+    with open_fits(path, f"{name!r} file") as hdul:
         data = np.array(hdul[index].data, dtype=np.float64)
     if data.shape != detector.shape:
         data = data[detector.y0:detector.y0 + detector.ny,

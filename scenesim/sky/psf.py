@@ -115,8 +115,10 @@ from astropy.io import fits
 from astropy.table import Table
 from scipy.special import erf, j0, j1
 
-from noise.errors import FileFormatError, ParameterError
-from noise.validate import check_bool, check_float, check_int, check_shape
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
+from noise.fitsio import open_fits
+from noise.validate import (check_bool, check_float, check_instance, check_int,
+                            check_path, check_shape, describe)
 
 __all__ = [
     "GaussianPSF",
@@ -124,7 +126,19 @@ __all__ = [
     "ImagePSF",
     "render_point_sources",
     "encircled_energy",
+    "MAX_PSF_WIDTH",
+    "MIN_AIRY_RADIUS",
 ]
+
+#: Largest Gaussian ``fwhm`` and Airy ``radius``, pixels: 250 times the widest HxRG
+#: (a PSF wider than that is flat over any array), and the Airy profile table's radii
+#: (``radius / 1.22`` times a few hundred) stay far from float64 overflow.
+MAX_PSF_WIDTH = 1e6
+#: Smallest Airy ``radius``, pixels: the profile is tabulated at a step of
+#: ``5e-4 * radius / 3.83`` pixels out to the stamp corner, 7 million entries for a
+#: 64-pixel stamp at 0.1 pixel (and 10 times more per decade below); so narrow a
+#: pattern is a point at the detector's sampling anyway.
+MIN_AIRY_RADIUS = 0.1
 
 _FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 #: First zero of J1 divided by pi (photutils ``AiryDiskPSF._rz``).
@@ -155,7 +169,8 @@ class GaussianPSF:
 
     def __post_init__(self):
         object.__setattr__(self, "fwhm",
-                           check_float("fwhm", self.fwhm, minimum=0.0, strict_min=True))
+                           check_float("fwhm", self.fwhm, minimum=0.0, strict_min=True,
+                                       maximum=MAX_PSF_WIDTH))
 
     @property
     def sigma(self):
@@ -209,8 +224,14 @@ class AiryPSF:
     radius: float
 
     def __post_init__(self):
-        object.__setattr__(self, "radius", check_float("radius", self.radius, minimum=0.0,
-                                                       strict_min=True))
+        radius = check_float("radius", self.radius, minimum=0.0, strict_min=True,
+                             maximum=MAX_PSF_WIDTH)
+        if radius < MIN_AIRY_RADIUS:
+            raise ParameterError(
+                f"'radius' must be >= {MIN_AIRY_RADIUS} pixels (an Airy pattern narrower "
+                f"than that is a point at the detector's sampling, and its profile table "
+                f"would outgrow memory), got {self.radius!r}")
+        object.__setattr__(self, "radius", radius)
 
     @property
     def fwhm(self):
@@ -460,11 +481,9 @@ class ImagePSF:
         """
         if oversample is not None:
             oversample = check_int("oversample", oversample, minimum=1)
-        path = os.fspath(path)
-        if not os.path.isfile(path):
-            raise FileFormatError(f"PSF file {path!r} does not exist")
-        try:
-            with fits.open(path, memmap=False) as hdul:
+        path = os.path.abspath(check_path("path", path))
+        with open_fits(path, "PSF file", memmap=False) as hdul:
+            try:
                 if ext is None:
                     hdus = [h for h in hdul if h.data is not None and np.ndim(h.data) == 2]
                     if not hdus:
@@ -477,10 +496,9 @@ class ImagePSF:
                             f"HDU {ext!r} of PSF file {path!r} is not a 2-D image")
                 data = np.array(hdu.data, dtype=np.float64)
                 header_os = hdu.header.get("OVERSAMP")
-        except FileFormatError:
-            raise
-        except (OSError, KeyError, IndexError, TypeError, ValueError) as exc:
-            raise FileFormatError(f"cannot read PSF image from {path!r}: {exc}") from exc
+            except (KeyError, IndexError) as exc:
+                raise FileFormatError(
+                    f"PSF file {path!r} has no HDU {ext!r}") from exc
         if header_os is not None:
             if not (isinstance(header_os, numbers.Real) and float(header_os).is_integer()
                     and header_os >= 1):
@@ -492,7 +510,10 @@ class ImagePSF:
                     f"'oversample'={oversample} disagrees with OVERSAMP={header_os} in "
                     f"PSF file {path!r}")
         os_ = oversample if oversample is not None else (header_os or 1)
-        return cls(data, oversample=os_, normalize=normalize)
+        try:
+            return cls(data, oversample=os_, normalize=normalize)
+        except ParameterError as exc:
+            raise type(exc)(f"PSF file {path!r}: {exc}") from exc
 
     def to_photutils(self, flux=1.0, x_0=0.0, y_0=0.0):
         """The same PSF as a photutils :class:`~photutils.psf.ImagePSF` (an ePSF).
@@ -596,24 +617,32 @@ def _ladder_round_up(r):
 
 
 def _as_1d(name, value):
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise ParameterTypeError(
+            f"{name!r} must be a number or a 1-D array of numbers, got {describe(value)}")
     try:
-        arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+        arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ParameterError(f"{name!r} must be numbers, got {value!r}") from exc
-    if arr.ndim != 1:
+        raise ParameterTypeError(
+            f"{name!r} must be a number or a 1-D array of numbers, got "
+            f"{describe(value)}") from exc
+    if arr.ndim > 1:
         raise ParameterError(f"{name!r} must be a scalar or 1-D array, got shape {arr.shape}")
     return arr
 
 
 def _source_arrays(x, y, flux):
-    """``x``, ``y``, ``flux`` broadcast to float64 1-D arrays and checked."""
-    xs, ys, fl = (_as_1d("x", x), _as_1d("y", y), _as_1d("flux", flux))
-    try:
-        xs, ys, fl = (np.array(a, dtype=np.float64) for a in np.broadcast_arrays(xs, ys, fl))
-    except ValueError as exc:
+    """``x``, ``y``, ``flux`` as float64 1-D arrays of one length (scalars broadcast)
+    and checked."""
+    arrays = {"x": _as_1d("x", x), "y": _as_1d("y", y), "flux": _as_1d("flux", flux)}
+    lengths = {k: a.size for k, a in arrays.items() if a.ndim == 1}
+    if len(set(lengths.values())) > 1:
         raise ParameterError(
-            f"'x', 'y' and 'flux' must have matching lengths, got {xs.size}, {ys.size}, "
-            f"{fl.size}") from exc
+            "'x', 'y' and 'flux' must have the same length (or be scalars), got "
+            + ", ".join(f"{k!r} of length {n}" for k, n in lengths.items()))
+    n = next(iter(lengths.values())) if lengths else 1
+    xs, ys, fl = (np.array(np.broadcast_to(a, (n,)), dtype=np.float64)
+                  for a in arrays.values())
     for name, arr in (("x", xs), ("y", ys)):
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -690,9 +719,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         type, or bad radius/rate settings (checked before any work).
     """
     ny, nx = check_shape("shape", shape)
-    if not isinstance(psf, _PSF_TYPES):
-        raise ParameterError(
-            f"'psf' must be a GaussianPSF, AiryPSF or ImagePSF, got {type(psf).__name__}")
+    check_instance("psf", psf, _PSF_TYPES, "a GaussianPSF, AiryPSF or ImagePSF")
     xs, ys, fl = _source_arrays(x, y, flux)
     min_rate = check_float("min_rate", min_rate, minimum=0.0)
     max_stamp_radius = check_int("max_stamp_radius", max_stamp_radius, minimum=0)

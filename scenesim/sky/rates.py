@@ -141,12 +141,22 @@ def cosmic_ray_hits(scene, t_total):
     seed = _seed(scene)
     det = scene.detector
     median, sigma_ln = eff.cosmic_ray_charge
-    mean = median * np.exp(sigma_ln ** 2 / 2)
-    model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_mean=mean,
-                           charge_sigma=mean * np.sqrt(np.expm1(sigma_ln ** 2)))
-    table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
-                             rng=streams.generator(seed, streams.COSMIC_RAYS),
-                             refmask=det.reference_mask())
+    try:
+        with np.errstate(over="raise"):
+            mean = median * np.exp(sigma_ln ** 2 / 2)
+            model = CosmicRayModel(rate=eff.cosmic_ray_rate, charge_mean=mean,
+                                   charge_sigma=mean * np.sqrt(np.expm1(sigma_ln ** 2)))
+    except (ParameterError, FloatingPointError) as exc:
+        raise ParameterError(
+            f"[effects] 'cosmic_ray_charge' = {list(eff.cosmic_ray_charge)!r} "
+            f"([median_e, sigma_ln]) gives no finite log-normal charge per hit: "
+            f"{exc}") from exc
+    try:
+        table = draw_cosmic_rays(model, det.shape, det.pixel_pitch, 0.0, t_total,
+                                 rng=streams.generator(seed, streams.COSMIC_RAYS),
+                                 refmask=det.reference_mask())
+    except ParameterError as exc:
+        raise ParameterError(f"[effects] 'cosmic_ray_rate': {exc}") from exc
     index = np.asarray(table["Y"], dtype=np.int64) * det.nx + np.asarray(table["X"],
                                                                           dtype=np.int64)
     return CosmicRayHits(np.asarray(table["TIME"], dtype=float), index,

@@ -42,8 +42,9 @@ import numpy as np
 from astropy import units as u
 from astropy.table import Table
 
-from noise.errors import ParameterError
-from noise.validate import check_float, check_mask, check_shape, is_real
+from noise.errors import ParameterError, ParameterTypeError
+from noise.validate import (check_float, check_mask, check_rng, check_shape, describe,
+                            is_real)
 
 from scenesim.sky.tables import column_values, find_columns, read_table
 
@@ -166,12 +167,12 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
         try:
             lo, hi = (float(v) for v in rate)
         except (TypeError, ValueError) as exc:
-            raise ParameterError(
-                f"'rate' must be a rate > 0 or a pair (lo, hi) in e-/s, got {rate!r}"
-            ) from exc
+            raise ParameterTypeError(
+                f"'rate' must be a rate > 0 or a pair (lo, hi) in e-/s, got "
+                f"{describe(rate)}") from exc
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
             raise ParameterError(
-                f"'rate' bounds must satisfy 0 < lo <= hi (e-/s), got {rate!r}")
+                f"'rate' bounds must satisfy 0 < lo <= hi (e-/s), got {describe(rate)}")
     if refmask is None:
         candidates = None
         n_regular = ny * nx
@@ -180,7 +181,7 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
         candidates = np.flatnonzero(~refmask)
         n_regular = candidates.size
 
-    rng = np.random.default_rng(rng)
+    rng = check_rng("rng", rng)
     out = np.zeros(ny * nx, dtype=np.float64)
     k = int(rng.binomial(n_regular, fraction))
     if k == 0:

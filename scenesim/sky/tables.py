@@ -13,13 +13,15 @@ One reader for both (:func:`scenesim.sky.sources.read_catalogue` and
 """
 
 import os
+import warnings
 
 import numpy as np
 from astropy import units as u
 from astropy.table import Table
+from astropy.utils.exceptions import AstropyWarning
 
 from noise.errors import FileFormatError
-from noise.validate import suggest
+from noise.validate import check_path, suggest
 
 from scenesim.sky.maps import FITS_EXTENSIONS
 
@@ -47,17 +49,21 @@ def read_table(path, *, what):
     FileFormatError
         The file is missing or cannot be read.
     """
-    path = os.fspath(path)
+    path = check_path(what, path)
     if not os.path.isfile(path):
         raise FileFormatError(f"{what} {path!r} does not exist")
     low = path.lower()
     fmt = "ascii.ecsv" if low.endswith(".ecsv") else \
         "fits" if low.endswith(FITS_EXTENSIONS) else None
     try:
-        return Table.read(path, format=fmt)
+        with warnings.catch_warnings():
+            # a truncated or damaged file: astropy's warning is the error
+            warnings.simplefilter("error", AstropyWarning)
+            return Table.read(path, format=fmt)
     except Exception as exc:  # astropy raises many types for unreadable files
         how = f" as {fmt}" if fmt else ""
-        raise FileFormatError(f"{what} {path!r} cannot be read{how}: {exc}") from exc
+        reason = " ".join(str(exc).split())[:300]
+        raise FileFormatError(f"{what} {path!r} cannot be read{how}: {reason}") from exc
 
 
 def find_columns(table, required, optional=(), *, where):

@@ -29,7 +29,9 @@ import numpy as np
 from astropy.io import fits
 
 from noise.clock import detector_from_header
-from noise.errors import FileFormatError, ParameterError
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
+from noise.validate import (check_bool, check_float, check_instance, check_int,
+                            check_path, describe, is_sequence)
 
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.readout import Readout
@@ -39,7 +41,10 @@ from scenesim.io.header import (exposure_read_noise, exposure_settings,
                                 readout_from_header, readout_from_table)
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.io.fitfile import fit_arrays, read_slopes
-from scenesim.rampfit import ols_variance
+from scenesim.pipelines.products import (fit_header, subtract_dark,
+                                        subtracted_dark_rate)
+from scenesim.rampfit import check_read_times, ols_variance
+from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF
 from scenesim.validate.jumps import jump_stats, ramp_windows
 from scenesim.validate.photometry import source_photometry
 from scenesim.validate.plots import plot_report
@@ -198,6 +203,19 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         raise ParameterError("'truth' must be a dict from scenesim.io.exposure.read_truth "
                              f"(with 'header'), got {type(truth).__name__}")
     edges = _check_compare_args(edges, radius, cr_sigma, plots, readout)
+    if nints is not None:
+        nints = check_int("nints", nints, minimum=1)
+    if read_noise is not None:
+        read_noise = check_float("read_noise", read_noise, minimum=0.0)
+    if read_times is not None:
+        check_read_times(read_times)
+    check_instance("psf", psf, (GaussianPSF, AiryPSF, ImagePSF),
+                   "a GaussianPSF, AiryPSF or ImagePSF", allow_none=True)
+    check_bool("ipc_deconvolved", ipc_deconvolved)
+    if isinstance(notes, (str, bytes)) or not is_sequence(notes) or \
+            not all(isinstance(n, str) for n in notes):
+        raise ParameterTypeError(f"'notes' must be a sequence of strings, got "
+                                 f"{describe(notes)}")
     notes = list(notes)
     hdr = truth["header"]
     rate, kernel = _true_rate(truth, ipc_deconvolved, notes)
@@ -242,18 +260,20 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
 
 def _check_compare_args(edges, radius, cr_sigma, plots, readout):
     """Validate :func:`compare`'s options; return ``edges`` as an array."""
-    edges = np.asarray(edges, dtype=float)
-    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):
-        raise ParameterError(f"'edges' must be >= 2 increasing values (e-/s), got {edges!r}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ParameterError(f"'radius' must be a finite number > 0 (pixels), got {radius!r}")
-    if not (np.isfinite(cr_sigma) and cr_sigma > 0):
-        raise ParameterError(f"'cr_sigma' must be a finite number > 0, got {cr_sigma!r}")
-    if plots is not None and not os.path.isdir(plots):
+    try:
+        edges = np.asarray(edges, dtype=float)
+    except (TypeError, ValueError):
+        edges = np.zeros(0)
+    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0) \
+            or np.any(np.isnan(edges)):
+        raise ParameterError(
+            f"'edges' must be >= 2 increasing values (e-/s), got {describe(edges)}")
+    check_float("radius", radius, minimum=0.0, strict_min=True)
+    check_float("cr_sigma", cr_sigma, minimum=0.0, strict_min=True)
+    if plots is not None and not os.path.isdir(check_path("plots", plots)):
         raise ParameterError(f"'plots' must be an existing directory or None, got {plots!r}")
-    if readout is not None and not isinstance(readout, Readout):
-        raise ParameterError(f"'readout' must be a scenesim.detector.readout.Readout or "
-                             f"None, got {type(readout).__name__}")
+    check_instance("readout", readout, Readout, "a scenesim.detector.readout.Readout",
+                   allow_none=True)
     return edges
 
 
@@ -407,12 +427,21 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     -------
     Report
     """
-    truth = read_truth(os.fspath(truth_path))
+    fit_path = check_path("fit_path", fit_path)
+    truth = read_truth(check_path("truth_path", truth_path))
+    if exposure is not None:
+        exposure = check_path("exposure", exposure)
     hdr = truth["header"]
     gain = exposure_settings(hdr)["gain"]
     fit = read_slopes(fit_path, gain=gain)
     notes = [f"fit layout: {fit['layout']}"]
-    ipc_deconvolved = header_ipc_deconvolved(fits.getheader(os.fspath(fit_path)))
+    fit_hdr = fit_header(fit_path)             # FITS, or a Roman L2's cal steps
+    ipc_deconvolved = header_ipc_deconvolved(fit_hdr)
+    dark, note = subtracted_dark_rate(fit_hdr, exposure_settings(hdr)["t_frame"], gain)
+    if note:
+        notes.append(note)
+    if dark is not None:                       # a pipeline's dark step ran
+        truth = subtract_dark(truth, dark)
     read_times = nints = ro = None
     if exposure is not None:
         ro, ehdr = _readout_from_exposure(exposure)

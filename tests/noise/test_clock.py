@@ -157,6 +157,15 @@ DOCUMENTED = {
                     ref_border=4, pixel_pitch=10.0, frame_time=3.03178),
     "H4RG-15": dict(naxis1=4096, naxis2=4096, n_out=64, nroh=12, nfoh=1, dt=1e-5,
                     ref_border=4, pixel_pitch=15.0, frame_time=3.11372),
+    # JWST (JDox "NIRCam Detector Subarrays"): ((2048/4 + 12)(2048 + 1) + 1) x 10 us
+    # = 10.73677 s; a clock of whole rows is one pixel time (1e-5 s) short of it.
+    "NIRCAM": dict(naxis1=2048, naxis2=2048, n_out=4, nroh=12, nfoh=1, dt=1e-5,
+                   ref_border=4, pixel_pitch=18.0, frame_time=10.73677 - 1e-5),
+    "NIRSPEC": dict(naxis1=2048, naxis2=2048, n_out=4, nroh=12, nfoh=1, dt=1e-5,
+                    ref_border=4, pixel_pitch=18.0, frame_time=10.73677 - 1e-5),
+    # Roman WFI: romancal's ROMAN_READ_TIME, 3.04 s; 32 outputs, 10 um pixels.
+    "WFI": dict(naxis1=4096, naxis2=4096, n_out=32, ref_border=4, pixel_pitch=10.0,
+                frame_time=3.04),
 }
 
 

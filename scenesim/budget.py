@@ -1,0 +1,486 @@
+"""The memory and disk a scene's run needs, estimated before anything is built.
+
+:func:`check_budget` takes a validated :class:`~scenesim.scene.Scene` and, in a
+fraction of a millisecond (arithmetic on the scene's numbers: no array is made, no
+file is read), estimates
+
+* the **peak memory** of the run: the simulation (the charge engine's frames, the
+  noise generator, the cosmic rays), then the fit and the comparison when the scene
+  asks for them (their peaks do not overlap: the engine's frames are freed first);
+* the **output**: the exposure, the truth file (with the temporary raw cubes of
+  ``save_charge`` / ``save_noise``, which sit beside it while it is written) and the
+  fit file, uncompressed (a ``.fits.gz`` output is smaller; the estimate is an upper
+  bound);
+
+and compares them with the machine: the memory available now (``MemAvailable`` of
+``/proc/meminfo``, bounded by the cgroup limit ``memory.max - memory.current`` when
+there is one; else ``os.sysconf`` ``SC_AVPHYS_PAGES * SC_PAGE_SIZE``) and the free
+space of the output directory (:func:`shutil.disk_usage`).  A run is refused
+(:class:`~noise.errors.ParameterError`, one line naming the estimate, the limit, the
+scene keys that drive it and the override ``--force``) when
+
+* its memory exceeds :data:`MEMORY_FRACTION` (80 %) of the available memory: the
+  rest is left to the page cache and the other processes; above it a run thrashes
+  or dies with a MemoryError, or the kernel kills it, after minutes of work;
+* its output exceeds the free disk space;
+
+and :meth:`Budget.warning` returns a one-line warning (nothing is refused) above
+:data:`WARN_FRACTION` (50 %) of either.  Before (issue 12) ``naxis = 400000`` or
+``cosmic_ray_rate = 1e12`` ended in a MemoryError traceback after the work had
+started; both are now refused in milliseconds.
+
+The model
+---------
+``P = ny * nx`` pixels read out, ``N = nints * ngroups * P`` resultant values, ``E``
+the expected cosmic-ray hits, ``rate * A * T``: ``rate`` (/cm^2/s) times the read-out
+area ``A = P * (pixel_pitch * 1e-4)**2`` cm^2 times the exposure time ``T =
+nints * (1 + nreads) * t_frame``.  Bytes (each part is listed in
+:attr:`Budget.memory_parts`, labelled with the scene keys that drive it):
+
+=============================  ===========================================================
+part                           bytes
+=============================  ===========================================================
+rate and pixel maps            ``33 P``: the scene's rate map and the engine's copy
+                               (float64 each), the reference mask, the clock's sample
+                               index (int32), the truth's expected rate (float64 and
+                               float32)
+charge frames                  ``18 P``: the integer charge (int64 at most), the float32
+                               charge after the effects, one uint32 DN sum of the open
+                               resultant (resultants never overlap) and its uint16 mean
+IPC                            ``16 P`` with IPC: the convolved frame (float64 and
+                               float32)
+FITS maps                      ``8 naxis1 naxis2 + 8 P`` per map file (dark current,
+                               background, flat, full well): the file's data (the full
+                               array at most) and its window (float64)
+saturation                     ``6 nints P``: first saturated read and resultant (int16)
+                               and a temporary
+saved cubes                    ``28 P`` per ``save_charge`` / ``save_noise``: the float64
+                               sum, its mean, the float32 and big-endian copies written
+hot pixels                     ``24 hot_pixel_fraction P``
+variable stars                 ``266 kB`` per inline star with a light curve (its stamp,
+                               at most 129 x 129 pixels of index and weight)
+cosmic rays                    ``1700 E``: 9 deposits per hit, through the draw (offsets,
+                               multinomial split), the engine's arrays and the truth's
+                               table (measured: 1.62 kB per hit on a 256 x 256 array)
+noise generator                frames: ``4 P`` for the noise frame, ``+ 4 P`` for the
+                               reset level (``ktc`` or ``bias_amp``), ``+ 4 P`` for the
+                               template (``pca0`` or ``bias_amp``); the 1/f line buffers
+                               ``2 * njobs * min(512, ny) * row_samples * 4`` (``njobs``:
+                               the correlated series, and one per output with ``u_pink``,
+                               with ``acn``); the 1/f synthesis: 36 MB once, 12 MB per
+                               distinct sample rate (pixel rate, half of it for ACN, row
+                               rate for ``pca0``) and 3 MB per series (ACN: 2 per
+                               output); the bias template (``pca0`` or ``bias_amp``):
+                               ``48 (naxis1 + naxis2)`` for the synthetic one (its row
+                               and column profiles), ``8 naxis1 naxis2 + 24 P`` for a
+                               ``pca0_file``
+slopes only                    ``2 N`` with ``ramp = false``: the resultants are kept in
+                               memory for the fit
+fit                            ``44 MB + 72 P + 8 N + 4 nints P`` (``+ 4 N`` with IPC,
+                               undone first): the prepared resultants (float32) and
+                               flags, the fitter's row chunks and its maps; on top of
+                               the engine's rate maps and noise generator, which the
+                               run keeps
+=============================  ===========================================================
+
+The coefficients were fitted to the peak RSS (``VmHWM`` after the imports; MB =
+2**20 bytes) of runs on this machine, to stay at or a little above it.  A 1024 x 1024
+H2RG-like array, RAPID x 10, background only: 48 MB measured (estimate 57 MB); with
+IPC 63 MB (73 MB); with both saved cubes 102 MB (113 MB); with an OLS fit 208 MB (233
+MB); with a GLS fit of RAPID x 5 189 MB (193 MB), of RAPID x 20 311 MB (313 MB); with
+the paper's noise 162 MB (193 MB).  512 x 512 with noise 115 MB (136 MB), with noise
+and a GLS fit 192 MB (213 MB); noise alone on a 4096 x 4096, 32-output array 574 MB
+(596 MB); 10**6 cosmic-ray hits on a 256 x 256 array 1623 MB (1631 MB); a 64 x 64
+window with noise, 200 integrations, 59 MB (89 MB: the 1/f costs, fitted on full
+frames, are smaller for short time lines).  ``tests/test_budget.py`` checks the
+formula against hand-computed values and (``slow``) against a measured run.
+
+Outputs (bytes): exposure ``2 N`` (none with ``ramp = false``); truth ``8 P + 4 nints
+P + 33 * 9 E`` (``RATE`` and ``RATE_IPC`` float32, ``SATREAD`` and ``SATGROUP`` int16,
+the ``CRS`` table) ``+ 8 N`` per saved cube (the cube in the file and its temporary
+raw copy); fit file ``32 P + 8 nints P`` (eight maps and two per-integration cubes);
+plus 64 kB of headers and tables per file.
+"""
+
+import math
+import os
+import shutil
+from dataclasses import dataclass
+
+import numpy as np
+
+from noise.clock import Detector, exposure_slots
+from noise.errors import ParameterError
+from noise.fitsio import derived_path
+from noise.params import NoiseParams
+from noise.validate import check_bool, check_choice, check_instance, check_int, check_path
+
+from scenesim.engine import EngineOptions
+from scenesim.scene.schema import Scene
+
+__all__ = ["Budget", "estimate_budget", "check_budget", "check_noise_budget",
+           "available_memory", "free_disk", "MEMORY_FRACTION", "WARN_FRACTION"]
+
+#: A run is refused when its memory exceeds this fraction of the available memory.
+MEMORY_FRACTION = 0.8
+#: :meth:`Budget.warning` warns above this fraction of the available memory or of the
+#: free disk space.
+WARN_FRACTION = 0.5
+
+_MB = 2.0 ** 20
+_HEADERS = 64 * 1024              # headers and small tables of one output file
+_CR_BYTES = 1700.0                # memory per cosmic-ray hit
+_CR_DEPOSITS = 9                  # pixels per hit (the 3 x 3 footprint)
+_CRS_ROW = 33                     # bytes per row of the truth's CRS table
+_STAMP = (2 * 64 + 1) ** 2 * 16   # a variable star's stamp: index and weight
+_PINK_FIXED = 36 * _MB            # 1/f synthesis: once
+_PINK_RATE = 12 * _MB             # ... per distinct sample rate
+_PINK_SERIES = 3 * _MB            # ... per series
+_FIT_FIXED = 44 * _MB
+
+
+def _size(n):
+    """``n`` bytes for a message: ``'1.5 GB'``."""
+    if not math.isfinite(n):
+        return "an unbounded amount"
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB", "EB"):
+        if abs(n) < 1024 or unit == "EB":
+            return f"{n:.3g} {unit}" if unit != "B" else f"{n:.0f} B"
+        n /= 1024.0
+    return f"{n:.3g} EB"
+
+
+def available_memory():
+    """Bytes of memory available to this process now, or None if unknown.
+
+    ``MemAvailable`` of ``/proc/meminfo`` (what the kernel can give without swapping),
+    bounded by the cgroup v2 limit ``memory.max - memory.current`` of this process
+    when one is set; else ``os.sysconf('SC_AVPHYS_PAGES') * SC_PAGE_SIZE``.
+    """
+    avail = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    avail = float(line.split()[1]) * 1024
+                    break
+    except (OSError, ValueError, IndexError):
+        avail = None
+    if avail is None:
+        try:
+            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (AttributeError, ValueError, OSError):
+            return None
+    try:
+        with open("/sys/fs/cgroup/memory.max") as f:
+            limit = f.read().strip()
+        if limit != "max":
+            with open("/sys/fs/cgroup/memory.current") as f:
+                used = float(f.read().strip())
+            avail = min(avail, max(float(limit) - used, 0.0))
+    except (OSError, ValueError):
+        pass
+    return avail
+
+
+def free_disk(path):
+    """Free bytes on the file system of ``path``'s directory (its nearest existing
+    ancestor), or None if unknown."""
+    directory = os.path.dirname(os.path.abspath(os.fspath(path))) or "."
+    while not os.path.isdir(directory):
+        parent = os.path.dirname(directory)
+        if parent == directory:
+            return None
+        directory = parent
+    try:
+        return float(shutil.disk_usage(directory).free)
+    except OSError:
+        return None
+
+
+@dataclass(frozen=True)
+class Budget:
+    """What a run needs, and what the machine has.
+
+    Attributes
+    ----------
+    memory : float
+        Estimated peak memory of the run, bytes (``inf`` when beyond any machine).
+    output : float
+        Bytes written to the output directory (temporary raw cubes included).
+    memory_parts, output_parts : tuple of (str, float)
+        The parts that add up to ``memory`` (the peak is the larger of the
+        simulation and the fit) and to ``output``: a label naming the scene keys
+        that drive the part (or the file), and its bytes.
+    cosmic_ray_events : float
+        Expected cosmic-ray hits over the exposure.
+    available_memory, free_disk : float or None
+        Bytes available now (:func:`available_memory`) and free in the output
+        directory (:func:`free_disk`); None when unknown (then not checked).
+    output_dir : str
+        The output directory.
+    """
+
+    memory: float
+    output: float
+    memory_parts: tuple
+    output_parts: tuple
+    cosmic_ray_events: float
+    available_memory: float | None
+    free_disk: float | None
+    output_dir: str
+
+    def _largest(self, parts):
+        label, size = max(parts, key=lambda p: p[1])
+        return f"largest part: {_size(size)} for {label}"
+
+    def problems(self):
+        """One-line descriptions of the limits this run exceeds (empty if none)."""
+        out = []
+        if self.available_memory is not None and \
+                not self.memory <= MEMORY_FRACTION * self.available_memory:
+            out.append(
+                f"the run needs about {_size(self.memory)} of memory "
+                f"({self._largest(self.memory_parts)}), more than the limit of "
+                f"{MEMORY_FRACTION:.0%} of the {_size(self.available_memory)} available "
+                f"({_size(MEMORY_FRACTION * self.available_memory)})")
+        if self.free_disk is not None and not self.output <= self.free_disk:
+            out.append(
+                f"the run writes about {_size(self.output)} "
+                f"({self._largest(self.output_parts)}), more than the "
+                f"{_size(self.free_disk)} free in {self.output_dir!r}")
+        return out
+
+    def check(self):
+        """Raise :class:`~noise.errors.ParameterError` if a limit is exceeded: one
+        line naming the estimate, the limit and the override."""
+        problems = self.problems()
+        if problems:
+            raise ParameterError(
+                "; ".join(problems) + "; reduce the scene or pass --force "
+                "(force=True) to run anyway")
+
+    def warning(self):
+        """A one-line warning when the run uses more than :data:`WARN_FRACTION` of
+        the available memory or of the free disk space (or exceeds a limit, when
+        forced), else None."""
+        problems = self.problems()
+        if problems:
+            return "forced: " + "; ".join(problems)
+        notes = []
+        if self.available_memory is not None and \
+                self.memory > WARN_FRACTION * self.available_memory:
+            notes.append(f"about {_size(self.memory)} of memory "
+                         f"({self.memory / self.available_memory:.0%} of the "
+                         f"{_size(self.available_memory)} available)")
+        if self.free_disk is not None and self.output > WARN_FRACTION * self.free_disk:
+            notes.append(f"about {_size(self.output)} of output "
+                         f"({self.output / self.free_disk:.0%} of the "
+                         f"{_size(self.free_disk)} free in {self.output_dir!r})")
+        return ("the run needs " + " and ".join(notes)) if notes else None
+
+    def summary(self):
+        """``'memory ~188 MB (available 23 GB), output ~21 MB (free 50 GB)'``."""
+        def of(x):
+            return "unknown" if x is None else _size(x)
+        return (f"memory ~{_size(self.memory)} (available {of(self.available_memory)}), "
+                f"output ~{_size(self.output)} (free {of(self.free_disk)})")
+
+
+def _noise_parts(det, p):
+    """Memory parts of the noise generator for ``det`` and amplitudes ``p``."""
+    if p.is_silent():
+        return []
+    P = float(det.ny) * det.nx
+    nout = det.n_out_active
+    frames = 4 * P
+    if p.ktc > 0 or p.bias_amp > 0:
+        frames += 4 * P
+    if p.pca0 > 0 or p.bias_amp > 0:
+        frames += 4 * P
+    u_on = int(np.count_nonzero(p.per_output("u_pink", nout))) if p.enabled("u_pink") else 0
+    acn_on = int(np.count_nonzero(p.per_output("acn", nout))) if p.enabled("acn") else 0
+    merged = nout == 1 and p.c_pink > 0 and u_on > 0
+    series = (p.c_pink > 0) + (0 if merged else u_on) + 2 * acn_on + (p.pca0 > 0)
+    jobs = (p.c_pink > 0) + (0 if merged else u_on) + acn_on
+    rates = (p.c_pink > 0 or u_on > 0) + (acn_on > 0) + (p.pca0 > 0)
+    lines = 2.0 * jobs * min(512, det.ny) * det.row_samples * 4
+    pink = (_PINK_FIXED + _PINK_RATE * rates + _PINK_SERIES * series) if series else 0.0
+    template = 0.0
+    if p.pca0 > 0 or p.bias_amp > 0:
+        full = float(det.naxis1) * det.naxis2
+        # a FITS template is read whole (float64) and normalised in the window; the
+        # synthetic one is made from row and column profiles of the full array
+        template = 8 * full + 24 * P if p.pca0_file else \
+            48.0 * (det.naxis1 + det.naxis2)
+    return [("the noise frames ([noise], [detector] naxis1 x naxis2)", frames + lines),
+            ("the 1/f noise synthesis ([noise] c_pink, u_pink, acn, pca0)", pink),
+            ("the bias template ([noise] pca0, bias_amp, pca0_file; [detector] naxis1, "
+             "naxis2)", template)]
+
+
+def estimate_budget(scene, *, options=None):
+    """The :class:`Budget` of running ``scene`` (module notes), without checking it.
+
+    Parameters
+    ----------
+    scene : scenesim.scene.Scene
+        Validated; its ``[output]`` as the run will use it (``path``, ``fit``,
+        ``ramp``, ...).
+    options : scenesim.engine.EngineOptions, optional
+        The engine options of the run (the '2d' shortcut and ``shot_noise = false``
+        keep the charge in float64, which the estimate already assumes).
+    """
+    check_instance("scene", scene, Scene, "a scenesim.scene.Scene")
+    check_instance("options", options, EngineOptions, "a scenesim.engine.EngineOptions",
+                   allow_none=True)
+    det, src, eff, out = scene.detector, scene.sources, scene.effects, scene.output
+    ro = scene.readout.build()
+    P = float(det.ny) * det.nx
+    nints, ngroups = ro.nints, ro.ngroups
+    N = nints * ngroups * P
+    t_total = exposure_slots(nints, ro.nreads) * det.frame_time
+    cm = det.pixel_pitch * 1e-4
+    events = eff.cosmic_ray_rate * (P * cm * cm) * t_total if eff.cosmic_ray_rate else 0.0
+    size = f"{det.ny} x {det.nx} pixels"
+    maps = len(src.map_files) + len(eff.map_files)
+    variable = sum(1 for s in src.stars if s.light_curve is not None)
+    sim = [
+        (f"the rate and pixel maps ({size}, [detector] naxis1 x naxis2 or the subarray)",
+         33 * P),
+        (f"the charge frames ({size})", 18 * P),
+        ("the IPC frames ([effects] ipc_alpha / ipc_kernel)",
+         16 * P if eff.ipc() is not None else 0.0),
+        ("the FITS maps ([sources] dark_current, background, [effects] flat, full_well)",
+         (8 * float(det.naxis1) * det.naxis2 + 8 * P) * maps),
+        ("the saturation maps ([readout] nints)", 6 * nints * P),
+        ("the saved cubes ([output] save_charge, save_noise)",
+         28 * P * (out.save_charge + out.save_noise)),
+        ("the hot pixels ([sources] hot_pixel_fraction)", 24 * src.hot_pixel_fraction * P),
+        ("the variable stars ([[sources.stars]] light_curve)", float(_STAMP * variable)),
+        (f"{events:.3g} cosmic-ray hits ([effects] cosmic_ray_rate = "
+         f"{eff.cosmic_ray_rate:g} /cm^2/s)", _CR_BYTES * events),
+    ]
+    # what stays from the simulation through the fit: the engine (its maps and its
+    # noise generator, with the 1/f filters) and the resultants of a slopes-only run
+    noise = _noise_parts(det, scene.noise)
+    kept = [sim[0], ("the resultants kept for the fit ([output] ramp = false)",
+                     2 * N if not out.ramp else 0.0)] + noise
+    fit = []
+    if out.fit:
+        ipc_copy = 4 * N if eff.ipc() is not None else 0.0      # undo_ipc's output
+        fit = kept + [(f"the {out.fit} fit of {N:.3g} resultant values ({size}, "
+                       f"[detector] naxis1 x naxis2, [readout] ngroups x nints, [output] "
+                       f"fit)",
+                       _FIT_FIXED + 72 * P + 8 * N + 4 * nints * P + ipc_copy)]
+    sim = sim + kept[1:]
+    sim_total = math.fsum(b for _, b in sim)
+    fit_total = math.fsum(b for _, b in fit)
+    parts = sim if sim_total >= fit_total else fit
+    memory = max(sim_total, fit_total)
+
+    path = out.path
+    outputs = []
+    if out.ramp:
+        outputs.append((f"the exposure {path!r}", 2 * N + _HEADERS))
+    if out.truth:
+        saved = out.save_charge + out.save_noise
+        outputs.append((f"the truth file {derived_path(path, '_truth')!r}",
+                        8 * P + 4 * nints * P + _CRS_ROW * _CR_DEPOSITS * events
+                        + 8 * N * saved + _HEADERS))
+    if out.fit:
+        outputs.append((f"the fit file {derived_path(path, '_' + out.fit)!r}",
+                        32 * P + 8 * nints * P + _HEADERS))
+    output = math.fsum(b for _, b in outputs)
+    return Budget(memory=memory, output=output,
+                  memory_parts=tuple((k, float(v)) for k, v in parts if v),
+                  output_parts=tuple(outputs), cosmic_ray_events=events,
+                  available_memory=available_memory(), free_disk=free_disk(path),
+                  output_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def check_budget(scene, *, force=False, options=None):
+    """Estimate what running ``scene`` needs and refuse it if the machine cannot.
+
+    Parameters
+    ----------
+    scene : scenesim.scene.Scene
+        Validated, with its ``[output]`` as the run will use it.
+    force : bool, keyword-only
+        Do not refuse (the command's ``--force``); the returned budget's
+        :meth:`~Budget.warning` then says which limit is exceeded.
+    options : scenesim.engine.EngineOptions, optional
+
+    Returns
+    -------
+    Budget
+        Its :meth:`~Budget.warning` is a one-line warning to print (or None).
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Without ``force``, when the memory exceeds :data:`MEMORY_FRACTION` of the
+        available memory or the output exceeds the free disk space: one line with
+        the estimate, the largest part and the scene keys that drive it, the limit,
+        and ``--force``.
+    """
+    force = check_bool("force", force)
+    budget = estimate_budget(scene, options=options)
+    if not force:
+        budget.check()
+    return budget
+
+
+def check_noise_budget(detector, params, nframes, *, nints=1, unit="e", path,
+                       force=False):
+    """:func:`check_budget` for a noise-only ramp (``scenesim noise``,
+    :func:`noise.write_noise_fits`).
+
+    Memory: the noise generator (module notes) and the writer's two frames in
+    flight plus a float64 scratch (``16 P``); output: ``nints * nframes * P`` values of
+    4 bytes (``unit='e'``, float32) or 2 (``'DN'``, uint16), plus 64 kB.
+
+    Parameters
+    ----------
+    detector : noise.Detector
+    params : noise.NoiseParams
+    nframes : int
+        Read frames per integration (>= 1).
+    nints : int, keyword-only
+    unit : {'e', 'DN'}, keyword-only
+    path : str or os.PathLike, keyword-only
+        The output file (its directory's free space is checked).
+    force : bool, keyword-only
+
+    Returns
+    -------
+    Budget
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        As :func:`check_budget`.
+    """
+    check_instance("detector", detector, Detector, "a noise.Detector")
+    check_instance("params", params, NoiseParams, "a noise.NoiseParams")
+    nframes = check_int("nframes", nframes, minimum=1)
+    nints = check_int("nints", nints, minimum=1)
+    unit = check_choice("unit", unit, ("e", "DN"))
+    path = check_path("path", path)
+    force = check_bool("force", force)
+    P = float(detector.ny) * detector.nx
+    size = f"{detector.ny} x {detector.nx} pixels"
+    parts = [(f"the frames being written ({size}, --naxis)", 16 * P)]
+    parts += [(k, v) for k, v in _noise_parts(detector, params) if v]
+    values = nints * nframes * P
+    outputs = [(f"the ramp {path!r} ({values:.3g} values, --frames x --nints x the "
+                f"array)", values * (4 if unit == "e" else 2) + _HEADERS)]
+    budget = Budget(memory=math.fsum(v for _, v in parts),
+                    output=math.fsum(v for _, v in outputs),
+                    memory_parts=tuple((k, float(v)) for k, v in parts),
+                    output_parts=tuple(outputs), cosmic_ray_events=0.0,
+                    available_memory=available_memory(), free_disk=free_disk(path),
+                    output_dir=os.path.dirname(os.path.abspath(path)))
+    if not force:
+        budget.check()
+    return budget
