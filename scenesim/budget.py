@@ -25,7 +25,11 @@ scene keys that drive it and the override ``--force``) when
 * its output exceeds the free disk space;
 
 and :meth:`Budget.warning` returns a one-line warning (nothing is refused) above
-:data:`WARN_FRACTION` (50 %) of either.  Before (issue 12) ``naxis = 400000`` or
+:data:`WARN_FRACTION` (50 %) of either, which :meth:`Budget.warn` issues as a
+:class:`BudgetWarning` (the commands print it as one line: :func:`one_line_warnings`).
+:func:`scenesim.run.run_scene` (``force=False``) and the commands ``scenesim run`` and
+``scenesim noise`` (``--force``) check the budget after the output paths and before
+anything is built, read or removed.  Before (issue 12) ``naxis = 400000`` or
 ``cosmic_ray_rate = 1e12`` ended in a MemoryError traceback after the work had
 started; both are now refused in milliseconds.
 
@@ -102,9 +106,12 @@ raw copy); fit file ``32 P + 8 nints P`` (eight maps and two per-integration cub
 plus 64 kB of headers and tables per file.
 """
 
+import contextlib
 import math
 import os
 import shutil
+import sys
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,8 +125,9 @@ from noise.validate import check_bool, check_choice, check_instance, check_int, 
 from scenesim.engine import EngineOptions
 from scenesim.scene.schema import Scene
 
-__all__ = ["Budget", "estimate_budget", "check_budget", "check_noise_budget",
-           "available_memory", "free_disk", "MEMORY_FRACTION", "WARN_FRACTION"]
+__all__ = ["Budget", "BudgetWarning", "estimate_budget", "check_budget",
+           "check_noise_budget", "one_line_warnings", "available_memory", "free_disk",
+           "MEMORY_FRACTION", "WARN_FRACTION"]
 
 #: A run is refused when its memory exceeds this fraction of the available memory.
 MEMORY_FRACTION = 0.8
@@ -137,6 +145,29 @@ _PINK_FIXED = 36 * _MB            # 1/f synthesis: once
 _PINK_RATE = 12 * _MB             # ... per distinct sample rate
 _PINK_SERIES = 3 * _MB            # ... per series
 _FIT_FIXED = 44 * _MB
+
+
+class BudgetWarning(UserWarning):
+    """A run uses more than :data:`WARN_FRACTION` of the available memory or of the
+    free disk space, or exceeds a limit and was forced (:meth:`Budget.warn`)."""
+
+
+@contextlib.contextmanager
+def one_line_warnings(prog):
+    """Inside the block, a :class:`BudgetWarning` is printed on stderr as the one line
+    ``'<prog>: warning: <message>'`` (Python's default adds the file, the line number
+    and the source line); other warnings are shown as before."""
+    with warnings.catch_warnings():
+        show = warnings.showwarning
+
+        def _show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, BudgetWarning):
+                print(f"{prog}: warning: {message}", file=sys.stderr)
+            else:
+                show(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = _show
+        yield
 
 
 def _size(n):
@@ -278,6 +309,12 @@ class Budget:
                          f"({self.output / self.free_disk:.0%} of the "
                          f"{_size(self.free_disk)} free in {self.output_dir!r})")
         return ("the run needs " + " and ".join(notes)) if notes else None
+
+    def warn(self, stacklevel=2):
+        """Issue :meth:`warning` as a :class:`BudgetWarning`, if there is one."""
+        message = self.warning()
+        if message is not None:
+            warnings.warn(message, BudgetWarning, stacklevel=stacklevel + 1)
 
     def summary(self):
         """``'memory ~188 MB (available 23 GB), output ~21 MB (free 50 GB)'``."""

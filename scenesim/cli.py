@@ -53,6 +53,7 @@ def _parser():
     q.add_argument("-o", "--output", required=True)
     q.add_argument("-q", "--quiet", action="store_true")
     q.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
+    q.add_argument("--force", action="store_true", help=_FORCE)
     q.set_defaults(target="scenesim.commands:noise_command")
 
     r = sub.add_parser("run", help="simulate a scene file (TOML)")
@@ -80,6 +81,7 @@ def _parser():
                         "(JWST FITS and/or Roman ASDF)")
     r.add_argument("-q", "--quiet", action="store_true")
     r.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
+    r.add_argument("--force", action="store_true", help=_FORCE)
     r.set_defaults(target="scenesim.commands:run_command")
 
     f = sub.add_parser("fit", help="fit up-the-ramp slopes of an exposure")
@@ -148,6 +150,8 @@ def _parser():
 
 _OVERWRITE = ("replace existing output files (never a file the command reads, never a "
               "read-only one)")
+_FORCE = ("run even when the estimated memory or output exceeds what the machine has "
+          "(checked before any work; scenesim.budget)")
 
 
 class Interrupted(KeyboardInterrupt):

@@ -13,6 +13,7 @@ from scenesim.adapters.stcal import fit_exposure_stcal
 from noise.errors import ParameterError
 from scenesim.batch.command import pool_command
 from scenesim.bench import main as bench_main
+from scenesim.budget import check_noise_budget, one_line_warnings
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import EngineOptions
 from scenesim.pipelines.command import check_run_products, write_run_products
@@ -37,8 +38,12 @@ def noise_command(args):
         det = dataclasses.replace(det, **changes)
     params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
         rd_noise=5.2)
-    gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
     check_outputs({"output": args.output}, overwrite=args.overwrite)
+    budget = check_noise_budget(det, params, args.frames, nints=args.nints,
+                                unit=args.unit, path=args.output, force=args.force)
+    with one_line_warnings("scenesim noise"):
+        budget.warn()
+    gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
     cleaned = clean_stale_temps([args.output])
     if cleaned and not args.quiet:
         print(cleaned)
@@ -74,10 +79,11 @@ def run_command(args):
     products = dict(uncal=getattr(args, "uncal", False), l1=getattr(args, "l1", False),
                     reffiles=getattr(args, "reffiles", False))
     check_run_products(scene, args.output, overwrite=args.overwrite, **products)
-    res = run_scene(scene, output=args.output, seed=args.seed, options=options,
-                    progress=not args.quiet, fit=args.fit, refpix=args.refpix,
-                    compare=True if args.compare else None, plots=args.plots,
-                    overwrite=args.overwrite)
+    with one_line_warnings("scenesim run"):
+        res = run_scene(scene, output=args.output, seed=args.seed, options=options,
+                        progress=not args.quiet, fit=args.fit, refpix=args.refpix,
+                        compare=True if args.compare else None, plots=args.plots,
+                        overwrite=args.overwrite, force=args.force)
     written = write_run_products(scene if args.seed is None else scene.replace(
         seed=args.seed), res, overwrite=args.overwrite, **products)
     if res.cleaned and not args.quiet:

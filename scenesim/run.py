@@ -16,7 +16,8 @@ ramp file is written at all -- the resultants are kept in memory
 (:func:`scenesim.calib.prepare.prepare_exposure` takes an in-memory
 :class:`~scenesim.io.exposure.Exposure` whose header and read table are those the file
 would have had, so the slopes equal those of a fit of the written file, bit for
-bit).  Every output path is checked before any work starts.
+bit).  Every output path, then the memory and disk the run needs
+(:func:`scenesim.budget.check_budget`), is checked before any work starts.
 
 Random streams: the scene seed is the root ``SeedSequence``; every part draws from
 its own stream of the registry :mod:`noise.streams` (engine, noise, Poisson, cosmic
@@ -36,6 +37,7 @@ from tqdm import tqdm
 from noise import streams
 from noise.clock import exposure_slots
 from noise.errors import ParameterError
+from scenesim.budget import check_budget
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
@@ -199,7 +201,8 @@ def _progress(nreads, enabled):
 
 
 def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progress=True,
-              fit=None, refpix=None, compare=None, plots=None, overwrite=False):
+              fit=None, refpix=None, compare=None, plots=None, overwrite=False,
+              force=False):
     """Run ``scene``: simulate, write the exposure and truth, then fit and compare.
 
     Parameters
@@ -218,10 +221,22 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     overwrite : bool
         Replace existing outputs (never a file the scene reads, never a read-only
         one; :mod:`scenesim.outputs`).  Every output is checked before any work.
+    force : bool
+        Run even when the estimated memory or output exceeds what the machine has
+        (:func:`scenesim.budget.check_budget`, checked after the output paths and
+        before any work); the limit exceeded is then a
+        :class:`~scenesim.budget.BudgetWarning`, as is a run that uses more than half
+        of either.
 
     Returns
     -------
     RunResult
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Bad outputs, or (without ``force``) a run the machine cannot hold: one line
+        with the estimate, the limit and the scene keys that drive it.
     """
     t0 = time.perf_counter()
     out_cfg = _output_config(scene.output, output=output, fit=fit, refpix=refpix,
@@ -231,6 +246,7 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     scene = scene.ensure_seed().replace(output=out_cfg)
     exp_path, truth_path, fit_path = _output_paths(scene, out_cfg, overwrite=overwrite,
                                                    plots=plots)
+    check_budget(scene, force=force, options=options).warn()
     cleaned = clean_stale_temps([exp_path, truth_path, fit_path])
     engine, rendered = build_engine(scene, options=options)
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf) + \

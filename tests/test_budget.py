@@ -18,9 +18,11 @@ import pytest
 
 from noise.errors import ParameterError, ParameterTypeError
 import noise
-from scenesim.budget import (MEMORY_FRACTION, WARN_FRACTION, Budget, available_memory,
-                             check_budget, check_noise_budget, estimate_budget,
-                             free_disk)
+import scenesim.budget as budget_module
+from scenesim.budget import (MEMORY_FRACTION, WARN_FRACTION, Budget, BudgetWarning,
+                             available_memory, check_budget, check_noise_budget,
+                             estimate_budget, free_disk, one_line_warnings)
+from scenesim.run import run_scene
 from scenesim.scene import load_scene, parse_scene
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -241,3 +243,68 @@ def test_estimate_bounds_a_measured_run(tmp_path):
     assert res.returncode == 0, res.stderr
     measured, estimate = (float(v) for v in res.stdout.split())
     assert 0.9 * measured <= estimate <= 1.6 * measured, (measured / MB, estimate / MB)
+
+
+# ------------------------------------------------- run_scene checks the budget first
+def _tiny_scene(path, naxis=16, **effects):
+    return parse_scene({"seed": 2, "detector": {"naxis1": naxis, "naxis2": naxis,
+                                                "ref_border": 2},
+                        "noise": {"preset": "none"},
+                        "readout": {"pattern": "RAPID", "ngroups": 2},
+                        "sources": {"background": 1.0}, "effects": effects,
+                        "output": {"path": str(path)}})
+
+
+@pytest.mark.parametrize("change", ["naxis", "cosmic_ray_rate"])
+def test_run_scene_refuses_before_any_work(change, tmp_path):
+    # before: a MemoryError traceback after the work had started
+    # 64 x 64 pixels, RAPID x 2: 7e8 hits at 1e12 /cm^2/s, about 1 TB (on 16 x 16
+    # pixels, 7e6 hits and 11 GB, which a large machine holds)
+    scene = _tiny_scene(tmp_path / "x.fits", naxis=64)
+    if change == "naxis":
+        scene = scene.replace(detector=dataclasses.replace(
+            scene.detector, naxis1=400000, naxis2=400000))
+    else:
+        scene = scene.replace(effects=dataclasses.replace(scene.effects,
+                                                          cosmic_ray_rate=1e12))
+    t0 = time.perf_counter()
+    with pytest.raises(ParameterError, match=rf"{'naxis1' if change == 'naxis' else change}"
+                                             r".*--force"):
+        run_scene(scene, progress=False)
+    # arithmetic only (~1 ms); 0.5 s is far below building a 1e11-pixel array
+    assert time.perf_counter() - t0 < 0.5
+    assert os.listdir(tmp_path) == []
+
+
+def test_run_scene_force_runs_past_the_limit_with_a_warning(tmp_path, monkeypatch):
+    monkeypatch.setattr(budget_module, "available_memory", lambda: 1e3)
+    scene = _tiny_scene(tmp_path / "x.fits")
+    with pytest.raises(ParameterError, match=r"1000 B available.*--force"):
+        run_scene(scene, progress=False)
+    assert os.listdir(tmp_path) == []
+    with pytest.warns(BudgetWarning, match=r"^forced: the run needs .*1000 B available"):
+        res = run_scene(scene, progress=False, force=True)
+    assert sorted(os.listdir(tmp_path)) == ["x.fits", "x_truth.fits"]
+    assert res.exposure == str(tmp_path / "x.fits")
+
+
+def test_run_scene_warns_above_the_threshold(tmp_path, monkeypatch):
+    monkeypatch.setattr(budget_module, "WARN_FRACTION", 0.0)
+    with pytest.warns(BudgetWarning, match=r"^the run needs about .*% of the") as rec:
+        run_scene(_tiny_scene(tmp_path / "x.fits"), progress=False)
+    assert len(rec) == 1 and rec[0].filename == __file__     # points at the caller
+    assert "forced" not in str(rec[0].message)
+
+
+def test_run_scene_force_must_be_a_bool(tmp_path):
+    with pytest.raises(ParameterError, match="'force'"):
+        run_scene(_tiny_scene(tmp_path / "x.fits"), progress=False, force="yes")
+    assert os.listdir(tmp_path) == []
+
+
+def test_one_line_warnings_prints_budget_warnings_as_one_line(capsys):
+    import warnings
+    with one_line_warnings("scenesim run"):
+        warnings.simplefilter("always")
+        warnings.warn("the run needs a lot", BudgetWarning)
+    assert capsys.readouterr().err == "scenesim run: warning: the run needs a lot\n"
