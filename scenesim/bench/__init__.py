@@ -31,7 +31,6 @@ program (a test scans it).
 import json
 import os
 import pickle
-import resource
 import shutil
 import sys
 import tempfile
@@ -43,13 +42,11 @@ from noise.errors import ParameterError
 from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
 from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
-from scenesim.bench.process import load_average, run_process, tail
+from scenesim.bench.process import load_average, peak_rss_self, run_process, tail
 from scenesim.bench.workloads import OPTION_CASES, PREPARE, WORKLOADS
 
 __all__ = ["WORKLOADS", "OPTION_CASES", "PEER_WORKLOADS", "main", "floor_seconds",
            "floor_counts", "limit_seconds", "run_case"]
-
-_MB = 1024.0             # ru_maxrss is in KiB on Linux
 
 #: Workloads of ``scenesim bench peers``: those with a peer.
 PEER_WORKLOADS = ("noise", "roman", "fit")
@@ -59,17 +56,20 @@ PEER_WORKLOADS = ("noise", "roman", "fit")
 def run_case(name, case, threads, **kwargs):
     """Run one case in this process; add peak and baseline RSS (MB) to its result.
 
-    ``kwargs`` go to the workload (the prepared input of :data:`PREPARE`)."""
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / _MB
+    Both are this process's own high-water mark (``VmHWM``,
+    :func:`scenesim.bench.process.peak_rss_self`): before the work (the imports) and
+    after it.  ``kwargs`` go to the workload (the prepared input of :data:`PREPARE`)."""
+    base = peak_rss_self()
     out = WORKLOADS[name][0](case, threads, **kwargs)
-    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / _MB
+    out["peak_rss_mb"] = peak_rss_self()
     out["base_rss_mb"] = base
     return out
 
 
 def _run_child(name, case, threads, work, kwargs):
     """One case in a fresh process: its in-process result plus the process's own
-    measurement (``process_wall``, ``process_cpu``, ``peak_rss_mb``, loads)."""
+    measurement (``process_wall``, ``process_cpu``, loads) and ``peak_rss_mb``, the
+    process's own high-water mark at its end (reported by the child)."""
     tag = f"{name}_{_slug(case)}_{threads}t"
     result = os.path.join(work, tag + ".pickle")
     argv = [sys.executable, "-m", "scenesim.bench.child", name, repr(case), str(threads),
@@ -87,7 +87,8 @@ def _run_child(name, case, threads, work, kwargs):
     os.unlink(result)
     value["inprocess_peak_rss_mb"] = value.pop("peak_rss_mb")
     value.update(process_wall=m["wall"], process_cpu=m["cpu"],
-                 peak_rss_mb=m["peak_rss_mb"], load_before=m["load_before"],
+                 peak_rss_mb=value.pop("process_peak_rss_mb"),
+                 rusage_maxrss_mb=m["rusage_maxrss_mb"], load_before=m["load_before"],
                  load_after=m["load_after"])
     return value
 

@@ -10,7 +10,9 @@ for nothing of scenesim's.  Usage::
 ``SPEC.json`` names the inputs (prepared by :mod:`scenesim.bench.peers`) and the
 output; the script writes ``SPEC.json``'s ``result`` file: ``inprocess`` (seconds of
 the peer's own work: set-up, simulation or fit, and its write), the peer's
-``version`` and a ``detail`` line.  The whole-process time, CPU and peak memory are
+``version``, a ``detail`` line and ``peak_rss_mb``, the process's own resident
+high-water mark at its end (``VmHWM``: ``wait4``'s ``ru_maxrss`` would start at the
+parent's, :mod:`scenesim.bench.process`).  The whole-process time and CPU are
 measured by the parent (``os.wait4``).
 
 Peers
@@ -140,11 +142,21 @@ def _stcal(spec):
 _PEERS = {"ng": _ng, "romanisim": _romanisim, "stcal": _stcal}
 
 
+def _peak_rss_mb():
+    """This process's resident high-water mark, MB (``VmHWM``; reset by ``exec``)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    raise OSError("no VmHWM in /proc/self/status")
+
+
 def _main(argv):
     peer, spec_path = argv
     with open(spec_path) as f:
         spec = json.load(f)
     out = _PEERS[peer](spec)
+    out["peak_rss_mb"] = _peak_rss_mb()
     with open(spec["result"], "w") as f:
         json.dump(out, f)
     return 0

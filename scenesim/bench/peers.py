@@ -5,7 +5,8 @@
 input, every peer of that case that is present here, each in its own fresh process
 (:mod:`scenesim.bench.peer_scripts`, which imports nothing of scenesim's), measured
 like the scenesim case (:func:`scenesim.bench.process.run_process`: whole-process
-wall time, CPU, peak RSS, the load average before and after):
+wall time, CPU, the load average before and after; the peak RSS each process reports
+of itself):
 
 ==================  =====================================  ============================
 scenesim case       peer                                   same input
@@ -203,7 +204,8 @@ def run_peer(plan, name, case, directory, *, ng_path=None):
     -------
     dict
         ``plan`` plus, when the peer ran: ``status = 'measured'``, ``wall``,
-        ``cpu``, ``peak_rss_mb``, ``load_before``, ``load_after`` (whole process),
+        ``cpu``, ``load_before``, ``load_after`` (whole process), ``peak_rss_mb``
+        (the process's own high-water mark, reported by it),
         ``inprocess`` (the peer's own work, s), ``version`` and ``detail``; when it
         failed: ``status`` = :data:`NOT_MEASURED` and the ``reason`` (the end of its
         error output).

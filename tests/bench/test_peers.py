@@ -205,6 +205,21 @@ def test_romanisim_peer_runs_on_the_roman_rate_map(tmp_path):
     assert os.path.getsize(tmp_path / "l1.asdf") > 9 * 64 * 64 * 2
 
 
+def test_peak_memory_is_the_processs_own(tmp_path):
+    """A process started by a parent that holds 300 MB reports its own peak, not the
+    parent's: Linux starts a child's ru_maxrss at the parent's high-water mark."""
+    held = np.ones(300 * 2**20 // 8)          # 300 MB, touched
+    script = "from scenesim.bench.process import peak_rss_self; print(peak_rss_self())"
+    m = run_process([sys.executable, "-c", script], cwd=str(tmp_path),
+                    stdout_path=str(tmp_path / "o"), stderr_path=str(tmp_path / "e"))
+    assert m["returncode"] == 0, (tmp_path / "e").read_text()
+    own = float((tmp_path / "o").read_text())
+    assert m["rusage_maxrss_mb"] >= 300
+    # an interpreter that imports only os, subprocess and time: ~10-20 MB
+    assert 0 < own < 100
+    del held
+
+
 def test_pink_samples_follow_the_floor_definition():
     # NG defaults, 4 outputs: per read L (c_pink) + 4 L (u_pink) + 4 * 2 * (L/2) (ACN)
     # + (ny + nfoh) (picture frame): the floor's normals less the white ones
