@@ -51,8 +51,10 @@ import numpy as np
 from astropy.io import fits
 from astropy.utils.exceptions import AstropyWarning
 
-from noise.validate import check_float, check_int, check_writable
-from noise.errors import FileFormatError, OutputError, ParameterError, ScenesimError
+from noise.validate import (check_bool, check_choice, check_float, check_instance,
+                            check_int, check_path, check_writable, describe, is_sequence)
+from noise.errors import (FileFormatError, OutputError, ParameterError,
+                          ParameterTypeError, ScenesimError)
 
 __all__ = ["atomic_path", "atomic_file", "StreamingFITS", "package_version",
            "write_noise_fits", "TEMP_PATTERN", "temp_file", "remove_stale_temps",
@@ -564,9 +566,16 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
         ``'e'``: float32 electrons.  ``'DN'``: uint16, electrons / ``gain``, rounded and
         clipped to [0, 65535].
     gain : float
-        e-/DN, used for ``unit='DN'`` and recorded in the header.
+        e-/DN, used for ``unit='DN'`` and recorded in the header.  With ``'DN'`` no
+        noise amplitude (``rtn_amp`` apart) may exceed 100 times the 16-bit range in
+        electrons, ``gain * 65535``: above it every pixel clips at 0 or 65535
+        (:meth:`noise.NoiseParams.check_adc`).
+    overwrite : bool
+        Replace an existing file (default: refuse it).
     progress : callable, optional
         Called with the number of frames written after each frame.
+    extra_cards : sequence of (key, value[, comment])
+        More primary-header cards.
 
     The data have shape (nframes, ny, nx) for one integration, else
     (nints, nframes, ny, nx).  The header records every detector and noise parameter,
@@ -579,11 +588,27 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
     noise.errors.OutputError
         The file could not be written (disk full, file-size limit); nothing is left.
     """
-    if unit not in ("e", "DN"):
-        raise ParameterError(f"'unit' must be 'e' or 'DN', got {unit!r}")
+    from noise.generator import NoiseGenerator      # (it imports this module)
+    path = check_path("path", path)
+    check_instance("generator", generator, NoiseGenerator, "a noise.NoiseGenerator")
+    unit = check_choice("unit", unit, ("e", "DN"))
     gain = check_float("gain", gain, minimum=0.0, strict_min=True)
     nframes = check_int("nframes", nframes, minimum=1)
     nints = check_int("nints", nints, minimum=1)
+    overwrite = check_bool("overwrite", overwrite)
+    if progress is not None and not callable(progress):
+        raise ParameterTypeError(f"'progress' must be callable or None, got "
+                                 f"{type(progress).__name__} {describe(progress)}")
+    if isinstance(extra_cards, (str, bytes)) or not is_sequence(extra_cards) or \
+            not all(isinstance(c, tuple) and len(c) in (2, 3) for c in extra_cards):
+        raise ParameterTypeError(f"'extra_cards' must be a sequence of (key, value[, "
+                                 f"comment]) tuples, got {describe(extra_cards)}")
+    if unit == "DN":
+        # an amplitude beyond 100 x the 16-bit range clips every pixel (0 or 65535)
+        try:
+            generator.params.check_adc(gain, 16)
+        except ParameterError as exc:
+            raise ParameterError(f"unit='DN' (16-bit): {exc}") from exc
     det = generator.detector
     shape = ((nframes,) if nints == 1 else (nints, nframes)) + det.shape
     dtype = np.float32 if unit == "e" else np.uint16

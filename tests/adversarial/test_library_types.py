@@ -27,7 +27,6 @@ creates nothing in the checkout.
 
 import inspect
 import math
-import os
 
 import numpy as np
 import pytest
@@ -135,6 +134,11 @@ CALLS = {
                                ("dn_gain", None, False), ("reuse", False, False)]),
     "NoiseGenerator.cube": (lambda *a, **k: _gen().cube(*a, **k),
                             [("nframes", 2, True), ("nints", 1, False)]),
+    "write_noise_fits": (noise.write_noise_fits,
+                         [("path", "n.fits", True), ("generator", Lazy(_gen), True),
+                          ("nframes", 2, True), ("nints", 1, False), ("unit", "DN", False),
+                          ("gain", 2.0, False), ("overwrite", False, False),
+                          ("progress", None, False), ("extra_cards", (), False)]),
     "Layout": (noise.Layout, [("pool_min_pixels", 1 << 16, False),
                               ("band_rows", 512, False)]),
     "root_seed": (noise.root_seed, [("rng", 1, True)]),
@@ -346,7 +350,6 @@ NOT_CALLED = {
     "PreparedExposure": "a record made by prepare_exposure",
     "Exposure": "a record made by read_exposure / write_exposure",
     "Report": "a record made by compare",
-    "write_noise_fits": "argument checks pending in noise/fitsio.py (files owner)",
     "write_exposure": "argument checks pending in scenesim/run.py (the lead's)",
     "build_engine": "argument checks pending in scenesim/run.py (the lead's)",
     "run_scene": "argument checks pending in scenesim/run.py (the lead's); "
