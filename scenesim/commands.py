@@ -85,7 +85,7 @@ def run_command(args):
                         compare=True if args.compare else None, plots=args.plots,
                         overwrite=args.overwrite, force=args.force)
     written = write_run_products(scene if args.seed is None else scene.replace(
-        seed=args.seed), res, overwrite=args.overwrite, **products)
+        seed=args.seed), res, options=options, overwrite=args.overwrite, **products)
     if res.cleaned and not args.quiet:
         print(res.cleaned)
     if not args.quiet:

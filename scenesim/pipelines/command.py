@@ -2,11 +2,15 @@
 
 ``scenesim run SCENE --uncal --l1 --reffiles`` writes, beside the exposure
 ``stem.fits``: ``stem_uncal.fits`` (JWST uncal,
-:func:`scenesim.pipelines.jwst.write_uncal`), ``stem_l1.asdf`` (Roman L1,
+:func:`scenesim.pipelines.jwst.write_uncal`, with the zero frame of
+:mod:`scenesim.pipelines.zeroframe` when the pattern has one), ``stem_l1.asdf`` (Roman L1,
 :func:`scenesim.pipelines.roman.write_l1`) and the directory ``stem_refs/`` of
 reference files: ``jwst_<type>.fits`` for a JWST-sized detector read with a
-MULTIACCUM pattern, ``roman_<type>.asdf`` whenever the Roman extra is installed.
-Every path is checked before the run starts (:func:`check_run_products`).
+MULTIACCUM pattern, ``roman_<type>.asdf`` with ``--l1`` or when no JWST set fits
+(:func:`reference_families`).  Every path, and every optional extra these need
+(:func:`require_extra`: one line naming the extra to install), is checked before the
+run starts (:func:`check_run_products`).  Nothing here imports a pipeline package
+until a product or ``scenesim pipeline`` asks for it.
 
 ``scenesim pipeline jwst UNCAL --refs DIR [--truth TRUTH --exposure EXP]`` runs
 Detector1 offline (:func:`scenesim.pipelines.jwst.run_detector1`) and, given the
@@ -22,7 +26,36 @@ from noise.errors import ParameterError
 from noise.fitsio import derived_path
 
 __all__ = ["pipeline_command", "write_run_products", "check_run_products",
-           "product_paths", "reference_paths"]
+           "product_paths", "reference_paths", "require_extra", "reference_families",
+           "EXTRAS"]
+
+#: The optional extras of the pipeline loops and the modules each provides.
+EXTRAS = {"jwst": ("stdatamodels", "jwst", "stpipe"),
+          "roman": ("roman_datamodels", "romancal", "stpipe")}
+
+
+def require_extra(extra, what):
+    """Raise a one-line :class:`~noise.errors.ParameterError` naming the optional
+    ``extra`` to install when one of its modules cannot be imported (``what``: the
+    product or command that needs it).  Imports nothing else."""
+    import importlib
+    for module in EXTRAS[extra]:
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            raise ParameterError(
+                f"{what} needs the optional '{extra}' extra ({module} is not "
+                f"installed): pip install -e '.[{extra}]'") from exc
+
+
+def reference_families(detector, readout, *, l1=False):
+    """``(jwst, roman)``: which reference files ``--reffiles`` writes.  JWST FITS
+    for a JWST-sized detector (at most 2048 x 2048, 1 or 4 outputs) read with a
+    MULTIACCUM pattern; Roman ASDF with ``--l1`` or when no JWST set fits."""
+    jwst_sized = (detector.n_out_active in (1, 4)
+                  and max(detector.naxis1, detector.naxis2) <= 2048)
+    jwst = jwst_sized and readout.is_multiaccum
+    return jwst, bool(l1) or not jwst
 
 
 def _stem(path):
@@ -55,15 +88,16 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
         raise ParameterError("--uncal, --l1 and --reffiles need the ramp file "
                              "([output] ramp = true)")
     paths = product_paths(output if output is not None else cfg.path)
-    for flag, module, extra in ((uncal, "stdatamodels", "jwst"),
-                                (l1, "roman_datamodels", "roman")):
-        if flag:
-            try:
-                __import__(module)
-            except ImportError as exc:
-                raise ParameterError(f"this product needs the optional '{extra}' extra: "
-                                     f"pip install 'scenesim[{extra}]'") from exc
     det, ro = scene.detector, scene.readout.build()
+    jwst_refs, roman_refs = reference_families(det, ro, l1=l1) if reffiles else (
+        False, False)
+    if uncal or jwst_refs:
+        require_extra("jwst", "--uncal" if uncal else "--reffiles (JWST reference files)")
+    if l1 or roman_refs:
+        require_extra("roman", "--l1" if l1 else "--reffiles (Roman reference files)")
+    if (uncal or jwst_refs) and scene.instrument.subarray:
+        from scenesim.pipelines.jwst import check_subarray_name
+        check_subarray_name(scene.instrument.subarray)
     if uncal and (det.n_out_active not in (1, 4) or max(det.naxis1, det.naxis2) > 2048):
         raise ParameterError(
             f"--uncal: a JWST uncal needs a detector of at most 2048 x 2048 read through "
@@ -95,7 +129,7 @@ def reference_paths(directory, prefix):
 
 
 def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
-                       overwrite=False):
+                       options=None, overwrite=False):
     """The pipeline products of a finished run (module notes).
 
     Parameters
@@ -104,6 +138,9 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
         The scene run (its seed is taken from the run when it had none).
     result : scenesim.run.RunResult
     uncal, l1, reffiles : bool, keyword-only
+    options : scenesim.engine.EngineOptions or None, keyword-only
+        The run's engine options: a NIRCam uncal with ``NFRAMES > 1`` gets its zero
+        frame from a re-run with them (:mod:`scenesim.pipelines.zeroframe`).
     overwrite : bool, keyword-only
 
     Returns
@@ -120,12 +157,22 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
     if scene.seed is None:
         scene = scene.replace(seed=int(engine.entropy))
     det = engine.detector
-    jwst_sized = det.n_out_active in (1, 4) and max(det.naxis1, det.naxis2) <= 2048
+    jwst_refs, roman_refs = reference_families(det, engine.readout, l1=l1)
     written = []
     paths = product_paths(result.exposure)
     if uncal:
+        from scenesim.io.exposure import Exposure
+        from scenesim.pipelines.instrument import resolve_instrument
         from scenesim.pipelines.jwst import write_uncal
-        written.append(write_uncal(result.exposure, paths["uncal"], overwrite=overwrite))
+        from scenesim.pipelines.zeroframe import has_zero_frame, zero_frames
+        exposure = Exposure.read(result.exposure)
+        zero = None
+        ident = resolve_instrument(scene.instrument, det, engine.readout.name)
+        if has_zero_frame(engine.readout, ident["name"]):
+            zero = zero_frames(scene, exposure.sci, options=options)
+        written.append(write_uncal(exposure, paths["uncal"], zero_frame=zero,
+                                   overwrite=overwrite))
+        del exposure, zero
     if l1:
         from scenesim.pipelines.roman import write_l1
         written.append(write_l1(result.exposure, paths["l1"], overwrite=overwrite))
@@ -133,16 +180,14 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
         from scenesim.pipelines.reffiles import detector_reference
         ref = detector_reference(scene, engine)
         directory = paths["reffiles"]
-        if jwst_sized and engine.readout.is_multiaccum:
+        if jwst_refs:
             from scenesim.pipelines.jwst import write_reference_files
             write_reference_files(ref, engine.readout, det.frame_time, directory,
                                   instrument=getattr(scene, "instrument", None),
                                   overwrite=overwrite)
-        try:
-            from scenesim.pipelines.roman import write_reference_files as roman_refs
-            roman_refs(ref, directory, overwrite=overwrite)
-        except ImportError:
-            pass
+        if roman_refs:
+            from scenesim.pipelines.roman import write_reference_files as write_roman
+            write_roman(ref, directory, overwrite=overwrite)
         written.append(directory)
     return written
 
@@ -150,6 +195,7 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
 def pipeline_command(args):
     """``scenesim pipeline jwst|roman``: run the pipeline offline, then compare."""
     refs = args.refs
+    require_extra(args.pipeline, f"'scenesim pipeline {args.pipeline}'")
     if args.pipeline == "jwst":
         from scenesim.pipelines.jwst import run_detector1
         out_dir = args.output or os.path.dirname(os.path.abspath(args.input))

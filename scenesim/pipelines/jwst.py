@@ -25,8 +25,11 @@ models write (the ``ASDF`` extension included) and passes
   reset), ``FRMDIVSR`` (= ``NFRAMES``: scenesim averages, so the divisor is the frame
   count), ``TFRAME``, ``TGROUP``, ``EFFINTTM``, ``EFFEXPTM``, ``NOUTPUTS``,
   ``DATE-OBS``/``TIME-OBS`` and the exposure start/mid/end times;
-* ``ZEROFRAM = F`` and no ``ZEROFRAME``: the engine does not keep the first read of a
-  group on its own (for ``NFRAMES = 1`` it is group 0 itself);
+* ``ZEROFRAME`` (uint16 DN, (nints, ny, nx)) and ``ZEROFRAM = T`` when a zero frame
+  is given: the first read of each integration, for a NIRCam pattern with ``NFRAMES >
+  1`` (:mod:`scenesim.pipelines.zeroframe`, which ``scenesim run --uncal`` calls);
+  otherwise ``ZEROFRAM = F`` and no ``ZEROFRAME`` (with ``NFRAMES = 1`` the zero
+  frame is group 1 itself; from an exposure file alone it cannot be rebuilt);
 * scenesim's own cards (``GAIN``, ``RDNOISE``, the clock, the effects, the seed...) in
   the primary header, and the exposure's ``READS`` table, so the uncal is also a
   scenesim exposure (:func:`scenesim.io.exposure.read_exposure` reads it); the
@@ -93,8 +96,9 @@ from scenesim.io.header import header_instrument, readout_from_table
 from scenesim.pipelines.instrument import resolve_instrument
 
 __all__ = ["write_uncal", "uncal_model", "write_reference_files", "run_detector1",
-           "detector1_products", "jwst_frame_time", "offline_crds", "REFERENCE_TYPES",
-           "DEFAULT_DATE_OBS", "SKIPPED_STEPS", "OFFLINE_CONTEXT"]
+           "detector1_products", "jwst_frame_time", "check_subarray_name",
+           "offline_crds", "REFERENCE_TYPES", "DEFAULT_DATE_OBS", "SKIPPED_STEPS",
+           "OFFLINE_CONTEXT"]
 
 #: Observation start written when the scene gives none (ISO, UTC).
 DEFAULT_DATE_OBS = "2026-01-01T00:00:00"
@@ -123,9 +127,28 @@ def _datamodels():
         from stdatamodels.jwst import datamodels
     except ImportError as exc:               # pragma: no cover - depends on the extra
         raise ParameterError(
-            "JWST files need the optional 'jwst' extra: pip install 'scenesim[jwst]' "
-            "(stdatamodels and jwst)") from exc
+            "JWST files need the optional 'jwst' extra (stdatamodels is not "
+            "installed): pip install -e '.[jwst]'") from exc
     return datamodels
+
+
+def check_subarray_name(name):
+    """Raise a one-line :class:`~noise.errors.ParameterError` unless ``name`` is a
+    ``SUBARRAY`` value the JWST data models accept (``FULL``, ``GENERIC`` or a name
+    of stdatamodels' ``subarray.schema.yaml``); the models would otherwise drop it
+    with a warning and the file would fail strict validation."""
+    import warnings
+    dm = _datamodels()
+    model = dm.Level1bModel()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.meta.subarray.name = name
+    if model.meta.subarray.name != name:
+        raise ParameterError(
+            f"[instrument] 'subarray' = {name!r} is not a JWST SUBARRAY name: use "
+            f"'FULL', 'GENERIC' (any other window) or a name of the JWST subarray "
+            f"lists (stdatamodels subarray.schema.yaml, e.g. 'SUB64P', 'SUB160')")
+    return name
 
 
 def jwst_frame_time(detector):
@@ -155,7 +178,7 @@ def _as_exposure(exposure):
     return Exposure.read(exposure)
 
 
-def uncal_model(exposure, *, date_obs=None):
+def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     """The JWST ``Level1bModel`` of a scenesim exposure (module notes).
 
     Parameters
@@ -163,6 +186,9 @@ def uncal_model(exposure, *, date_obs=None):
     exposure : str, os.PathLike or scenesim.io.exposure.Exposure
     date_obs : str, keyword-only
         Start of the exposure, ISO UTC; default :data:`DEFAULT_DATE_OBS`.
+    zero_frame : ndarray or None, keyword-only
+        The first read of each integration, (nints, ny, nx) DN
+        (:func:`scenesim.pipelines.zeroframe.zero_frames`); None: no ``ZEROFRAME``.
 
     Returns
     -------
@@ -176,6 +202,7 @@ def uncal_model(exposure, *, date_obs=None):
     ro = readout_from_table(hdr, exp.reads)
     t_frame = float(hdr["TFRAME"])
     ident = resolve_instrument(header_instrument(hdr), det, ro.name)
+    check_subarray_name(ident["subarray"])
     start = Time(date_obs or DEFAULT_DATE_OBS, format="isot", scale="utc")
     day = 86400.0
     nints = ro.nints
@@ -207,7 +234,13 @@ def uncal_model(exposure, *, date_obs=None):
     ex.effective_exposure_time = ex.integration_time * nints
     ex.exposure_time = float(int_end[-1] - int_start[0])
     ex.duration = ex.exposure_time
-    ex.zero_frame = False
+    ex.zero_frame = zero_frame is not None
+    if zero_frame is not None:
+        zero_frame = np.asarray(zero_frame)
+        if zero_frame.shape != (nints,) + det.shape:
+            raise ParameterError(f"'zero_frame' must have the shape (nints, ny, nx) = "
+                                 f"{(nints,) + det.shape}, got {zero_frame.shape}")
+        m.zeroframe = np.ascontiguousarray(zero_frame, dtype=np.uint16)
     ex.noutputs = det.n_out_active
     ex.start_time = start.mjd
     ex.mid_time = start.mjd + ex.exposure_time / 2 / day
@@ -245,7 +278,7 @@ def uncal_model(exposure, *, date_obs=None):
     return m
 
 
-def write_uncal(exposure, path, *, date_obs=None, overwrite=False):
+def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=False):
     """Write the JWST uncal file of a scenesim exposure (module notes).
 
     Parameters
@@ -255,6 +288,8 @@ def write_uncal(exposure, path, *, date_obs=None, overwrite=False):
         Output ``.fits`` file, written atomically.
     date_obs : str, keyword-only
         Exposure start, ISO UTC (default :data:`DEFAULT_DATE_OBS`).
+    zero_frame : ndarray or None, keyword-only
+        ``ZEROFRAME`` data (:func:`uncal_model`).
     overwrite : bool, keyword-only
 
     Returns
@@ -263,7 +298,7 @@ def write_uncal(exposure, path, *, date_obs=None, overwrite=False):
         ``path``.
     """
     path = check_writable("uncal path", path, overwrite=overwrite)
-    model = uncal_model(exposure, date_obs=date_obs)
+    model = uncal_model(exposure, date_obs=date_obs, zero_frame=zero_frame)
     _save_fits(model, path, overwrite)
     return path
 

@@ -48,7 +48,8 @@ def _open_roman(path):
         import roman_datamodels as rdm
     except ImportError as exc:              # pragma: no cover - depends on the extra
         raise ParameterError("reading a Roman L2 file needs the optional 'roman' "
-                             "extra (roman_datamodels)") from exc
+                             "extra (roman_datamodels is not installed): pip install "
+                             "-e '.[roman]'") from exc
     try:
         return rdm.open(os.fspath(path))
     except Exception as exc:          # asdf raises many types for a bad file

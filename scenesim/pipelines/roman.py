@@ -79,8 +79,9 @@ def _rdm():
     try:
         import roman_datamodels.datamodels as rdd
     except ImportError as exc:              # pragma: no cover - depends on the extra
-        raise ImportError("Roman files need the optional 'roman' extra: pip install "
-                          "'scenesim[roman]' (roman_datamodels, romancal)") from exc
+        raise ParameterError("Roman files need the optional 'roman' extra "
+                             "(roman_datamodels is not installed): pip install -e "
+                             "'.[roman]'") from exc
     return rdd
 
 

@@ -155,3 +155,86 @@ def test_pipeline_command_prints_the_report(jwst_loop):
                      "--exposure", "jwst_loop.fits", cwd=d)
     assert "Slopes vs truth" in text and "fit layout: jwst" in text
     assert os.path.exists(d / "again" / "jwst_loop_rate.fits")
+
+
+ZERO_SCENE = """seed = 8
+[detector]
+preset = "NIRCAM"
+nfoh = 2
+[detector.subarray]
+kind = "window"
+x0 = 0
+y0 = 0
+nx = 32
+ny = 32
+[readout]
+pattern = "BRIGHT2"
+ngroups = 4
+nints = 2
+[sources]
+background = 20.0
+[[sources.stars]]
+x = 16.3
+y = 15.6
+flux = 2e6
+[effects]
+full_well = 8e4
+gain = 2.0
+[output]
+path = "zf.fits"
+"""
+
+
+def test_nircam_frame_averaged_uncal_has_its_zero_frame(tmp_path):
+    """BRIGHT2 on NIRCam: the uncal carries ZEROFRAME (the first read of each
+    integration) and ZEROFRAM = T, passes strict validation, and Detector1 runs on
+    it with the zero frame through saturation, superbias and refpix."""
+    (tmp_path / "zf.toml").write_text(ZERO_SCENE)
+    _scenesim("run", "zf.toml", "--uncal", "--reffiles", "-q", cwd=tmp_path)
+    sci, hdr, _ = read_exposure(str(tmp_path / "zf.fits"))
+    with dm.RampModel(str(tmp_path / "zf_uncal.fits"), strict_validation=True) as m:
+        assert m.meta.exposure.zero_frame is True
+        assert m.meta.exposure.frame_divisor == 2 == m.meta.exposure.nframes
+        zero = np.asarray(m.zeroframe)
+    assert zero.shape == (2, 32, 32)
+    # group 1 averages reads 1 and 2 (in frame times after the reset), the zero frame
+    # is read 1: away from the star, group 1 - zero frame = half a frame of charge
+    det = hdr["TFRAME"]
+    live = np.ones((32, 32), dtype=bool)
+    live[:4] = live[-4:] = False
+    live[:, :4] = live[:, -4:] = False
+    live[10:23, 10:23] = False
+    d = sci[:, 0].astype(np.float64)[:, live] - zero[:, live]
+    # background 20 e-/s: 0.5 t_frame x 20 / gain = 0.07 DN; read noise of the
+    # difference of one read and a two-read mean: sqrt(5^2 + 5^2/2 + ...)/2 ~ 3.5 DN
+    # per pixel; 2 x 576 pixels, 1/f partly common: 5 x 3.5 / sqrt(1152) x 3
+    assert abs(d.mean() - 0.5 * det * 20 / 2) < 5 * 3.5 / np.sqrt(d.size) * 3
+    out = jwst.run_detector1(str(tmp_path / "zf_uncal.fits"),
+                             reference_paths(tmp_path / "zf_refs", "jwst"),
+                             str(tmp_path))
+    from astropy.io import fits
+    assert fits.getheader(out["rate"])["S_RAMP"] == "COMPLETE"
+
+
+def test_subarray_names_come_from_the_jwst_lists(tmp_path):
+    """A JWST subarray name is kept (and strict-valid); one JWST does not know is
+    refused in one line before the run, not silently dropped by the models."""
+    assert jwst.check_subarray_name("SUB64P") == "SUB64P"
+    from noise.errors import ParameterError
+    with pytest.raises(ParameterError, match="'STRIPE128' is not a JWST SUBARRAY"):
+        jwst.check_subarray_name("STRIPE128")
+    base = open(os.path.join(DATA, "jwst_loop.toml")).read()
+    for name, ok in (("SUB64P", True), ("STRIPE128", False)):
+        (tmp_path / f"{name}.toml").write_text(
+            base + f'[instrument]\nname = "NIRCAM"\nsubarray = "{name}"\n')
+        res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run",
+                              f"{name}.toml", "-o", f"{name}.fits", "--uncal", "-q"],
+                             cwd=tmp_path, capture_output=True, text=True)
+        if ok:
+            assert res.returncode == 0, res.stderr
+            with dm.RampModel(str(tmp_path / f"{name}_uncal.fits"),
+                              strict_validation=True) as m:
+                assert m.meta.subarray.name == "SUB64P"
+        else:
+            assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
+            assert not (tmp_path / f"{name}.fits").exists()
