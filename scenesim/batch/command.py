@@ -17,13 +17,19 @@ from scenesim.batch.runner import run_batch
 __all__ = ["batch_command", "pool_command", "format_tables"]
 
 
-def format_tables(pooled, *, source=""):
-    """All pooled tables of a batch, one per grid point and fitter."""
+def format_tables(pooled, *, source="", points=()):
+    """All pooled tables of a batch, one per grid point and fitter.
+
+    ``points`` is the manifest's list of grid points (``label`` and ``params``), so
+    that each table names the scene keys of its point."""
+    keys = {p["label"]: ", ".join(f"{k} = {v}" for k, v in p["params"])
+            for p in points}
     blocks = []
     for label, per in pooled.items():
         for fitter, table in per.items():
             where = f"{os.path.basename(source)} " if source else ""
-            point = f"grid point {label}, " if label else ""
+            point = (f"grid point {label}" + (f" ({keys[label]})" if keys.get(label)
+                                              else "") + ", ") if label else ""
             blocks.append(format_pooled(table, title=f"Pooled: {where}{point}fitter "
                                                       f"{fitter}"))
     return "\n\n".join(blocks)
@@ -56,12 +62,14 @@ def batch_command(args):
         f"({plan.seed_source}); manifest {os.path.join(args.out, 'batch.json')}")
     if res.pooled and not args.quiet:
         print()
-        print(format_tables(res.pooled, source=plan.source))
+        print(format_tables(res.pooled, source=plan.source,
+                            points=res.manifest.get("points", ())))
     return 0
 
 
 def pool_command(args):
     """``scenesim compare --pool DIR``: the pooled tables of a batch directory."""
     manifest, pooled = pool_directory(args.pool)
-    print(format_tables(pooled, source=manifest.get("source", "")))
+    print(format_tables(pooled, source=manifest.get("source", ""),
+                        points=manifest.get("points", ())))
     return 0

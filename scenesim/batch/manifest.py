@@ -2,7 +2,7 @@
 
 ``OUT/batch.json`` holds the batch's identity (scene file and its checksum, every
 grid point's keys, the batch seed, fitters, preparation, outputs), its seed and
-where it came from, and one row per task: its parameters, spawn key, seed, status
+where it came from, and one row per task: its grid point and the scene keys it sets, spawn key, seed, status
 (``pending``, ``done``, ``failed``), files (relative names, sizes, checksums),
 run time and error.  It is rewritten atomically (:func:`noise.fitsio.atomic_file`)
 as tasks finish, at most about once a second, and at the end.
@@ -147,9 +147,11 @@ class Manifest:
             "tasks": {}, "pooled": {},
         }
         rows = dict((existing or {}).get("tasks", {}))
+        params = {p.index: [[k, v] for k, v in p.params] for p in plan.points}
         for t in tasks:
             row = rows.get(t.name, {})
-            rows[t.name] = {"point": t.point, "realisation": t.realisation,
+            rows[t.name] = {"point": t.point, "params": params[t.point],
+                            "realisation": t.realisation,
                             "spawn_key": list(t.spawn_key), "seed": t.seed,
                             "status": row.get("status", "pending"),
                             "outputs": {k: os.path.relpath(v, plan.out_dir)

@@ -40,6 +40,8 @@ import logging
 import os
 import re
 import secrets
+import signal
+import threading
 import time
 from dataclasses import dataclass
 
@@ -144,32 +146,63 @@ def _client(target, workers, connect_timeout, log):
     """A dask Client on the scheduler ``target``, or on a new LocalCluster."""
     Client, LocalCluster, _ = _import_dask()
     logging.getLogger("distributed").setLevel(logging.ERROR)
-    cluster = None
-    if target is None:
-        dashboard = ":0" if importlib.util.find_spec("bokeh") is not None else None
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=dashboard, silence_logs=logging.ERROR)
-        client = Client(cluster, set_as_default=False)
-    else:
-        kind, where = target
-        try:
-            client = Client(**({"address": where} if kind == "address" else
-                               {"scheduler_file": where}),
-                            timeout=connect_timeout, set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
-            text = " ".join(str(exc).split())[:200] or type(exc).__name__
-            raise ParameterError(
-                f"'scheduler' {where!r}: no dask scheduler answered within "
-                f"{connect_timeout:g} s ({text}); check the address, or omit "
-                f"--scheduler to run on a local cluster") from exc
+    cluster = client = None
     try:
+        if target is None:
+            dashboard = ":0" if importlib.util.find_spec("bokeh") is not None else None
+            with _sigint_blocked():
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
+                                       processes=True, dashboard_address=dashboard,
+                                       silence_logs=logging.ERROR)
+                client = Client(cluster, set_as_default=False)
+        else:
+            kind, where = target
+            try:
+                client = Client(**({"address": where} if kind == "address" else
+                                   {"scheduler_file": where}),
+                                timeout=connect_timeout, set_as_default=False)
+            except (OSError, TimeoutError, ValueError) as exc:
+                text = " ".join(str(exc).split())[:200] or type(exc).__name__
+                raise ParameterError(
+                    f"'scheduler' {where!r}: no dask scheduler answered within "
+                    f"{connect_timeout:g} s ({text}); check the address, or omit "
+                    f"--scheduler to run on a local cluster") from exc
         yield client, cluster
     finally:
-        with contextlib.suppress(Exception):
-            client.close(timeout=10)
+        if client is not None:
+            with contextlib.suppress(Exception):
+                client.close(timeout=10)
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close(timeout=10)
+
+
+@contextlib.contextmanager
+def _sigint_blocked():
+    """SIGINT blocked in this thread while the local cluster starts.
+
+    Ctrl-C goes to the terminal's whole process group, the local cluster's worker
+    processes included; each would print its own KeyboardInterrupt traceback.  The
+    cluster's IO-loop thread, started here, inherits the blocked signal, and so do the
+    threads that spawn the worker processes (now and when a dead worker is restarted)
+    and, through fork and exec, the workers themselves: Ctrl-C reaches this process
+    alone, which cancels the tasks and closes the cluster.  A SIGINT that arrives
+    while the cluster starts is delivered here when the block is lifted.
+
+    multiprocessing's resource tracker is started first: starting it unblocks SIGINT
+    in the thread that starts it (``resource_tracker.ensure_running``), which would
+    be the IO-loop thread.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    from multiprocessing import resource_tracker
+    resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _remove_temps(folders, *, all_ours):
@@ -337,6 +370,13 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
                 # every worker of a local cluster is gone; on another cluster, after
                 # a complete run every task's last attempt has finished
                 _remove_temps(folders, all_ours=cluster is not None or not interrupted)
+                if interrupted:
+                    # tasks that finished on their workers after the interrupt
+                    seen = set(ran) | set(failed)
+                    for t, _ in todo:
+                        rec = None if t.name in seen else load_record(t)
+                        if _finished(plan, rec):
+                            manifest.done(t.name, rec)
                 manifest.write()
         elif todo:         # finished when first looked at, damaged since: next time
             for t, _ in todo:

@@ -93,7 +93,8 @@ def test_two_workers_equal_one_worker_and_run_seed(reference, tmp_path):
             assert hdr["SEED"] == t2.seed and hdr["BATCHSD"] == 777
             assert hdr["BATCHKEY"] == str(t2.realisation)
         row = manifest["tasks"][t2.name]
-        assert row["seed"] == t2.seed and row["status"] == "done"
+        assert row["seed"] == t2.seed and row["status"] == "done" and row["params"] == []
+        assert row["outputs"]["gls"] == f"{t2.name}_gls.fits"
         assert row["files"]["exposure"]["sha256"]
     assert not _temps(plan2.out_dir)
 
@@ -158,8 +159,10 @@ def test_interrupt_then_resume_recomputes_nothing_finished(reference, tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 130, err
-    assert err.strip().splitlines()[-1] == (
-        "scenesim batch: interrupted (SIGINT); no partial output was left")
+    # one line: the workers (in the same process group, as under a terminal) never
+    # see the SIGINT, so none prints a KeyboardInterrupt of its own
+    assert err.strip().splitlines() == [
+        "scenesim batch: interrupted (SIGINT); no partial output was left"], err
     assert not _temps(str(out))
     plan = plan_batch(scene, out=out, realisations=n)
     tasks = plan.tasks()
@@ -269,6 +272,10 @@ name = "SCA02"
     res = run_batch(plan, workers=2, progress=False)
     assert sorted(res.ran) == ["p000/r0000", "p000/r0001", "p001/r0000", "p001/r0001"]
     assert set(res.pooled) == {"p000", "p001"}
+    rows = res.manifest["tasks"]
+    assert rows["p000/r0001"]["params"] == [["detector", "SCA01"]]
+    assert rows["p001/r0000"]["params"] == [["detector", "SCA02"],
+                                            ["noise.rd_noise", 12.0]]
     for t in plan.tasks():
         assert fits.getheader(t.path["exposure"])["BATCHKEY"] == \
             f"{t.point},{t.realisation}"
