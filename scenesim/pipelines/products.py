@@ -11,6 +11,9 @@
 * :func:`subtract_dark`: the truth with that dark removed (``RATE``, and ``RATE_IPC``
   by the dark seen through the IPC kernel), so ``compare`` grades what the pipeline
   was asked to recover.
+* :func:`slope_agreement`: a pipeline's slopes against another fit of the same
+  exposure (scenesim's GLS), pixel by pixel, in units of the other fit's errors,
+  with the dark the pipeline took out put back on the same footing.
 * :func:`read_roman_l2`: a Roman L2 (``ImageModel``) file as the dict of
   :func:`scenesim.io.fitfile.read_slopes` (``data`` DN/s, ``var_poisson`` +
   ``var_rnoise``, or ``err``, ``dq``), converted to e- with the truth's gain and put
@@ -28,10 +31,13 @@ from noise.errors import FileFormatError, ParameterError
 
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.detector.ipc import apply_ipc
-from scenesim.io.header import header_ipc_kernel, header_jwst_steps
+
+# scenesim.io.header is imported inside the functions: scenesim.io's package
+# imports fitfile, which imports this module (for Roman L2 files), so a top-level
+# import would make "import scenesim.pipelines.products" circular when it comes first
 
 __all__ = ["fit_header", "subtracted_dark_rate", "subtract_dark", "read_roman_l2",
-           "is_asdf", "ROMAN_BORDER"]
+           "slope_agreement", "is_asdf", "ROMAN_BORDER"]
 
 #: Border that romancal's ramp fit trims from every side of the L2 image, pixels
 #: (``romancal.ramp_fitting.ramp_fit_step``: ``[4:-4, 4:-4]``).
@@ -89,6 +95,7 @@ def subtracted_dark_rate(header, t_frame, gain):
     (ndarray or None, str)
         The rate and a note for the report.
     """
+    from scenesim.io.header import header_jwst_steps
     if "dark_current" not in header_jwst_steps(header):
         return None, ""
     path = str(header.get("R_DARK", "")).strip()
@@ -116,6 +123,7 @@ def subtract_dark(truth, dark):
     if "RATE" in out:
         out["RATE"] = np.asarray(out["RATE"], dtype=np.float64) - dark
     if "RATE_IPC" in out:
+        from scenesim.io.header import header_ipc_kernel
         kernel = header_ipc_kernel(truth["header"])
         seen = dark if kernel is None else apply_ipc(dark, kernel)
         out["RATE_IPC"] = np.asarray(out["RATE_IPC"], dtype=np.float64) - seen
@@ -164,3 +172,55 @@ def read_roman_l2(path, *, gain):
     return {"slope": np.nan_to_num(slope * g, nan=0.0),
             "var": np.nan_to_num(var * g * g, nan=np.inf, posinf=np.inf),
             "dq": dq, "chi2": None, "read_noise": None, "layout": "roman"}
+
+
+def slope_agreement(product, reference, exposure):
+    """How a pipeline's slopes differ from another fit of the same exposure.
+
+    Pixels unflagged (``dq == 0``) in both files, with finite slopes and positive
+    finite variances, are compared.  When the pipeline subtracted a dark
+    (:func:`subtracted_dark_rate`) it is subtracted from ``reference`` too (through
+    the IPC kernel unless ``reference`` undid IPC); both must have treated IPC alike.
+
+    Parameters
+    ----------
+    product : str
+        Pipeline output: JWST rate file or Roman L2 ASDF file.
+    reference : str
+        The other fit (a scenesim slope file, e.g. ``scenesim fit --fitter gls``).
+    exposure : str
+        The scenesim exposure both fitted (``GAIN``, ``TFRAME``, ``IPCKERN``).
+
+    Returns
+    -------
+    dict
+        ``n`` (pixels compared), ``mean`` and ``rms`` of ``(product - reference) /
+        sigma_reference``, ``sigma_ratio`` (median of ``sigma_product /
+        sigma_reference``).
+    """
+    from scenesim.io.fitfile import read_slopes
+    from scenesim.io.header import header_ipc_deconvolved, header_ipc_kernel
+    h = fits.getheader(os.fspath(exposure))
+    gain, t_frame = float(h["GAIN"]), float(h["TFRAME"])
+    p = read_slopes(product, gain=gain)
+    r = read_slopes(reference, gain=gain)
+    ph, rh = fit_header(product), fits.getheader(os.fspath(reference))
+    if header_ipc_deconvolved(ph) != header_ipc_deconvolved(rh):
+        raise ParameterError(f"{os.fspath(product)!r} and {os.fspath(reference)!r} "
+                             f"treated IPC differently (IPCDECON / S_IPC): their "
+                             f"slopes are not comparable pixel by pixel")
+    ref = np.array(r["slope"], dtype=np.float64)
+    dark, _ = subtracted_dark_rate(ph, t_frame, gain)
+    if dark is not None:
+        kernel = header_ipc_kernel(h)
+        deconvolved = header_ipc_deconvolved(rh)
+        ref -= dark if (kernel is None or deconvolved) else apply_ipc(dark, kernel)
+    ok = (p["dq"] == 0) & (r["dq"] == 0) & np.isfinite(p["slope"]) & np.isfinite(ref)
+    for var in (p["var"], r["var"]):
+        ok &= np.isfinite(var) & (var > 0)
+    if not ok.any():
+        raise ParameterError("no pixel is unflagged in both slope files")
+    z = (p["slope"][ok] - ref[ok]) / np.sqrt(r["var"][ok])
+    return {"n": int(ok.sum()), "mean": float(z.mean()),
+            "rms": float(np.sqrt(np.mean(z * z))),
+            "sigma_ratio": float(np.median(np.sqrt(p["var"][ok] / r["var"][ok])))}

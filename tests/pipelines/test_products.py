@@ -3,6 +3,7 @@ step keywords (astropy only; no pipeline needed)."""
 
 import numpy as np
 from astropy.io import fits
+import pytest
 
 from scenesim.detector.ipc import apply_ipc, ipc_kernel
 from scenesim.io.header import header_ipc_deconvolved, header_jwst_steps
@@ -61,3 +62,45 @@ def test_jwst_step_keywords():
     assert header_ipc_deconvolved(hdr)
     assert not header_ipc_deconvolved(fits.Header({"S_IPC": "SKIPPED"}))
     assert header_ipc_deconvolved(fits.Header({"IPCDECON": True}))
+
+
+def _rate_file(path, slope_dn, var_dn, dq, header=None):
+    """A JWST-layout rate file: SCI (DN/s), DQ, VAR_POISSON + VAR_RNOISE."""
+    fits.HDUList([fits.PrimaryHDU(header=fits.Header(header or {})),
+                  fits.ImageHDU(slope_dn.astype(np.float32), name="SCI"),
+                  fits.ImageHDU(dq.astype(np.uint32), name="DQ"),
+                  fits.ImageHDU((var_dn / 2).astype(np.float32), name="VAR_POISSON"),
+                  fits.ImageHDU((var_dn / 2).astype(np.float32), name="VAR_RNOISE")]
+                 ).writeto(path)
+
+
+def test_slope_agreement_in_units_of_the_reference_errors(tmp_path):
+    """product = reference + 0.5 sigma_ref everywhere, with twice its errors: mean
+    and rms 0.5, error ratio 2; flagged and non-finite pixels left out; a dark the
+    pipeline subtracted is taken out of the reference too."""
+    from scenesim.pipelines.products import slope_agreement
+    rng = np.random.default_rng(9)
+    gain, t_frame, shape = 2.0, 10.73676, (16, 16)
+    fits.PrimaryHDU(header=fits.Header({"GAIN": gain, "TFRAME": t_frame})).writeto(
+        tmp_path / "exp.fits")
+    ref = rng.uniform(0, 100, shape)                 # DN/s
+    var = rng.uniform(0.5, 2.0, shape)               # (DN/s)^2
+    dark_e = rng.uniform(0, 20, shape)               # e-/s
+    dq = np.zeros(shape, dtype=np.uint32)
+    dq[0, :4] = 1
+    prod = ref + 0.5 * np.sqrt(var) - dark_e / gain
+    prod[1, 1] = np.nan                # as Detector1 writes a pixel it cannot fit:
+    pvar = 4 * var                      # NaN slope and variance
+    pvar[1, 1] = np.nan
+    _dark_file(str(tmp_path / "dark.fits"), dark_e / gain, ngroups=5, nframes=1,
+               groupgap=0, t_frame=t_frame)
+    _rate_file(tmp_path / "ref.fits", ref, var, np.zeros(shape))
+    _rate_file(tmp_path / "rate.fits", prod, pvar, dq,
+               {"S_DARK": "COMPLETE", "R_DARK": str(tmp_path / "dark.fits")})
+    got = slope_agreement(str(tmp_path / "rate.fits"), str(tmp_path / "ref.fits"),
+                          str(tmp_path / "exp.fits"))
+    assert got["n"] == 16 * 16 - 4 - 1
+    # float32 storage of slopes ~1e2 DN/s and of the dark: ~1e-5 sigma
+    assert got["mean"] == pytest.approx(0.5, abs=1e-4)
+    assert got["rms"] == pytest.approx(0.5, abs=1e-4)
+    assert got["sigma_ratio"] == pytest.approx(2.0, rel=1e-6)
