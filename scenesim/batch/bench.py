@@ -2,20 +2,24 @@
 
 One case, ``n`` realisations of ``scenes/quick.toml`` (256x256, RAPID x 10, full
 noise, five stars; each realisation simulated, written, GLS-fitted and compared with
-its truth, as the scene asks), timed four ways in the same process, back to back:
+its truth, as the scene asks), timed four ways in the same process:
 
 * ``loop``: a plain Python loop of :func:`scenesim.run.run_scene` calls with the
   realisations' seeds, default threads (what a user's shell loop of ``scenesim run
-  --seed`` does, without the interpreter start-ups);
+  --seed`` does, without the interpreter start-ups): the baseline;
 * ``loop, 1 thread``: the same with one thread per run, the setting of the batch's
   tasks below, so the difference is the batch's own cost;
 * ``batch, 1 worker`` and ``batch, 2 workers``: :func:`scenesim.batch.runner.run_batch`
   on a new ``LocalCluster`` (one thread per task), wall time of the whole call:
   cluster start, worker imports, tasks, manifest, stop.
 
-Then the scheduler's own cost: the start and stop of a 1-worker ``LocalCluster``,
-and 200 no-op tasks submitted at once and gathered (wall time per task: the
-round trip through the scheduler and a worker, serialisation included).
+The four are timed in two passes, the second in reverse order (loop, loop 1 thread,
+1 worker, 2 workers; then 2 workers, ..., loop), so that a load that drifts during
+the run (a shared machine) weighs on each about equally; each throughput is the
+``2 n`` exposures over the two passes' wall time, and each pass's own figure is
+printed beside it.  Then the scheduler's own cost: the start and stop of a 1-worker
+``LocalCluster``, and 200 no-op tasks submitted at once and gathered (wall time per
+task: the round trip through the scheduler and a worker, serialisation included).
 Every number is measured in the run that prints it.
 """
 
@@ -69,9 +73,33 @@ def _scheduler_overhead():
     return (t1 - t0) + (time.perf_counter() - t2), per_task
 
 
+#: The four ways, in the order of the first pass (the second runs them reversed).
+_WAYS = ("loop", "loop_1thread", "batch_1", "batch_2")
+_PASSES = 2
+
+
+def _time_way(way, tasks, scene, n, threads, folder):
+    """``(wall s, CPU s)`` of the ``n`` realisations done one ``way`` into
+    ``folder``."""
+    os.makedirs(folder)
+    t0, c0 = time.perf_counter(), _cpu_seconds()
+    if way.startswith("loop"):
+        opts = EngineOptions(threads=threads if way == "loop" else 1)
+        for t in tasks:
+            run_scene(scene, output=os.path.join(folder, f"{t.name}.fits"),
+                      seed=t.seed, options=opts, progress=False)
+    else:
+        workers = int(way.split("_")[1])
+        plan = plan_batch(QUICK_SCENE, out=os.path.join(folder, "out"), realisations=n)
+        res = run_batch(plan, workers=workers, threads=1, progress=False)
+        if len(res.ran) != n:
+            raise RuntimeError(f"batch ran {len(res.ran)} of {n} tasks")
+    return time.perf_counter() - t0, _cpu_seconds() - c0
+
+
 def bench_batch(n, threads):
-    """``n`` realisations of quick.toml: a loop of runs against dask with 1 and 2
-    workers, plus the scheduler's overhead per task (see the module notes).
+    """``n`` realisations of quick.toml, twice: a loop of runs against dask with 1
+    and 2 workers, plus the scheduler's overhead per task (see the module notes).
 
     ``threads`` is the loop's default thread count (the batch tasks run one each).
     """
@@ -81,47 +109,47 @@ def bench_batch(n, threads):
                             realisations=n)
     tasks = plan_probe.tasks()
     scene = load_scene(QUICK_SCENE)          # its [output]: GLS fit and compare
-    wall = {}
+    walls = {w: [] for w in _WAYS}
+    cpus = {w: [] for w in _WAYS}
     with tempfile.TemporaryDirectory() as tmp:
-        for label, opts in (("loop", EngineOptions(threads=threads)),
-                            ("loop_1thread", EngineOptions(threads=1))):
-            os.makedirs(os.path.join(tmp, label))
-            t0 = time.perf_counter()
-            for t in tasks:
-                run_scene(scene, output=os.path.join(tmp, label, f"{t.name}.fits"),
-                          seed=t.seed, options=opts, progress=False)
-            wall[label] = time.perf_counter() - t0
-        for workers in (1, 2):
-            plan = plan_batch(QUICK_SCENE, out=os.path.join(tmp, f"w{workers}"),
-                              realisations=n)
-            t0, c0 = time.perf_counter(), _cpu_seconds()
-            res = run_batch(plan, workers=workers, threads=1, progress=False)
-            wall[f"batch_{workers}"] = time.perf_counter() - t0
-            cpu = _cpu_seconds() - c0
-            if len(res.ran) != n:
-                raise RuntimeError(f"batch ran {len(res.ran)} of {n} tasks")
+        for p in range(_PASSES):
+            for way in (_WAYS if p % 2 == 0 else _WAYS[::-1]):
+                wall, cpu = _time_way(way, tasks, scene, n, threads,
+                                      os.path.join(tmp, f"{way}_{p}"))
+                walls[way].append(wall)
+                cpus[way].append(cpu)
     start_stop, per_task = _scheduler_overhead()
-    per_min = {k: 60.0 * n / v for k, v in wall.items()}
+    total = {w: sum(v) for w, v in walls.items()}
+    count = _PASSES * n
+    per_min = {w: 60.0 * count / total[w] for w in _WAYS}
+
+    def rate(way):
+        passes = "/".join(f"{60.0 * n / v:.1f}" for v in walls[way])
+        return f"{per_min[way]:.1f} ({passes})"
+
     engine, _ = build_engine(tasks[0].scene)
     det, ro = engine.detector, engine.readout
     n_reads = ro.nints * len(ro.needed_reads)
     charged = int(np.count_nonzero(engine.rate[~det.reference_mask()] > 0))
     nn, npo = floor_counts(det, scene.noise, n_reads, ro.nints, charged, n_reads)
     detail = (
-        f"quick.toml x {n} (256x256, RAPID x 10, simulate + GLS fit + compare each); "
-        f"exposures/min: loop of run_scene {per_min['loop']:.1f} ({threads} threads), "
-        f"{per_min['loop_1thread']:.1f} (1 thread); dask LocalCluster, 1 thread per "
-        f"task: 1 worker {per_min['batch_1']:.1f}, 2 workers {per_min['batch_2']:.1f} "
-        f"({wall['batch_1'] / wall['batch_2']:.2f}x 1 worker, "
-        f"{wall['loop'] / wall['batch_2']:.2f}x the loop); batch minus 1-thread loop "
-        f"per exposure {(wall['batch_1'] - wall['loop_1thread']) / n:+.3f} s; "
-        f"scheduler: {1e3 * per_task:.2f} ms per task ({_NOOP_TASKS} no-op tasks), "
-        f"cluster start + stop {start_stop:.2f} s; wall/floor columns: the 2-worker "
-        f"batch (CPU: driver and its worker processes) against the random numbers of "
-        f"its {n} exposures")
-    return dict(wall=wall["batch_2"], cpu=cpu, n_normal=n * nn,
-                n_poisson=n * npo, lam=typical_lambda(engine.rate, det.frame_time),
-                detail=detail, walls=wall, exposures_per_minute=per_min,
+        f"quick.toml x {n}, {_PASSES} passes (the second in reverse order) (256x256, "
+        f"RAPID x 10, simulate + GLS fit + compare each); exposures/min over both "
+        f"passes (pass 1/pass 2): loop of run_scene {rate('loop')} ({threads} "
+        f"threads, the baseline), {rate('loop_1thread')} (1 thread); dask "
+        f"LocalCluster, 1 thread per task: 1 worker {rate('batch_1')}, 2 workers "
+        f"{rate('batch_2')}; 2 workers = {total['batch_1'] / total['batch_2']:.2f}x "
+        f"1 worker, {total['loop'] / total['batch_2']:.2f}x the loop; 1 worker = "
+        f"{total['loop_1thread'] / total['batch_1']:.2f}x the 1-thread loop (batch "
+        f"minus 1-thread loop per exposure "
+        f"{(total['batch_1'] - total['loop_1thread']) / count:+.3f} s); scheduler: "
+        f"{1e3 * per_task:.2f} ms per task ({_NOOP_TASKS} no-op tasks), cluster start "
+        f"+ stop {start_stop:.2f} s; wall/floor columns: the 2-worker batch, both "
+        f"passes (CPU: driver and its worker processes) against the random numbers of "
+        f"its {count} exposures")
+    return dict(wall=total["batch_2"], cpu=sum(cpus["batch_2"]), n_normal=count * nn,
+                n_poisson=count * npo, lam=typical_lambda(engine.rate, det.frame_time),
+                detail=detail, walls=walls, exposures_per_minute=per_min,
                 scheduler_seconds_per_task=per_task,
                 cluster_start_stop_seconds=start_stop,
-                pixel_reads=int(n * det.ny * det.nx * n_reads))
+                pixel_reads=int(count * det.ny * det.nx * n_reads))
