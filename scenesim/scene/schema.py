@@ -32,6 +32,7 @@ from scenesim.detector.ipc import check_kernel, ipc_kernel as _kernel_from_alpha
 from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.readout import MAX_READS, Readout
 from scenesim.engine import MAX_CHARGE
+from scenesim.outputs import derived_path
 from scenesim.pipelines.instrument import InstrumentConfig
 from scenesim.sky.lightcurve import LightCurve
 from scenesim.sky.maps import FITS_EXTENSIONS
@@ -811,7 +812,8 @@ class OutputConfig:
         Exposure file (``.fits`` or ``.fits.gz``), as written in the scene: relative
         to the current working directory of the run, not to the scene file.
     truth : bool
-        Also write ``<stem>_truth.fits`` (:attr:`truth_path`).
+        Also write ``<stem>_truth.fits`` (:attr:`truth_path`; ``<stem>_truth.fits.gz``
+        for a ``.fits.gz`` path).
     save_charge : bool
         Put the noise-free charge resultants in the truth file (needs ``truth``).
     save_noise : bool
@@ -858,11 +860,10 @@ class OutputConfig:
 
     @property
     def truth_path(self):
-        """``<stem>_truth.fits`` next to :attr:`path`."""
-        low = self.path.lower()
-        stem = self.path[:-len(".fits.gz")] if low.endswith(".fits.gz") else \
-            self.path[:-len(".fits")]
-        return stem + "_truth.fits"
+        """``<stem>_truth.fits`` next to :attr:`path`, with its whole extension
+        (``out.fits.gz`` -> ``out_truth.fits.gz``;
+        :func:`scenesim.outputs.derived_path`)."""
+        return derived_path(self.path, "_truth")
 
 
 # ======================================================================= scene

@@ -20,16 +20,25 @@ any readout), else a MULTIACCUM rebuilt from the truth header cards ``NFRAMES``,
 ``NGROUPS``, ``GROUPGAP``, ``DROPFRM1``, ``TFRAME`` (exact for MULTIACCUM patterns
 only; a note says so).  A global reset shifts all read times of a pixel together,
 which leaves ``V_opt`` unchanged, so the rolling-reset times are used for both.
+
+Bad files: :func:`compare_files` checks, before any work, every truth-header card the
+comparison reads (:func:`check_truth_header`: ``GAIN``, ``TFRAME`` against the
+detector cards' frame time, ``NINTS`` against the ``SATGROUP`` planes, the readout
+cards, ``RDNOISE``, ``ADCBITS``, ``FULLWELL``), so a corrupt value is one
+:class:`~noise.errors.FileFormatError` line naming the file and the card, not a
+numpy error or an overflow deep inside; and every other error about a file's
+content names that file.
 """
 
+import numbers
 import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from astropy.io import fits
 
 from noise.clock import detector_from_header
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
+from noise.params import MAX_AMPLITUDE
 from noise.validate import (check_bool, check_float, check_instance, check_int,
                             check_path, describe, is_sequence)
 
@@ -50,7 +59,7 @@ from scenesim.validate.photometry import source_photometry
 from scenesim.validate.plots import plot_report
 from scenesim.validate.stats import DEFAULT_EDGES, bin_rows, usable_variance
 
-__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files"]
+__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "check_truth_header"]
 
 
 # ---------------------------------------------------------------------- report
@@ -148,11 +157,6 @@ class Report:
         if self.notes:
             lines += ["", "Notes:"] + [f"- {n}" for n in self.notes]
         return "\n".join(lines)
-
-
-def _readout_from_exposure(path):
-    hdr, reads = read_exposure_header(path)
-    return readout_from_table(hdr, reads), hdr
 
 
 def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=None,
@@ -406,6 +410,109 @@ def _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes, rate):
                       t_read=settings["t_frame"])
 
 
+#: Cards of a truth header that :func:`compare` reads as integers, and as numbers.
+_INT_CARDS = ("NINTS", "NGROUPS", "NFRAMES", "GROUPGAP", "DROPFRM1", "ADCBITS")
+_FLOAT_CARDS = ("GAIN", "TFRAME", "FULLWELL")
+
+
+def _check_cards(hdr):
+    """Check the cards of an exposure or truth header that the comparison reads (see
+    :func:`check_truth_header`); return :func:`exposure_settings` of it."""
+    for key in _INT_CARDS + _FLOAT_CARDS:
+        if key in hdr:
+            value = hdr[key]
+            kinds = numbers.Integral if key in _INT_CARDS else numbers.Real
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds):
+                raise FileFormatError(
+                    f"{key!r} must be {'an integer' if key in _INT_CARDS else 'a number'}"
+                    f", got {describe(value)}")
+    settings = exposure_settings(hdr)
+    if settings["gain"] is not None:
+        check_float("GAIN", settings["gain"], minimum=0.0, strict_min=True,
+                    maximum=MAX_AMPLITUDE)
+    check_int("ADCBITS", settings["adc_bits"], minimum=1, maximum=32)
+    check_float("FULLWELL", settings["full_well"], minimum=0.0)
+    check_int("NINTS", settings["nints"], minimum=1)
+    t_frame = settings["t_frame"]
+    if t_frame is not None:
+        check_float("TFRAME", t_frame, minimum=0.0, strict_min=True)
+        if "DETNAX1" in hdr or "NAXIS1D" in hdr:
+            det_time = detector_from_header(hdr).frame_time
+            if not abs(t_frame - det_time) <= 1e-9 * det_time:
+                raise FileFormatError(
+                    f"'TFRAME' = {t_frame!r} s is not the frame time of the detector "
+                    f"cards, {det_time!r} s")
+    return settings
+
+
+def check_truth_header(truth, *, readout=True):
+    """Check every card of a truth header that :func:`compare` reads.
+
+    ``GAIN`` (e-/DN, > 0 and at most :data:`noise.params.MAX_AMPLITUDE`), ``TFRAME``
+    (s, > 0; equal to the frame time of the detector cards when the header has them,
+    the cards themselves a valid detector), ``NINTS`` (>= 1; the planes of
+    ``SATGROUP``/``SATREAD`` when the truth has them), ``RDNOISE`` (e- per read,
+    finite, >= 0, at most ``MAX_AMPLITUDE``), ``ADCBITS`` (1 to 32), ``FULLWELL``
+    (finite, >= 0) -- integer cards integers, number cards numbers (not
+    ``T``/``F``) -- and, with ``readout``, the MULTIACCUM cards ``NGROUPS`` ... that
+    :func:`scenesim.io.header.readout_from_header` reads, which must give at least
+    two resultants.
+
+    Parameters
+    ----------
+    truth : dict
+        From :func:`scenesim.io.exposure.read_truth`.
+    readout : bool, keyword-only
+        Also check the readout cards (the read times come from them when no exposure
+        is given).
+
+    Returns
+    -------
+    dict
+        :func:`scenesim.io.header.exposure_settings` of the header.
+
+    Raises
+    ------
+    noise.errors.FileFormatError or noise.errors.ParameterError
+        One line naming the card and its value (:func:`compare_files` adds the file).
+    """
+    hdr = truth["header"]
+    settings = _check_cards(hdr)
+    nints = settings["nints"]
+    for name in ("SATGROUP", "SATREAD"):
+        sat = truth.get(name)
+        if sat is not None and np.ndim(sat) == 3 and np.shape(sat)[0] != nints:
+            raise FileFormatError(f"'NINTS' = {nints} but {name} has "
+                                  f"{np.shape(sat)[0]} integrations")
+    try:
+        rn = exposure_read_noise(hdr, default=None)
+    except (TypeError, ValueError) as exc:
+        raise FileFormatError(f"'RDNOISE' = {hdr.get('RDNOISE')!r} is not a number "
+                              f"or a list of numbers") from exc
+    if rn is not None:
+        check_float("RDNOISE", rn, minimum=0.0, maximum=MAX_AMPLITUDE)
+    if readout and "NGROUPS" in hdr and settings["t_frame"] is not None:
+        try:
+            ro = readout_from_header(hdr)
+        except (TypeError, ValueError) as exc:       # FileFormatError: passed on
+            if isinstance(exc, FileFormatError):
+                raise
+            raise FileFormatError(f"a readout card has a value of the wrong type: "
+                                  f"{exc}") from exc
+        if ro.ngroups < 2:
+            raise FileFormatError(f"'NGROUPS' = {ro.ngroups}: a slope needs at least "
+                                  f"2 resultants")
+    return settings
+
+
+def _named(what, path, exc):
+    """``exc`` as a FileFormatError naming ``what`` ``path`` (if it does not yet)."""
+    msg = str(exc)
+    if path in msg:
+        return FileFormatError(msg)
+    return FileFormatError(f"{what} {path!r}: {msg}")
+
+
 def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
                   radius=4.0, edges=DEFAULT_EDGES, cr_sigma=10.0):
     """Compare a slope file with a truth file; see :func:`compare`.
@@ -428,29 +535,56 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     Report
     """
     fit_path = check_path("fit_path", fit_path)
-    truth = read_truth(check_path("truth_path", truth_path))
+    truth_path = check_path("truth_path", truth_path)
     if exposure is not None:
         exposure = check_path("exposure", exposure)
+    truth = read_truth(truth_path)
+    try:
+        settings = check_truth_header(truth, readout=exposure is None)
+    except (FileFormatError, ParameterError) as exc:
+        raise _named("truth file", truth_path, exc) from exc
     hdr = truth["header"]
     gain = exposure_settings(hdr)["gain"]
-    fit = read_slopes(fit_path, gain=gain)
+    try:
+        fit = read_slopes(fit_path, gain=gain)
+        fit_hdr = fit_header(fit_path)             # FITS, or a Roman L2's cal steps
+        ipc_deconvolved = header_ipc_deconvolved(fit_hdr)
+        dark, note = subtracted_dark_rate(fit_hdr, exposure_settings(hdr)["t_frame"],
+                                          gain)
+        if fit.get("read_noise") is not None:
+            check_float("RNOISE", fit["read_noise"], minimum=0.0, maximum=MAX_AMPLITUDE)
+    except (FileFormatError, ParameterError) as exc:
+        raise _named("slope file", fit_path, exc) from exc
     notes = [f"fit layout: {fit['layout']}"]
-    fit_hdr = fit_header(fit_path)             # FITS, or a Roman L2's cal steps
-    ipc_deconvolved = header_ipc_deconvolved(fit_hdr)
-    dark, note = subtracted_dark_rate(fit_hdr, exposure_settings(hdr)["t_frame"], gain)
     if note:
         notes.append(note)
     if dark is not None:                       # a pipeline's dark step ran
         truth = subtract_dark(truth, dark)
     read_times = nints = ro = None
     if exposure is not None:
-        ro, ehdr = _readout_from_exposure(exposure)
-        t_frame = exposure_settings(ehdr)["t_frame"]
-        if t_frame is None:
-            raise FileFormatError(f"exposure {exposure!r} lacks header keyword 'TFRAME'")
-        read_times = ro.read_times(t_frame)
+        try:
+            ehdr, reads = read_exposure_header(exposure)
+            esettings = _check_cards(ehdr)
+            if esettings["nints"] != settings["nints"]:
+                raise FileFormatError(
+                    f"'NINTS' = {esettings['nints']} but the truth file has "
+                    f"{settings['nints']}: not the same exposure")
+            t_frame = esettings["t_frame"]
+            if t_frame is None:
+                raise FileFormatError("lacks header keyword 'TFRAME'")
+            ro = readout_from_table(ehdr, reads)
+            read_times = ro.read_times(t_frame)
+            check_read_times(read_times)
+        except (FileFormatError, ParameterError) as exc:
+            raise _named("exposure", exposure, exc) from exc
         nints = ro.nints
         notes.append("read times from the exposure's READS table")
-    return compare(fit, truth, read_times=read_times, nints=nints, psf=psf,
-                   radius=radius, edges=edges, cr_sigma=cr_sigma, plots=plots,
-                   notes=notes, readout=ro, ipc_deconvolved=ipc_deconvolved)
+    try:
+        return compare(fit, truth, read_times=read_times, nints=nints, psf=psf,
+                       radius=radius, edges=edges, cr_sigma=cr_sigma, plots=plots,
+                       notes=notes, readout=ro, ipc_deconvolved=ipc_deconvolved)
+    except FileFormatError as exc:            # the files do not match each other
+        if fit_path in str(exc) or truth_path in str(exc):
+            raise
+        raise FileFormatError(f"slope file {fit_path!r} and truth file "
+                              f"{truth_path!r}: {exc}") from exc

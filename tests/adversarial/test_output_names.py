@@ -1,0 +1,83 @@
+"""Derived output names keep the whole extension, in the scene and the command.
+
+Before issue 12 the scene's ``[output] path = "out.fits.gz"`` gave the truth file
+``out_truth.fits`` (``OutputConfig.truth_path`` cut the extension by hand, and dropped
+the compression), while the fit file came out as ``out.fits_ols.gz``.  Now every
+derived name goes through :func:`scenesim.outputs.derived_path`: ``out.fits.gz`` ->
+``out_truth.fits.gz`` and ``out_ols.fits.gz``, written gzip-compressed.
+"""
+
+import gzip
+import os
+import subprocess
+import sys
+
+import pytest
+from astropy.io import fits
+
+from scenesim.outputs import derived_path
+from scenesim.run import run_scene
+from scenesim.scene import parse_scene
+from scenesim.validate.compare import compare_files
+
+NAMES = [
+    ("out.fits", "out_truth.fits"),
+    ("out.fits.gz", "out_truth.fits.gz"),
+    ("out.FITS.GZ", "out_truth.FITS.GZ"),
+    (os.path.join("run.v2", "out.fits.gz"), os.path.join("run.v2", "out_truth.fits.gz")),
+    (os.path.join("run.v2", "out.fits"), os.path.join("run.v2", "out_truth.fits")),
+]
+
+
+def _scene(path, **output):
+    return parse_scene({"seed": 4, "detector": {"naxis1": 16, "naxis2": 16,
+                                                "ref_border": 2},
+                        "readout": {"pattern": "RAPID", "ngroups": 3},
+                        "sources": {"background": 1.0},
+                        "output": {"path": path, **output}})
+
+
+@pytest.mark.parametrize("path, truth", NAMES)
+def test_scene_truth_path_keeps_the_extension(path, truth):
+    cfg = _scene(path).output
+    assert cfg.truth_path == truth == derived_path(path, "_truth")
+
+
+def _is_gzip(path):
+    with open(path, "rb") as f:
+        return f.read(2) == b"\x1f\x8b"
+
+
+def test_run_scene_writes_gz_names_and_gzip(tmp_path):
+    res = run_scene(_scene(str(tmp_path / "out.fits.gz"), fit="ols", compare=True),
+                    progress=False)
+    assert sorted(os.listdir(tmp_path)) == ["out.fits.gz", "out_ols.fits.gz",
+                                            "out_truth.fits.gz"]
+    assert res.truth == str(tmp_path / "out_truth.fits.gz")
+    for name in os.listdir(tmp_path):
+        assert _is_gzip(tmp_path / name), name
+        with fits.open(tmp_path / name) as hdul:
+            hdul.verify("exception")
+    with gzip.open(tmp_path / "out_truth.fits.gz") as f:
+        assert f.read(6) == b"SIMPLE"
+    assert res.report is not None and res.report.rows
+    assert compare_files(res.fit, res.truth).rows
+
+
+def test_command_run_with_a_gz_scene_path(tmp_path):
+    (tmp_path / "s.toml").write_text(
+        'seed = 4\n[detector]\nnaxis1 = 16\nnaxis2 = 16\nref_border = 2\n'
+        '[readout]\npattern = "RAPID"\nngroups = 3\n[sources]\nbackground = 1.0\n'
+        '[output]\npath = "x.fits.gz"\nfit = "gls"\n')
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "s.toml", "-q"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == ""
+    assert sorted(os.listdir(tmp_path)) == ["s.toml", "x.fits.gz", "x_gls.fits.gz",
+                                            "x_truth.fits.gz"]
+    assert all(_is_gzip(tmp_path / n) for n in os.listdir(tmp_path) if n != "s.toml")
+    # the truth is refused as an output of the next run (it exists), named in full
+    again = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "s.toml", "-q"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2
+    assert "x.fits.gz" in again.stderr and len(again.stderr.strip().splitlines()) == 1
