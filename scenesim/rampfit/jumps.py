@@ -38,11 +38,16 @@ resultant are the part of the ramp it touches.
   resultant at either end of it (a small remainder then sits in the neighbour
   sharing that resultant, below the pair's statistic); the neighbours sharing a
   multi-read resultant are excluded too, unconditionally (choosing them by their
-  values would bias the slope), unless no usable difference of the integration
-  would be left: the neighbours then stay, and a remainder above the threshold is
-  flagged in the next pass.  A hit never costs a pixel with usable differences.
-  (The price: when two hits touch three of the four differences of a 5-group
-  ramp, the difference left may hold part of the second; docs/STRESS.md.)  With
+  values would bias the slope), but only once the detection has ended: until
+  then they stay in the test as the clean reference of the other hits (a
+  remainder above the threshold is flagged like any hit).  Excluding them at
+  once lost that reference: in 5-group MEDIUM8/DEEP8 ramps with a hit in the gap
+  before the last group and another inside group 1 (its charge split between the
+  first two differences), the second was left in the two differences that
+  remained, undetectable (8 % of such DEEP8 pixels kept a 100 sigma hit;
+  ``docs/STRESS.md``).  If excluding the neighbours would leave no usable
+  difference of the integration, they all stay.  A hit never costs a pixel with
+  usable differences.  With
   single-read resultants (JWST NFRAMES=1) neither the pairs nor the neighbours
   apply.
 
@@ -112,6 +117,7 @@ def _detect_jumps(d, valid, s2, cov, thr):
     """
     nd, npix = d.shape
     jumps = np.zeros((nd, npix), bool)
+    nbr = np.zeros((nd, npix), bool)                   # neighbours, excluded at the end
     multi = cov.n > 1                                  # multi-read resultants
     idx = np.flatnonzero(valid.sum(axis=0) >= 2)
     for _ in range(nd - 1):
@@ -135,8 +141,15 @@ def _detect_jumps(d, valid, s2, cov, thr):
             hit[sel] = True
             first[sel], last[sel], pair[sel] = f2[ok], l2[ok], p2[ok]
         ih = idx[hit]
-        _exclude(jumps, valid, ih, first[hit], last[hit], pair[hit], multi)
+        _exclude(jumps, nbr, valid, ih, first[hit], last[hit], pair[hit], multi)
         idx = ih[valid[:, ih].sum(axis=0) >= 2]
+    # the neighbours of flagged single differences: out, unless no usable
+    # difference of the integration would be left (then they all stay)
+    nbr &= valid
+    rest = valid & ~nbr
+    sel = nbr.any(axis=0) & (rest.sum(axis=0) >= 1)
+    jumps[:, sel] |= nbr[:, sel]
+    valid[:, sel] = rest[:, sel]
     return jumps
 
 
@@ -155,16 +168,17 @@ def _strongest(dd, vv, s2, idx, cov):
     return _largest_excess(z, zp)
 
 
-def _exclude(jumps, valid, ih, a, b, pair, multi):
-    """Exclude the flagged spans ``a..b`` of pixels ``ih`` (and their neighbours).
+def _exclude(jumps, nbr, valid, ih, a, b, pair, multi):
+    """Exclude the flagged spans ``a..b`` of pixels ``ih``; mark their neighbours.
 
     A pair (a hit inside the multi-read resultant the two differences share)
     costs those two differences only.  A single difference ``i`` may hold a hit
     that arrived during a multi-read resultant at either end of it, leaving a
-    remainder in the neighbour sharing that resultant: the neighbour is excluded
-    too, unconditionally (a choice by its value would bias the slope), unless no
-    usable difference of the integration would be left: then they stay and are
-    tested in the next pass like the others.
+    remainder in the neighbour sharing that resultant: the neighbour is marked in
+    ``nbr`` (whatever its value: a choice by its value would bias the slope) and
+    stays in the detection, where it is the clean reference of the next passes
+    (or is flagged itself if its remainder exceeds the threshold);
+    :func:`_detect_jumps` excludes the marked neighbours at the end.
     """
     nd = valid.shape[0]
     for pos in (a, b):
@@ -174,12 +188,8 @@ def _exclude(jumps, valid, ih, a, b, pair, multi):
     left = single & (a >= 1) & multi[a]
     right = single & (b + 1 < nd) & multi[np.minimum(b + 1, nd - 1)]
     pl, pr = np.maximum(a - 1, 0), np.minimum(b + 1, nd - 1)
-    left &= valid[pl, ih]
-    right &= valid[pr, ih]
-    keep = valid[:, ih].sum(axis=0) - left - right >= 1
-    for pos, sel in ((pl, left & keep), (pr, right & keep)):
-        jumps[pos[sel], ih[sel]] = True
-        valid[pos[sel], ih[sel]] = False
+    nbr[pl[left], ih[left]] = True
+    nbr[pr[right], ih[right]] = True
 
 
 def _median_of_valid(d, valid):

@@ -1,46 +1,86 @@
 """The ramp fitter's stress matrix: seeded ramps at the edges of its regime.
 
-Runnable as ``python -m scenesim.validate.stress --out docs/STRESS.md``; the tests
-(``tests/validate/test_stress.py``) check the acceptance thresholds on a seeded
-subset.
+Runnable as ``python -m scenesim.validate.stress --out docs/STRESS.md`` (add
+``--overwrite`` to replace it); the tests (``tests/validate/test_stress.py``) check
+the acceptance thresholds on a seeded subset.
 
 What it does
 ------------
 Each *cell* is one readout (RAPID, BRIGHT2, MEDIUM8, DEEP8 with ``ngroups`` groups,
-or the illustrative Roman-like table of :mod:`scenesim.detector.readout`), one true
-rate (e-/s), one read noise (e- **per read**, not CDS) and one cosmic-ray pattern
-(none; one hit in the first, middle or last group; two hits).  ``side x side``
-pixels of constant-rate ramps are simulated here, independently of the simulator:
-Poisson charge between consecutive reads at their exact times from reset, Gaussian
-read noise per read, reads averaged into resultants, in float64 (a hit adds its
-charge to every read after its time).  They are fitted with
-:func:`scenesim.rampfit.fit_ramps` (GLS, electrons in, jump threshold 5 sigma where
-the cell has hits, default variance rate) and graded against the truth:
+or one of the two illustrative Roman-like tables of
+:mod:`scenesim.detector.readout`: ``ROMAN9``, 9 contiguous resultants of 1-8 reads,
+and ``ROMANSKIP6``, 6 resultants that skip reads), one true rate (e-/s), one read
+noise (e- **per read**, not CDS) and one cosmic-ray pattern (none; one hit in the
+first, middle or last group; two hits).  Constant-rate ramps are simulated here,
+independently of the simulator: Poisson charge between consecutive reads at their
+exact times from reset, Gaussian read noise per read, reads averaged into
+resultants, in float64 (a hit adds its charge to every read after its time).  They
+are fitted with :func:`scenesim.rampfit.fit_ramps` (GLS, electrons in, one thread,
+jump threshold 5 sigma where the cell has hits, default ``variance_rate='local'``)
+and graded against the truth.  With ``u = (slope - rate) / sqrt(V_opt)``
+(``V_opt`` = :func:`scenesim.rampfit.optimal_variance` of the full ramp at the true
+rate) and ``z = (slope - rate) / sqrt(V_reported)``, over the pixels not flagged
+``DO_NOT_USE``:
 
-* ``bias``: mean of ``(slope - rate) / sqrt(V_opt)`` for ramps without hits
-  (``V_opt`` = :func:`scenesim.rampfit.optimal_variance` of the full ramp at the
-  true rate), of ``(slope - rate) / sqrt(V_reported)`` with hits (the usable ramp is
-  shorter there);
-* ``std_opt``: ``std(slope - rate) / sqrt(V_opt)`` (no hits);
-* ``chi2_rep``: ``mean((slope - rate)^2 / V_reported)``, the calibration of the
-  reported errors;
+* ``bias``: mean of ``u`` without hits (of ``z`` with hits: the usable ramp is
+  shorter there), with its standard error ``se_bias`` (sample std / sqrt(n));
+* ``std_opt``: std of ``u`` (no hits), with ``se_std`` from the sample's fourth
+  moment, ``sqrt((m4 - s^4) / n) / (2 s)`` (``s / sqrt(2 n)`` for Gaussian errors;
+  larger in the photon-counting cells);
+* ``chi2_rep``: mean of ``z^2``, the calibration of the reported errors; at rate 0
+  also ``chi2_lim``, the mean of ``var_read / V_reported``: at rate 0 the slope's
+  error is read noise only, of variance ``var_read`` for weights that do not depend
+  on the pixel's own noise, so ``chi2_lim`` is the expected ``chi2_rep`` there (the
+  stated limit of :mod:`scenesim.rampfit.local_rate`; 1 when the variance rate is
+  exactly 0);
 * ``lost``: fraction of pixels flagged ``DO_NOT_USE``;
-* ``caught``: fraction of hit pixels with ``JUMP_DET`` (two hits: with two or more
-  flagged differences).
+* with hits, ``caught``: fraction of pixels whose hits are all caught, a hit being
+  caught when the resultant difference that holds the largest part of its charge
+  (in units of that difference's noise) is flagged -- by
+  :func:`scenesim.rampfit.jumps.flag_jumps` on the differences the fitter takes, the
+  same call the fitter makes; ``caught10`` the same over the ``n10`` pixels whose
+  every hit is a 10 sigma hit: noncentrality >= 10 in the optimal test for its own
+  signature with the rate free (``A sqrt(s^T C^-1 s - (s^T C^-1 dt)^2 /
+  (dt^T C^-1 dt))``, ``s`` the fractions of the charge in each difference, ``C``
+  their covariance, ``dt`` their spacing; from the read times).  A hit is weaker
+  than its charge when it arrives during a multi-read resultant (its charge shared
+  by two differences), late in the last group or early in the first (a fraction of
+  it in the ramp), or in a difference that dominates the fit (the rate follows
+  it).
 
 Hit amplitudes are given in units of ``sigma_d``, the largest standard deviation of
 a resultant difference at the cell's rate, so that "a 20 sigma hit" means the same
 for every readout.  A hit in group ``g`` arrives at a uniform time between the last
 read of group ``g - 1`` and the last read of group ``g`` (for the first group,
 between the first read of group 0 and the last read of group 1, so that it lies in
-the ramp), so it lands in the group or in the gap before it.
+the ramp), so it lands in the group or in the gap before it.  Two hits: one in the
+first third of the ramp and one in the last third (never in adjacent differences).
 
-Standard errors (``side = 64``, 4096 pixels): ``bias`` 0.016, ``std_opt`` 0.011,
-``chi2_rep`` ~0.022 for Gaussian errors (larger in the photon-counting cells, where
-the errors are not Gaussian).
+Acceptance (issue 13; :func:`misses`)
+-------------------------------------
+Thresholds: ``|bias| < 0.02`` and ``std_opt < 1.02`` without hits; ``lost = 0``
+wherever usable differences remain (every cell here: the hit patterns always leave
+some); ``caught10 >= 0.99``.  A cell *misses* a bias or ``std_opt`` threshold when its
+estimate exceeds it by more than :data:`K_SE` standard errors (so a miss is resolved,
+not noise: about 3e-5 false misses per test), and a ``caught10`` threshold when it is
+below 0.99 by more than :data:`K_SE` binomial standard errors; estimates beyond a
+threshold by less than that are listed apart as *not resolved*.
+
+The grid (:func:`default_cells`, sparse to keep a run near 5-10 minutes on one core)
+----------------------------------------------------------------------------------
+Without hits: rates 0, 1e-3, 0.1, 10, 1e3, 1e5, 1e7 e-/s x read noise 0.1, 1, 10,
+100 e- x RAPID with 2, 10, 100 and 1000 groups, BRIGHT2 x 10, MEDIUM8 x 5, DEEP8 x 5,
+ROMAN9, ROMANSKIP6 (RAPID x 1000 at rates 0, 1e-3, 10 and 1e7 only).  With hits:
+first, middle, last and two hits x 10, 20 and 200 sigma_d x (rate, read noise) =
+(0, 10), (1, 10), (1e3, 10), (1, 1), (1, 100) x RAPID x 10, BRIGHT2 x 10,
+MEDIUM8 x 5, DEEP8 x 5, ROMAN9, ROMANSKIP6.  Pixels per cell: ``side^2`` (256^2 by
+default: standard error of ``bias`` 0.004, of ``std_opt`` 0.003); ``(side/2)^2`` for
+ramps of more than 200 reads and for the cells with hits.
 """
 
 import argparse
+import datetime
+import platform
 import sys
 import time
 import zlib
@@ -48,22 +88,65 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenesim.detector.dq import DO_NOT_USE, JUMP_DET
-from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout
+from noise.errors import ParameterError
+from noise.fitsio import atomic_file
+from noise.validate import check_int, check_writable
+
+from scenesim.detector.dq import DO_NOT_USE
+from scenesim.detector.readout import ROMAN_LIKE_SKIP_TABLE, ROMAN_LIKE_TABLE, Readout
 from scenesim.rampfit import fit_ramps, optimal_variance
+from scenesim.rampfit.covariance import RampCovariance
+from scenesim.rampfit.jumps import flag_jumps
 
-__all__ = ["Cell", "READOUTS", "default_cells", "measure_cell", "readout_times",
-           "run_matrix", "simulate_ramps", "markdown", "main"]
+__all__ = ["Cell", "READOUTS", "JUMPS", "K_SE", "default_cells", "measure_cell",
+           "readout_times", "run_matrix", "simulate_ramps", "misses", "markdown",
+           "main"]
 
-#: Frame times (s): H2RG full frame (JWST patterns) and the Roman-like table.
+#: Frame times (s): H2RG full frame (JWST patterns) and the Roman-like tables.
 T_JWST = 10.737
 T_ROMAN = 3.04
 
-#: Readouts of the matrix: name -> (pattern or None for the Roman-like table).
-READOUTS = ("RAPID", "BRIGHT2", "MEDIUM8", "DEEP8", "ROMAN")
+#: Readouts of the matrix (JWST patterns take ``ngroups``; the Roman-like tables not).
+READOUTS = ("RAPID", "BRIGHT2", "MEDIUM8", "DEEP8", "ROMAN", "ROMANSKIP")
 
 #: Jump patterns: where the hits are.
 JUMPS = ("none", "first", "middle", "last", "two")
+
+#: Jump detection threshold of the cells with hits, sigma.
+JUMP_THRESHOLD = 5.0
+
+#: Standard errors by which an estimate must exceed a threshold to be a miss.
+K_SE = 4.0
+
+#: Acceptance thresholds (module notes).
+BIAS_MAX = 0.02
+STD_MAX = 1.02
+CAUGHT_MIN = 0.99
+CAUGHT_SIGMA = 10.0
+
+#: Band of chi2_rep around 1 claimed in docs/VALIDATION_FIT.md (0.99-1.01 from
+#: 0.01 e-/s up); beyond it (resolved) a cell is listed as reporting too small errors.
+CHI2_BAND = 0.02
+
+#: What the lists above mean (qualitative; the numbers are in the lists and tables).
+_NOTES = (
+    "How to read these lists. *Two hits in ramps of 4 or 5 differences* "
+    "(MEDIUM8 x 5, DEEP8 x 5, ROMANSKIP6): each hit raises the common rate against "
+    "which the other is tested, and after the first is flagged (with the neighbour "
+    "that shares its multi-read resultant) one or two differences remain to compare "
+    "with, so a second hit of 10-20 sigma_d is missed more often than 1 %; the "
+    "pixel then keeps it (bias and chi2_rep of those cells below). At 200 sigma_d "
+    "both are caught. *Reported errors in the photon-counting cells* (read noise "
+    "0.1-1 e-, about one photon per ramp or less): the mean of the errors' "
+    "variance is right to ~10 %, but a pixel with photons among neighbours without "
+    "any reports the read variance only, and a few such pixels set the mean of "
+    "z^2 (scenesim.rampfit.local_rate, 'The limit at rate 0'); pass a known "
+    "`variance_rate` for such data. *chi2_rep below 1 at rate 0* is the stated "
+    "limit `lim` (conservative errors).",
+)
+
+#: Ramps with more reads than this get ``(side // 2)^2`` pixels.
+LONG_RAMP = 200
 
 
 @dataclass(frozen=True)
@@ -75,7 +158,7 @@ class Cell:
     readout : str
         One of :data:`READOUTS`.
     ngroups : int
-        Groups (resultants) of a JWST pattern; ignored for ``'ROMAN'`` (9).
+        Groups (resultants) of a JWST pattern; ignored for the Roman-like tables.
     rate : float
         True rate, e-/s (>= 0).
     read_noise : float
@@ -96,7 +179,11 @@ class Cell:
     @property
     def label(self):
         """Readable name, e.g. ``'MEDIUM8x5'`` or ``'ROMAN9'``."""
-        return "ROMAN9" if self.readout == "ROMAN" else f"{self.readout}x{self.ngroups}"
+        if self.readout == "ROMAN":
+            return "ROMAN9"
+        if self.readout == "ROMANSKIP":
+            return "ROMANSKIP6"
+        return f"{self.readout}x{self.ngroups}"
 
     def key(self):
         """Stable integer key of the cell (its random stream)."""
@@ -107,6 +194,8 @@ def readout_times(readout, ngroups):
     """Read times (list of 1-D arrays, s from reset) of a matrix readout."""
     if readout == "ROMAN":
         return Readout.from_ma_table(ROMAN_LIKE_TABLE).read_times(T_ROMAN)
+    if readout == "ROMANSKIP":
+        return Readout.from_ma_table(ROMAN_LIKE_SKIP_TABLE).read_times(T_ROMAN)
     return Readout.named(readout, ngroups).read_times(T_JWST)
 
 
@@ -143,14 +232,15 @@ def simulate_ramps(times, rate, read_noise, shape, *, rng, hits=None):
     return out
 
 
-def _sigma_d(times, rate, read_noise):
-    """Largest standard deviation (e-) of a resultant difference at ``rate``."""
+def _diff_sd(times, rate, read_noise):
+    """Standard deviation (e-) of each resultant difference at ``rate``, from the
+    read times (``Cov(Q(t), Q(t')) = rate min(t, t')``)."""
     n = np.array([len(t) for t in times], float)
     tb = np.array([t.mean() for t in times])
     tau = np.array([np.minimum.outer(t, t).mean() for t in times])
     var = read_noise ** 2 * (1 / n[:-1] + 1 / n[1:]) + rate * (
         tau[:-1] + tau[1:] - 2 * tb[:-1])
-    return float(np.sqrt(var.max()))
+    return np.sqrt(var)
 
 
 def _hit_window(times, where):
@@ -166,7 +256,7 @@ def _hits(cell, times, shape, rng):
     """The hits of a cell: list of (time, charge) arrays."""
     if cell.jumps == "none":
         return None
-    amp = cell.amplitude * _sigma_d(times, cell.rate, cell.read_noise)
+    amp = cell.amplitude * float(_diff_sd(times, cell.rate, cell.read_noise).max())
     if cell.jumps == "two":
         # first and last thirds of the ramp: separated by at least one difference
         nres = len(times)
@@ -177,6 +267,59 @@ def _hits(cell, times, shape, rng):
         return out
     a, b = _hit_window(times, cell.jumps)
     return [(rng.uniform(a, b, shape), np.full(shape, amp))]
+
+
+def _diff_cov(times, rate, read_noise):
+    """Covariance (e-^2) of the resultant differences at ``rate``, dense, from the
+    read times: resultants ``rn^2 diag(1/n) + rate mean(min(t, t'))``."""
+    n = np.array([len(t) for t in times], float)
+    m = np.array([[np.minimum.outer(a, b).mean() for b in times] for a in times])
+    cr = read_noise ** 2 * np.diag(1 / n) + rate * m
+    dd = np.diff(np.eye(len(times)), axis=0)
+    return dd @ cr @ dd.T
+
+
+def _hit_strength(times, hit, cdiff):
+    """Where a hit's charge is and how detectable it is: (main difference (P,),
+    noncentrality (P,)).
+
+    The fraction ``phi_r`` of resultant ``r``'s reads after the hit time carries
+    that fraction of the charge into ``R_r``, so the hit adds ``A s`` to the
+    differences, ``s = diff(phi)``.  Its noncentrality is that of the optimal test
+    for its own signature with the rate free,
+    ``A sqrt(s^T C^-1 s - (s^T C^-1 dt)^2 / (dt^T C^-1 dt))`` (``C`` the covariance
+    of the differences, ``dt`` their mean-time spacing): no detector does better.
+    The main difference is the one holding the largest part of the charge in units
+    of its noise."""
+    th, amp = (a.reshape(-1) for a in hit)
+    phi = np.array([(t[:, None] > th[None, :]).mean(axis=0) for t in times])
+    sig = np.diff(phi, axis=0)                                       # (nd, P)
+    main = (sig / np.sqrt(np.diag(cdiff))[:, None]).argmax(axis=0)
+    cinv = np.linalg.inv(cdiff)
+    dt = np.diff([t.mean() for t in times])
+    h = cinv @ dt
+    lam2 = np.einsum("ip,ip->p", sig, cinv @ sig) - (h @ sig) ** 2 / (dt @ h)
+    return main, amp * np.sqrt(np.maximum(lam2, 0))
+
+
+def _flagged_differences(res, times, read_noise):
+    """The differences :func:`flag_jumps` flags in these resultants (nd, P) bool:
+    the rate estimates and call of :func:`scenesim.rampfit.fit_ramps` (float64
+    differences over the mean-time spacing, then float32; every difference usable)."""
+    cov = RampCovariance(times)
+    flat = res.reshape(res.shape[0], -1)
+    d = (np.diff(flat, axis=0) / cov.dt[:, None]).astype(np.float32)[None]
+    valid = np.ones(d.shape, bool)
+    flag_jumps(d, valid, float(read_noise) ** 2, cov, JUMP_THRESHOLD)
+    return ~valid[0]
+
+
+def _std_se(u):
+    """Sample std of ``u`` and its standard error from the fourth moment."""
+    s = float(np.std(u))
+    m4 = float(np.mean((u - u.mean()) ** 4))
+    se = np.sqrt(max(m4 - s ** 4, 0.0) / u.size) / (2 * s) if s > 0 else np.nan
+    return s, float(se)
 
 
 def measure_cell(cell, *, side=64, rng=None, threads=1):
@@ -194,8 +337,10 @@ def measure_cell(cell, *, side=64, rng=None, threads=1):
     Returns
     -------
     dict
-        ``cell``, ``npix``, ``bias``, ``std_opt`` (NaN with hits), ``chi2_rep``,
-        ``lost``, ``caught`` (NaN without hits), ``seconds``.
+        ``cell``, ``npix``, ``bias``, ``se_bias``, ``std_opt``, ``se_std`` (NaN
+        with hits), ``chi2_rep``, ``se_chi2``, ``chi2_lim`` (NaN unless rate 0 without hits),
+        ``lost``, ``caught``, ``caught10``, ``n10`` (NaN / 0 without hits),
+        ``seconds`` (simulation and fit).
     """
     rng = np.random.default_rng(rng)
     times = readout_times(cell.readout, cell.ngroups)
@@ -203,51 +348,102 @@ def measure_cell(cell, *, side=64, rng=None, threads=1):
     t0 = time.perf_counter()
     hits = _hits(cell, times, shape, rng)
     res = simulate_ramps(times, cell.rate, cell.read_noise, shape, rng=rng, hits=hits)
-    thr = None if hits is None else 5.0
+    thr = None if hits is None else JUMP_THRESHOLD
     g = fit_ramps(res, times, read_noise=cell.read_noise, jump_threshold=thr,
                   threads=threads)
+    seconds = time.perf_counter() - t0
     e = g.slope.astype(float) - cell.rate
     var = g.var.astype(float)
     live = (g.dq & DO_NOT_USE) == 0
     el, vl = e[live], var[live]
+    z = el / np.sqrt(vl)
     out = dict(cell=cell, npix=e.size, lost=float(np.mean(~live)),
-               chi2_rep=float(np.mean(el ** 2 / vl)) if el.size else np.nan,
-               caught=np.nan, std_opt=np.nan)
+               chi2_rep=float(np.mean(z ** 2)) if el.size else np.nan,
+               se_chi2=float(np.std(z ** 2) / np.sqrt(z.size)) if el.size else np.nan,
+               chi2_lim=np.nan, caught=np.nan, caught10=np.nan, n10=0,
+               std_opt=np.nan, se_std=np.nan, seconds=seconds)
     if hits is None:
-        vopt = optimal_variance(cell.rate, times, cell.read_noise)
-        out["bias"] = float(np.mean(el) / np.sqrt(vopt))
-        out["std_opt"] = float(np.std(el) / np.sqrt(vopt))
+        u = el / np.sqrt(optimal_variance(cell.rate, times, cell.read_noise))
+        out["bias"] = float(np.mean(u))
+        out["std_opt"], out["se_std"] = _std_se(u)
+        out["se_bias"] = out["std_opt"] / np.sqrt(u.size)
+        if cell.rate == 0:
+            out["chi2_lim"] = float(np.mean(g.var_read[live] / vl))
     else:
-        out["bias"] = float(np.mean(el / np.sqrt(vl))) if el.size else np.nan
-        need = 2 if cell.jumps == "two" else 1
-        flagged = (g.dq & JUMP_DET) > 0
-        out["caught"] = float(np.mean(flagged & (g.n_jumps >= need)))
-    out["seconds"] = time.perf_counter() - t0
+        out["bias"] = float(np.mean(z)) if z.size else np.nan
+        out["se_bias"] = float(np.std(z) / np.sqrt(z.size)) if z.size else np.nan
+        flagged = _flagged_differences(res, times, cell.read_noise)
+        cdiff = _diff_cov(times, cell.rate, cell.read_noise)
+        caught = np.ones(e.size, bool)
+        strong = np.ones(e.size, bool)
+        for hit in hits:
+            main, snr = _hit_strength(times, hit, cdiff)
+            caught &= flagged[main, np.arange(e.size)]
+            strong &= snr >= CAUGHT_SIGMA
+        out["caught"] = float(np.mean(caught))
+        out["n10"] = int(strong.sum())
+        out["caught10"] = float(np.mean(caught[strong])) if strong.any() else np.nan
     return out
 
 
-#: Default axes of the matrix.
+def misses(result, k=K_SE):
+    """Thresholds a result misses: (resolved, not_resolved), lists of strings.
+
+    A bias, ``std_opt`` or ``caught10`` estimate beyond its threshold by more than
+    ``k`` standard errors (for ``caught10`` the binomial one at 0.99) is a resolved
+    miss; beyond it by less, not resolved.  ``lost > 0`` is a miss as measured.
+    """
+    resolved, unresolved = [], []
+    c = result["cell"]
+    if c.jumps == "none":
+        b, sb = abs(result["bias"]), result["se_bias"]
+        if b > BIAS_MAX:
+            (resolved if b - BIAS_MAX > k * sb else unresolved).append(
+                f"bias {result['bias']:+.4f} +- {sb:.4f}")
+        s, ss = result["std_opt"], result["se_std"]
+        if s > STD_MAX:
+            (resolved if s - STD_MAX > k * ss else unresolved).append(
+                f"std_opt {s:.4f} +- {ss:.4f}")
+    elif result["n10"] > 0 and result["caught10"] < CAUGHT_MIN:
+        # binomial standard error of a fraction at the threshold
+        se = np.sqrt(CAUGHT_MIN * (1 - CAUGHT_MIN) / result["n10"])
+        (resolved if CAUGHT_MIN - result["caught10"] > k * se else unresolved).append(
+            f"caught10 {result['caught10']:.4f} of {result['n10']}")
+    if result["lost"] > 0:
+        resolved.append(f"lost {result['lost']:.4f}")
+    return resolved, unresolved
+
+
+#: Default axes of the matrix (module notes).
 RATES = (0.0, 1e-3, 0.1, 10.0, 1e3, 1e5, 1e7)
+LONG_RATES = (0.0, 1e-3, 10.0, 1e7)
 READ_NOISES = (0.1, 1.0, 10.0, 100.0)
 NOJUMP_READOUTS = (("RAPID", 2), ("RAPID", 10), ("RAPID", 100), ("RAPID", 1000),
-                   ("BRIGHT2", 10), ("MEDIUM8", 5), ("DEEP8", 5), ("ROMAN", 9))
+                   ("BRIGHT2", 10), ("MEDIUM8", 5), ("DEEP8", 5), ("ROMAN", 9),
+                   ("ROMANSKIP", 6))
 JUMP_READOUTS = (("RAPID", 10), ("BRIGHT2", 10), ("MEDIUM8", 5), ("DEEP8", 5),
-                 ("ROMAN", 9))
+                 ("ROMAN", 9), ("ROMANSKIP", 6))
+JUMP_CASES = ((0.0, 10.0), (1.0, 10.0), (1e3, 10.0), (1.0, 1.0), (1.0, 100.0))
+AMPLITUDES = (10.0, 20.0, 200.0)
 
 
 def default_cells():
     """The cells of the documented matrix (``docs/STRESS.md``)."""
-    cells = [Cell(ro, ng, rate, rn) for ro, ng in NOJUMP_READOUTS for rate in RATES
-             for rn in READ_NOISES]
-    for ro, ng in JUMP_READOUTS:
-        for where in ("first", "middle", "last", "two"):
-            for rate in (1.0, 100.0):
-                for amp in (20.0, 200.0):
-                    cells.append(Cell(ro, ng, rate, 10.0, where, amp))
+    cells = [Cell(ro, ng, rate, rn) for ro, ng in NOJUMP_READOUTS
+             for rate in (LONG_RATES if ng == 1000 else RATES) for rn in READ_NOISES]
+    cells += [Cell(ro, ng, rate, rn, where, amp) for ro, ng in JUMP_READOUTS
+              for where in JUMPS[1:] for rate, rn in JUMP_CASES for amp in AMPLITUDES]
     return cells
 
 
-def run_matrix(cells=None, *, side=64, rng=None, threads=1, progress=None):
+def cell_side(cell, side):
+    """Pixels per side of a cell: ``side``, or ``side // 2`` for ramps of more than
+    :data:`LONG_RAMP` reads and for cells with hits (module notes)."""
+    nreads = sum(len(t) for t in readout_times(cell.readout, cell.ngroups))
+    return side // 2 if nreads > LONG_RAMP or cell.jumps != "none" else side
+
+
+def run_matrix(cells=None, *, side=256, rng=None, threads=1, progress=None):
     """Measure every cell; each draws from its own stream keyed by the cell.
 
     Parameters
@@ -255,6 +451,7 @@ def run_matrix(cells=None, *, side=64, rng=None, threads=1, progress=None):
     cells : sequence of Cell, optional
         Default :func:`default_cells`.
     side : int, keyword-only
+        Pixels per side (:func:`cell_side`).
     rng : int | SeedSequence | None, keyword-only
         Root seed; cell ``c`` uses ``SeedSequence([root entropy, c.key()])``, so
         results do not depend on which other cells run or in which order.
@@ -271,8 +468,8 @@ def run_matrix(cells=None, *, side=64, rng=None, threads=1, progress=None):
     out = []
     for cell in default_cells() if cells is None else cells:
         ss = np.random.SeedSequence([root.entropy, cell.key()])
-        r = measure_cell(cell, side=side, rng=np.random.default_rng(ss),
-                         threads=threads)
+        r = measure_cell(cell, side=cell_side(cell, side),
+                         rng=np.random.default_rng(ss), threads=threads)
         out.append(r)
         if progress is not None:
             progress(r)
@@ -283,39 +480,77 @@ def _fmt(x, spec):
     return "-" if x is None or not np.isfinite(x) else format(x, spec)
 
 
-def markdown(results, *, side, seed, command):
-    """The matrix as a markdown document (``docs/STRESS.md``)."""
+def _describe(c):
+    what = f"{c.label}, rate {c.rate:g} e-/s, read noise {c.read_noise:g} e-"
+    return what if c.jumps == "none" else f"{what}, {c.jumps} hit(s) of " \
+        f"{c.amplitude:g} sigma_d"
+
+
+def markdown(results, *, side, seed, command, date, seconds):
+    """The matrix as a markdown document (``docs/STRESS.md``): what was measured in
+    this run, the command, date and seed that produced it."""
     lines = [
         "# The ramp fitter's stress matrix",
         "",
-        f"Generated by `{command}` (seed {seed}, {side} x {side} pixels per cell);",
-        "the definitions are in the docstring of `scenesim/validate/stress.py`, the",
-        "acceptance tests in `tests/validate/test_stress.py`. Read noise is per read",
-        "(e-), rates in e-/s; GLS fit, default variance rate, jump threshold 5 sigma",
-        "where the cell has hits.",
+        f"Generated by `{command}` on {date} (root seed {seed}; {side} x {side} "
+        f"pixels per cell, {side // 2} x {side // 2} for ramps of more than "
+        f"{LONG_RAMP} reads and for the cells with hits; {len(results)} cells in "
+        f"{seconds:.0f} s on one thread, {platform.python_implementation()} "
+        f"{platform.python_version()}, numpy {np.__version__}).",
+        "Everything below was measured in that run. Definitions, the grid and the",
+        "acceptance rule are in the docstring of `scenesim/validate/stress.py`; the",
+        "seeded acceptance tests in `tests/validate/test_stress.py`. Read noise is per",
+        "read (e-, not CDS), rates in e-/s; GLS fit, default `variance_rate='local'`,",
+        f"jump threshold {JUMP_THRESHOLD:g} sigma where the cell has hits.",
         "",
-        f"Standard errors at {side * side} pixels: bias "
-        f"{1 / side:.3f}, std_opt {1 / (side * np.sqrt(2)):.3f}, chi2_rep "
-        f"{np.sqrt(2) / side:.3f} (Gaussian errors).",
+        "## Thresholds",
+        "",
+        f"Without hits `|bias| < {BIAS_MAX}` and `std_opt < {STD_MAX}`, in sigma of "
+        f"the optimum; `lost = 0`; `caught10 >= {CAUGHT_MIN}`. A miss is an estimate "
+        f"beyond its threshold by more than {K_SE:g} of its standard errors (binomial "
+        f"at {CAUGHT_MIN} for caught10); "
+        "estimates beyond it by less are *not resolved*.",
+        "",
+    ]
+    resolved, unresolved = [], []
+    for r in results:
+        a, b = misses(r)
+        resolved += [f"- {_describe(r['cell'])}: {'; '.join(a)}"] if a else []
+        unresolved += [f"- {_describe(r['cell'])}: {'; '.join(b)}"] if b else []
+    lines += [f"Cells that miss a threshold: {len(resolved)}.", ""] + resolved
+    lines += ["", f"Not resolved (above a threshold by less than {K_SE:g} standard "
+              f"errors): {len(unresolved)}.", ""] + unresolved
+    small = [r for r in results if r["cell"].jumps == "none" and
+             r["chi2_rep"] - 1 > CHI2_BAND + K_SE * r["se_chi2"]]
+    lines += ["", "Reported errors too small (no threshold in the issue; listed for "
+              f"the reader): cells without hits whose chi2_rep exceeds 1 + {CHI2_BAND} "
+              f"by more than {K_SE:g} standard errors: {len(small)}.", ""]
+    lines += [f"- {_describe(r['cell'])}: chi2_rep {r['chi2_rep']:.2f} +- "
+              f"{r['se_chi2']:.2f}" for r in small]
+    lines += ["", *_NOTES]
+    lines += [
         "",
         "## Without cosmic rays",
         "",
-        "Each entry: bias (sigma of the optimum) / std_opt / chi2_rep.",
+        "Each entry: bias (sigma of the optimum) / std_opt / chi2_rep; at rate 0,",
+        "`lim` is chi2_lim, the chi2_rep expected at rate 0 (the stated limit: the",
+        "reported errors include a Poisson part at a variance rate that 24",
+        "neighbours cannot tell from 0). The last column: the largest standard",
+        "errors of bias and std_opt over the row's cells (each cell's own is in the",
+        "lists above when it matters).",
         "",
     ]
     nojump = [r for r in results if r["cell"].jumps == "none"]
     rns = sorted({r["cell"].read_noise for r in nojump})
-    labels = []
-    for r in nojump:
-        if r["cell"].label not in labels:
-            labels.append(r["cell"].label)
+    labels = list(dict.fromkeys(r["cell"].label for r in nojump))
     for lab in labels:
         rows = [r for r in nojump if r["cell"].label == lab]
-        lines += [f"### {lab}", "",
-                  "| rate e-/s | " + " | ".join(f"rn {rn:g} e-" for rn in rns) + " |",
-                  "|---|" + "---|" * len(rns)]
+        lines += [f"### {lab} ({rows[0]['npix']} pixels per cell)", "",
+                  "| rate e-/s | " + " | ".join(f"rn {rn:g} e-" for rn in rns)
+                  + " | max se (bias, std_opt) |",
+                  "|---|" + "---|" * (len(rns) + 1)]
         for rate in sorted({r["cell"].rate for r in rows}):
-            ent = []
+            ent, ses = [], []
             for rn in rns:
                 m = [r for r in rows if r["cell"].rate == rate and
                      r["cell"].read_noise == rn]
@@ -323,65 +558,101 @@ def markdown(results, *, side, seed, command):
                     ent.append("")
                     continue
                 r = m[0]
-                ent.append(f"{_fmt(r['bias'], '+.3f')} / {_fmt(r['std_opt'], '.3f')}"
-                           f" / {_fmt(r['chi2_rep'], '.2f')}"
-                           + (f" (lost {r['lost']:.3f})" if r["lost"] > 0 else ""))
-            lines.append(f"| {rate:g} | " + " | ".join(ent) + " |")
+                ses.append((r["se_bias"], r["se_std"]))
+                txt = (f"{_fmt(r['bias'], '+.3f')} / {_fmt(r['std_opt'], '.3f')}"
+                       f" / {_fmt(r['chi2_rep'], '.2f')}")
+                if np.isfinite(r["chi2_lim"]):
+                    txt += f" (lim {r['chi2_lim']:.2f})"
+                if r["lost"] > 0:
+                    txt += f" (lost {r['lost']:.3f})"
+                if misses(r)[0]:
+                    txt = f"**{txt} MISS**"
+                ent.append(txt)
+            se = (f"{max(s[0] for s in ses):.3f}, {max(s[1] for s in ses):.3f}"
+                  if ses else "")
+            lines.append(f"| {rate:g} | " + " | ".join(ent) + f" | {se} |")
         lines.append("")
     jumps = [r for r in results if r["cell"].jumps != "none"]
     if jumps:
         lines += [
             "## With cosmic rays",
             "",
-            "Read noise 10 e-. Hit amplitude in sigma_d (the largest standard "
-            "deviation of a resultant difference at the rate); bias in sigma of the "
-            "reported error; caught: fraction of pixels with every hit flagged "
-            "(two hits: two or more flagged differences).",
+            "Hit amplitude in sigma_d (the largest standard deviation of a resultant "
+            "difference at the rate); bias (+- its standard error) in sigma of the "
+            "reported error; caught: fraction of pixels with every hit's main "
+            "difference flagged; caught10 (n10): the same over the n10 pixels whose "
+            "every hit has noncentrality >= 10 (module notes).",
             "",
-            "| readout | hits | rate e-/s | amplitude | lost | caught | bias | "
-            "chi2_rep |",
-            "|---|---|---|---|---|---|---|---|",
+            "| readout | hits | rate e-/s | rn e- | amplitude | pixels | lost | "
+            "caught | caught10 (n10) | bias | chi2_rep |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in jumps:
             c = r["cell"]
+            flag = " **MISS**" if misses(r)[0] else ""
             lines.append(
-                f"| {c.label} | {c.jumps} | {c.rate:g} | {c.amplitude:g} | "
-                f"{r['lost']:.3f} | {_fmt(r['caught'], '.4f')} | "
-                f"{_fmt(r['bias'], '+.3f')} | {_fmt(r['chi2_rep'], '.2f')} |")
+                f"| {c.label} | {c.jumps} | {c.rate:g} | {c.read_noise:g} | "
+                f"{c.amplitude:g} | {r['npix']} | {r['lost']:.3f} | "
+                f"{_fmt(r['caught'], '.4f')} | {_fmt(r['caught10'], '.4f')} "
+                f"({r['n10']}) | {_fmt(r['bias'], '+.3f')} +- "
+                f"{_fmt(r['se_bias'], '.3f')} | {_fmt(r['chi2_rep'], '.2f')}{flag} |")
         lines.append("")
     return "\n".join(lines)
 
 
 def main(argv=None):
-    """Command line: ``python -m scenesim.validate.stress [--out FILE]``."""
+    """Command line: ``python -m scenesim.validate.stress [--out FILE [--overwrite]]``."""
     p = argparse.ArgumentParser(prog="python -m scenesim.validate.stress",
                                 description=__doc__.splitlines()[0])
     p.add_argument("--out", help="markdown file to write (default: print)")
-    p.add_argument("--side", type=int, default=64, help="pixels per side (64)")
-    p.add_argument("--seed", type=int, default=2024, help="root seed (2024)")
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace --out if it exists")
+    p.add_argument("--side", default="256", help="pixels per side (256)")
+    p.add_argument("--seed", default="2024", help="root seed (2024)")
+    p.add_argument("--threads", default="1", help="threads of each fit (1)")
     args = p.parse_args(argv)
+    try:
+        side = check_int("--side", _int(args.side), minimum=8)
+        seed = check_int("--seed", _int(args.seed), minimum=0)
+        threads = check_int("--threads", _int(args.threads), minimum=1)
+        if args.out:
+            check_writable("--out", args.out, overwrite=args.overwrite)
+    except ParameterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
     def progress(r):
         c = r["cell"]
-        print(f"[stress] {c.label} rate {c.rate:g} rn {c.read_noise:g} {c.jumps} "
-              f"{c.amplitude:g}: bias {r['bias']:+.3f} std_opt {r['std_opt']:.3f} "
-              f"chi2 {r['chi2_rep']:.3f} lost {r['lost']:.3f} caught "
-              f"{r['caught']:.4f} ({r['seconds']:.1f} s)", file=sys.stderr,
-              flush=True)
+        print(f"[stress] {_describe(c)}: bias {r['bias']:+.4f} std_opt "
+              f"{r['std_opt']:.4f} chi2 {r['chi2_rep']:.3f} lost {r['lost']:.3f} "
+              f"caught {r['caught']:.4f} caught10 {r['caught10']:.4f} "
+              f"({r['seconds']:.1f} s)", file=sys.stderr, flush=True)
 
-    results = run_matrix(side=args.side, rng=args.seed, threads=args.threads,
-                         progress=progress)
-    cmd = "python -m scenesim.validate.stress --out docs/STRESS.md"
-    if args.side != 64 or args.seed != 2024:
-        cmd += f" --side {args.side} --seed {args.seed}"
-    text = markdown(results, side=args.side, seed=args.seed, command=cmd)
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    t0 = time.perf_counter()
+    results = run_matrix(side=side, rng=seed, threads=threads, progress=progress)
+    seconds = time.perf_counter() - t0
+    cmd = "python -m scenesim.validate.stress"
     if args.out:
-        with open(args.out, "w") as fh:
-            fh.write(text)
+        cmd += f" --out {args.out}"
+    if side != 256 or seed != 2024 or threads != 1:
+        cmd += f" --side {side} --seed {seed} --threads {threads}"
+    text = markdown(results, side=side, seed=seed, command=cmd, date=date,
+                    seconds=seconds)
+    if args.out:
+        with atomic_file(args.out, overwrite=args.overwrite) as fh:
+            fh.write(text.encode())
     else:
         print(text)
     return 0
+
+
+def _int(text):
+    """``text`` as an int, or the text itself (for the checker's message)."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
 
 
 if __name__ == "__main__":
