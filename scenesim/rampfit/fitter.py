@@ -139,6 +139,8 @@ _F32 = np.float32
 _OUTPUTS = ("slope", "var_read", "chi2", "dof", "dq", "slope_ints", "var_ints",
             "n_jumps")
 _AUX = ("pcoef", "pcoef_ints")
+#: Above this fraction of refitted pixels the refit runs by row chunks (no gather).
+_DENSE_REFIT = 0.5
 
 
 # ---------------------------------------------------------------------- entry point
@@ -407,6 +409,9 @@ def _refit_at_rate(setup, out, rate, refit, pool):
     ys, xs = np.divmod(np.flatnonzero(refit), nx)
     if ys.size == 0:
         return
+    if ys.size > _DENSE_REFIT * refit.size:
+        _refit_rows(setup, out, rate, refit, pool)
+        return
     jumped = out["n_jumps"][ys, xs] > 0
     step = max(1, CHUNK_ELEMS // (nints * nres))
 
@@ -430,6 +435,35 @@ def _refit_at_rate(setup, out, rate, refit, pool):
             work(c0)
     else:
         list(pool.map(work, starts))
+
+
+def _refit_rows(setup, out, rate, refit, pool):
+    """:func:`_refit_at_rate` by row chunks, for frames where most pixels are
+    refitted (dark frames): contiguous slices instead of gathering the pixels (the
+    same per-pixel solve; the few pixels not in ``refit`` are solved and dropped)."""
+    nints, nres, ny, nx = setup.res4.shape
+    bounds = row_chunks(ny, nx * nints * nres)
+
+    def work(bound):
+        y0, y1 = bound
+        args = setup.chunk(y0, y1)
+        got = _fit_block(*args[:6], 1, None, None,
+                         frate=rate[y0:y1].reshape(-1),
+                         fstart=out["slope"][y0:y1].reshape(-1),
+                         jumped=out["n_jumps"][y0:y1].reshape(-1) > 0)
+        ok = got["by_diff"] & refit[y0:y1].reshape(-1)
+        y, x = np.divmod(np.flatnonzero(ok), nx)
+        y = y + y0
+        for key in ("slope", "var_read", "pcoef", "chi2"):
+            out[key][y, x] = got[key][ok]
+        for key in ("slope_ints", "var_ints", "pcoef_ints"):
+            out[key][:, y, x] = got[key][:, ok]
+
+    if pool is None:
+        for b in bounds:
+            work(b)
+    else:
+        list(pool.map(work, bounds))
 
 
 # ---------------------------------------------------------------------- one chunk
