@@ -19,7 +19,9 @@ Outputs: a file-size limit (``RLIMIT_FSIZE`` set in ``preexec_fn``: EFBIG, which
 Python gets as an OSError since it ignores SIGXFSZ) and a full disk (a 64 KiB tmpfs
 in a private mount namespace, skipped where ``unshare`` is not allowed) for
 ``scenesim noise`` and ``scenesim run``: exit status 2, one line naming the output
-and the reason, no temporary file left and no partial output.
+and the reason (for the full disk: the size check's refusal before any work, and with
+``--force`` the write's ENOSPC after the one-line warning), no temporary file left and
+no partial output.
 """
 
 import gzip
@@ -381,13 +383,15 @@ def _unshare_works():
                     reason="needs unshare -Urm (user and mount namespaces) for a tmpfs")
 @pytest.mark.parametrize("argv", [NOISE + ["{mnt}/out.fits"],
                                   ["run", QUICK, "-q", "-o", "{mnt}/quick.fits"]])
-def test_disk_full_one_line_nothing_left(tmp_path, argv):
-    """A 64 KiB tmpfs (private to the command) fills up: ENOSPC."""
+@pytest.mark.parametrize("force", [False, True])
+def test_disk_full_one_line_nothing_left(tmp_path, argv, force):
+    """A 64 KiB tmpfs (private to the command) is too small: the size check refuses
+    the run before any work (scenesim.budget); forced, the tmpfs fills up: ENOSPC."""
     # old: temp removed, but an OSError traceback was printed
     mnt = tmp_path / "mnt"
     mnt.mkdir()
     cmd = shlex.join([sys.executable, "-m", "scenesim.cli"]
-                     + [a.format(mnt=mnt) for a in argv])
+                     + [a.format(mnt=mnt) for a in argv] + (["--force"] if force else []))
     where = shlex.quote(str(mnt))
     script = (f"mount -t tmpfs -o size=64k tmpfs {where} || exit 99; {cmd}; rc=$?; "
               f"ls -A {where}; exit $rc")
@@ -395,5 +399,11 @@ def test_disk_full_one_line_nothing_left(tmp_path, argv):
                          text=True, stdin=subprocess.DEVNULL, timeout=300,
                          env=dict(os.environ, PYTHONDONTWRITEBYTECODE="1"))
     assert res.returncode == 2, res.stderr
-    _one_line(res.stderr, str(mnt), "No space left on device", "ENOSPC")
+    if force:
+        # the forced run's one warning line, then the error
+        warning, *rest = [ln for ln in res.stderr.splitlines() if ln.strip()]
+        assert warning.startswith(f"scenesim {argv[0]}: warning: forced: ")
+        _one_line("\n".join(rest), str(mnt), "No space left on device", "ENOSPC")
+    else:
+        _one_line(res.stderr, f"free in {str(mnt)!r}", "--force")
     assert res.stdout.split() == []           # the tmpfs is empty: no temp, no output
