@@ -11,6 +11,8 @@ Subcommands::
     scenesim pipeline jwst|roman INPUT --refs DIR [--truth T]  the real pipelines, offline
     scenesim batch SCENE.toml --realisations N --out DIR     many realisations on dask
     scenesim compare --pool DIR                              pooled over a batch
+    scenesim calibrate DARK.fits [...] -o noise.toml         noise model fitted to darks
+    scenesim psd FILE... [--plot psd.png]                    averaged PSD + fitted model
 
 Errors in the input are reported in one line (exit status 2) before any work starts.
 No existing file is replaced without ``--overwrite``, and never a file the command
@@ -26,6 +28,7 @@ import sys
 
 from noise.errors import ScenesimError
 from scenesim.batch.options import add_batch_arguments
+from scenesim.calibrate_options import add_calibrate_arguments, add_psd_arguments
 from noise.fast.memory import keep_freed_memory
 
 __all__ = ["main"]
@@ -145,6 +148,16 @@ def _parser():
                                      "(needs the [batch] extra)")
     add_batch_arguments(m)
     m.set_defaults(target="scenesim.batch.command:batch_command")
+
+    k = sub.add_parser("calibrate", help="fit the noise model to dark ramps: a [noise] "
+                                         "table (also 'scenesim noise calibrate')")
+    add_calibrate_arguments(k)
+    k.set_defaults(target="scenesim.calib.calibrate_command:calibrate_command")
+
+    d = sub.add_parser("psd", help="averaged PSD of dark ramps in readout time order, "
+                                   "with the fitted model")
+    add_psd_arguments(d)
+    d.set_defaults(target="scenesim.calib.calibrate_command:psd_command")
     return p
 
 
@@ -169,6 +182,9 @@ def _raise_interrupted(signum, frame):
 
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:2] == ["noise", "calibrate"]:       # the same command, under 'noise'
+        argv = argv[1:]
     args = _parser().parse_args(argv)
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _raise_interrupted)
