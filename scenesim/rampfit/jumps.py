@@ -63,8 +63,8 @@ Where the read noise is 0 the covariance uses a rate of at least
 :data:`scenesim.rampfit.covariance.RATE_FLOOR`.  The first pass runs in blocks of
 4096 pixels, which keeps the (n_diff, pixels) work arrays in cache; the later
 passes and the look-aheads, on the few pixels that need them, run on all the
-caller's pixels at once (per block they cost ~0.4 ms of numpy overhead each, +12 %
-of a RAPID x 20 fit with jump detection).
+caller's pixels at once (per block they cost ~0.4 ms of numpy overhead each; at
+once, a 512 x 512 x 20 RAPID fit with jump detection went from 0.45 to 0.40 s).
 """
 
 import numpy as np
