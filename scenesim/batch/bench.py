@@ -17,7 +17,9 @@ The four are timed in two passes, the second in reverse order (loop, loop 1 thre
 1 worker, 2 workers; then 2 workers, ..., loop), so that a load that drifts during
 the run (a shared machine) weighs on each about equally; each throughput is the
 ``2 n`` exposures over the two passes' wall time, and each pass's own figure is
-printed beside it.  Then the scheduler's own cost: the start and stop of a 1-worker
+printed beside it, with the CPU seconds per exposure of each way (this process and
+its reaped children: on a loaded machine the CPU a batch's overhead costs shows
+there when the wall times only show the contention).  Then the scheduler's own cost: the start and stop of a 1-worker
 ``LocalCluster``, and 200 no-op tasks submitted at once and gathered (wall time per
 task: the round trip through the scheduler and a worker, serialisation included).
 Every number is measured in the run that prints it.
@@ -123,6 +125,8 @@ def bench_batch(n, threads):
     count = _PASSES * n
     per_min = {w: 60.0 * count / total[w] for w in _WAYS}
 
+    cpu_per = {w: sum(cpus[w]) / count for w in _WAYS}
+
     def rate(way):
         passes = "/".join(f"{60.0 * n / v:.1f}" for v in walls[way])
         return f"{per_min[way]:.1f} ({passes})"
@@ -142,14 +146,18 @@ def bench_batch(n, threads):
         f"1 worker, {total['loop'] / total['batch_2']:.2f}x the loop; 1 worker = "
         f"{total['loop_1thread'] / total['batch_1']:.2f}x the 1-thread loop (batch "
         f"minus 1-thread loop per exposure "
-        f"{(total['batch_1'] - total['loop_1thread']) / count:+.3f} s); scheduler: "
+        f"{(total['batch_1'] - total['loop_1thread']) / count:+.3f} s); CPU s per "
+        f"exposure (this process and its reaped children, i.e. the workers): loop "
+        f"{cpu_per['loop']:.2f}, 1-thread loop {cpu_per['loop_1thread']:.2f}, 1 worker "
+        f"{cpu_per['batch_1']:.2f}, 2 workers {cpu_per['batch_2']:.2f}; scheduler: "
         f"{1e3 * per_task:.2f} ms per task ({_NOOP_TASKS} no-op tasks), cluster start "
         f"+ stop {start_stop:.2f} s; wall/floor columns: the 2-worker batch, both "
         f"passes (CPU: driver and its worker processes) against the random numbers of "
         f"its {count} exposures")
     return dict(wall=total["batch_2"], cpu=sum(cpus["batch_2"]), n_normal=count * nn,
                 n_poisson=count * npo, lam=typical_lambda(engine.rate, det.frame_time),
-                detail=detail, walls=walls, exposures_per_minute=per_min,
+                detail=detail, walls=walls, cpus=cpus, cpu_per_exposure=cpu_per,
+                exposures_per_minute=per_min,
                 scheduler_seconds_per_task=per_task,
                 cluster_start_stop_seconds=start_stop,
                 pixel_reads=int(count * det.ny * det.nx * n_reads))
