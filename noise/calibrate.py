@@ -3,9 +3,11 @@
 What is fitted, and from which statistic
 ----------------------------------------
 The data are dark ramps in electrons (DN times the gain).  Everything that does not
-change between the reads of an integration (the kTC + bias reset level, dark current
-to first order) cancels in a **CDS difference** ``y = read(2m+1) - read(2m)``; the
-pairs do not overlap, so their white noise is independent.  On each output's time line
+change between the reads of an integration (the kTC + bias reset level) cancels in a
+**CDS difference** ``y = read(2m+1) - read(2m)``; the pairs do not overlap, so their
+white noise is independent.  Dark current does not cancel: it leaves ``i_dark T`` in
+every difference (uniform, it reads as pedestal; hot pixels read as white noise), so
+it must be negligible or subtracted first.  On each output's time line
 (the clock of :mod:`noise.clock`: ``t = y * (ncols_out + nroh) + x_fast`` samples, the
 overhead samples being gaps), a difference is a stationary Gaussian series whose
 lag covariance is known in closed form for every component of :mod:`noise.params`:
@@ -94,6 +96,7 @@ the white variance per read, which is subtracted.  Measured round trips are in
 """
 
 import functools
+import json
 import math
 from dataclasses import dataclass, field
 
@@ -183,8 +186,8 @@ class CalibrationResult:
     Attributes
     ----------
     estimates : dict of str to Estimate
-        Every parameter of :data:`FITTED_PARAMETERS` plus ``pca0`` and
-        ``rtn_fraction`` (not fitted).
+        Every parameter of :data:`FITTED_PARAMETERS` plus ``rtn_fraction`` (not
+        fitted).
     params : noise.params.NoiseParams
         The fitted model: fitted values, unfitted components 0 (``f_min`` and the
         template as given).
@@ -197,6 +200,7 @@ class CalibrationResult:
         ``'ref'``): see :func:`dark_psd`.
     n_diff, n_int : int
         CDS differences and integrations used.
+    detector : noise.clock.Detector
     notes : tuple of str
     """
 
@@ -237,14 +241,17 @@ class CalibrationResult:
             if est.value is None:
                 lines.append(f"# {name}: not fitted" + (f" ({text})" if text else ""))
             else:
-                lines.append(f"{name} = {est.value:.6g}" + (f"    # {text}" if text else ""))
+                # the model's value: an amplitude below 0 (a bias pattern
+                # anti-correlated with the template) is written as 0
+                value = getattr(self.params, name)
+                lines.append(f"{name} = {value:.6g}" + (f"    # {text}" if text else ""))
         lines.append(f"f_min = {self.params.f_min:g}    # Hz, assumed (not identifiable "
                      f"from a ramp)")
         if self.params.pink_spectrum is not None:
             pairs = ", ".join(f"[{f:g}, {p:g}]" for f, p in self.params.pink_spectrum)
             lines.append(f"pink_spectrum = [{pairs}]")
         if self.params.pca0_file is not None:
-            lines.append(f"pca0_file = {self.params.pca0_file!r}".replace("'", '"'))
+            lines.append(f"pca0_file = {json.dumps(self.params.pca0_file)}")
         return "\n".join(lines) + "\n"
 
 
@@ -492,16 +499,20 @@ class _Layout:
 
     def _pf_spectra(self, v):
         """Row-domain transforms of the picture-frame component seen through the
-        weighted template ``v`` (n, Ls) of n series of one segment: ``U`` (n, 2S, nk)
-        such that ``E[F_a F_b^*] = sum_q chat_q U_a U_b^* / 2S``, ``chat`` the FFT of
-        the row-lag covariance of the CDS-differenced row series (its lags wrapped
-        modulo 2S, exact for the ``|r - r'| < S`` a segment holds)."""
+        weighted template ``v`` (n, Ls) of n series of one segment: ``Ghat`` (n, 2S,
+        nk), the FFT over the rows (zero-padded to 2S) of ``G(r, k)``, the DFT of row
+        ``r`` at frequency ``k / Ls``.
+
+        The row ``r`` starts at sample ``r R`` of the segment, a phase ``exp(-2 pi i
+        2k r / 2S)`` (``Ls = S R``), which shifts the row transform by ``2k``:
+        ``E[F_a F_b^*] = sum_q chat[(q - 2k) mod 2S] Ghat_a(q, k) Ghat_b(q, k)^* / 2S``
+        with ``chat`` the FFT of the row-lag covariance of the CDS-differenced row
+        series (lags wrapped modulo 2S, exact for the ``|r - r'| < S`` a segment
+        holds).
+        """
         S, R, Ls = self.S, self.R, self.Ls
-        rows = v.reshape(v.shape[0], S, R)
-        G = sfft.rfft(rows, n=Ls, axis=-1)                   # (n, S, nk): sum over c
-        k = np.arange(Ls // 2 + 1)
-        G *= np.exp(-2j * np.pi * np.outer(np.arange(S) * R, k) / Ls)[None]
-        return sfft.fft(G, n=2 * S, axis=1)                   # over the rows
+        G = sfft.rfft(v.reshape(v.shape[0], S, R), n=Ls, axis=-1)   # (n, S, nk)
+        return sfft.fft(G, n=2 * S, axis=1)
 
     def basis(self, f_min, spectrum):
         """``{stat: (nbins, 7) matrix}``: expected binned statistic per unit variance
@@ -514,8 +525,12 @@ class _Layout:
         cext = np.zeros(2 * S)
         cext[:S] = cpf[:S]
         cext[S + 1:] = cpf[1:S][::-1]
-        chat = sfft.fft(cext).real[:, None]                  # (2S, 1)
         nk = Ls // 2 + 1
+        q = np.arange(2 * S)[:, None]
+        chat = sfft.fft(cext).real[(q - 2 * np.arange(nk)[None, :]) % (2 * S)]  # (2S, nk)
+
+        def quad(g):                  # sum_q chat[(q - 2k) mod 2S] |g(q, k)|^2
+            return np.einsum("qk,qk->k", chat, g.real ** 2 + g.imag ** 2)
         zero = np.zeros(nk)
         acc = {"auto": [], "cross": [], "ref": []}
         for g in range(self.nseg):
@@ -528,23 +543,21 @@ class _Layout:
             us = 0.0
             for o in range(self.n_out):                   # one output at a time (memory)
                 U = self._pf_spectra((self.tmpl[o, g] * w)[None])[0]
-                pf_auto += (chat * (U.real ** 2 + U.imag ** 2)).sum(axis=0)
+                pf_auto += quad(U)
                 us = us + U
             pf_sum = pf_auto
             pf_auto = pf_auto / (2 * S * self.n_out)
             acc["auto"].append(np.stack([np.full(nk, 2.0 * w.sum()), zero, pink, pink,
                                          acn, ped, pf_auto], axis=1))
             if self.n_out > 1:
-                pf_cross = ((chat * (us.real ** 2 + us.imag ** 2)).sum(axis=0) - pf_sum) \
-                    / (2 * S) / (self.n_out * (self.n_out - 1))
+                pf_cross = (quad(us) - pf_sum) / (2 * S) / (self.n_out * (self.n_out - 1))
                 acc["cross"].append(np.stack([zero, zero, pink, zero, zero, ped, pf_cross],
                                              axis=1))
         for o, g in self.ref_pairs:
             m = self.ref[o, g]
             Wm = sfft.rfft(m)
             pk = _expected(cov["pink"][:Ls], m, m)
-            U = self._pf_spectra((self.tmpl[o, g] * m)[None])
-            pf = (chat * (U.real ** 2 + U.imag ** 2)[0]).sum(axis=0) / (2 * S)
+            pf = quad(self._pf_spectra((self.tmpl[o, g] * m)[None])[0]) / (2 * S)
             acc["ref"].append(np.stack([zero, np.full(nk, 2.0 * m.sum()), pk, pk,
                                         _expected(cov["acn"][:Ls], m, m),
                                         2.0 * (Wm.real ** 2 + Wm.imag ** 2), pf], axis=1))

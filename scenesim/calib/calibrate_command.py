@@ -42,7 +42,8 @@ def calibrate_command(args):
     check_outputs({"output": args.output}, inputs=[os.path.abspath(d) for d in args.darks],
                   overwrite=args.overwrite)
     ramps = load_darks(args.darks, detector=_detector(args), gain=args.gain)
-    res = calibrate_darks(ramps, f_min=args.f_min, template_file=args.template)
+    template = None if args.template is None else os.path.abspath(args.template)
+    res = calibrate_darks(ramps, f_min=args.f_min, template_file=template)
     text = res.to_toml(sources=args.darks)
     with atomic_path(args.output, overwrite=args.overwrite) as tmp:
         with open(tmp, "w", encoding="utf-8") as f:
