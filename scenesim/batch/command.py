@@ -35,6 +35,17 @@ def format_tables(pooled, *, source="", points=()):
     return "\n\n".join(blocks)
 
 
+def _say(text=""):
+    """Print ``text``; once the reader of a pipe is gone (``| head``), print nothing
+    more instead of failing: the batch itself goes on and ends normally."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())       # and the flush at exit is silent
+        os.close(devnull)
+
+
 def _fitters(values):
     if values is None:
         return None
@@ -49,7 +60,7 @@ def batch_command(args):
 
     def log(line):
         if not args.quiet:
-            print(line, flush=True)
+            _say(line)
 
     res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
                     threads=args.threads, retries=args.retries,
@@ -61,15 +72,15 @@ def batch_command(args):
         f"failed, in {res.seconds:.1f} s{rate}; batch seed {plan.batch_seed} "
         f"({plan.seed_source}); manifest {os.path.join(args.out, 'batch.json')}")
     if res.pooled and not args.quiet:
-        print()
-        print(format_tables(res.pooled, source=plan.source,
-                            points=res.manifest.get("points", ())))
+        _say()
+        _say(format_tables(res.pooled, source=plan.source,
+                           points=res.manifest.get("points", ())))
     return 0
 
 
 def pool_command(args):
     """``scenesim compare --pool DIR``: the pooled tables of a batch directory."""
     manifest, pooled = pool_directory(args.pool)
-    print(format_tables(pooled, source=manifest.get("source", ""),
-                        points=manifest.get("points", ())))
+    _say(format_tables(pooled, source=manifest.get("source", ""),
+                       points=manifest.get("points", ())))
     return 0
