@@ -20,7 +20,7 @@ import pytest
 from noise import NoiseGenerator, NoiseParams, preset, write_noise_fits
 from noise.calibrate import (MIN_DIFFERENCES, DarkRamps, _cds_lag_cov, _expected,
                              calibrate_darks, load_darks)
-from noise.errors import ParameterError, ParameterTypeError
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.pink import realised_psd, unit_frame_variance
 
 PULL_PARAMETERS = ("rd_noise", "ref_ratio", "c_pink", "u_pink", "acn", "pedestal",
@@ -321,3 +321,35 @@ def test_cli_template_file_is_written_and_loads(tmp_path):
     b = res.estimates["bias_amp"]
     # within 4 sigma of the true 300 e- (a 6e-5 chance for a calibrated estimate)
     assert abs(b.value - 300.0) < 4 * b.sigma
+
+
+def test_sci_extension_files_need_preset_gain_and_single_frames(tmp_path):
+    # a JWST-uncal-like file: uint16 DN in a SCI extension, no scenesim detector
+    # cards, no GAIN: refused until the detector and the gain are given; frame
+    # averaging (NFRAMES > 1) is refused outright
+    from astropy.io import fits
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    cube = NoiseGenerator(det, NoiseParams(), rng=8, threads=1).cube(10, nints=2)
+    dn = np.clip(np.round(cube / 2.0), 0, 65535).astype(np.uint16)
+
+    def write(name, nframes):
+        hdr = fits.Header()
+        hdr["NFRAMES"] = nframes
+        hdr["GROUPGAP"] = 0
+        sci = fits.ImageHDU(dn, name="SCI")
+        sci.header["BUNIT"] = "DN"
+        path = tmp_path / name
+        fits.HDUList([fits.PrimaryHDU(header=hdr), sci]).writeto(path)
+        return str(path)
+
+    ok, averaged = write("uncal.fits", 1), write("avg.fits", 4)
+    with pytest.raises(ParameterError, match="detector"):
+        load_darks([ok])
+    with pytest.raises(ParameterError, match="gain"):
+        load_darks([ok], detector=det)
+    with pytest.raises(FileFormatError, match="NFRAMES"):
+        load_darks([averaged], detector=det, gain=2.0)
+    ramps = load_darks([ok], detector=det, gain=2.0)
+    assert len(ramps.integrations) == 2 and ramps.gain == 2.0
+    # the e- values are the DN times the gain
+    assert np.array_equal(ramps.integrations[1][3], dn[1, 3].astype(np.float32) * 2)
