@@ -48,10 +48,10 @@ and ``(ncols + 12) (nrows + 2) x 10 us`` with 1: the ``H2RG`` preset (``nroh = 1
 window matches exactly with ``nfoh = 2`` (:func:`jwst_frame_time`).
 
 Reference files (:func:`write_reference_files`)
------------------------------------------------ The references of
-:func:`scenesim.pipelines.reffiles.detector_reference` in the formats the steps read
-as ``override_<type>``: ``gain`` (GainModel, e-/DN), ``readnoise`` (ReadnoiseModel:
-the CDS noise of two frames in DN, ``sqrt(2) * read_noise / gain``, as stcal expects:
+-----------------------------------------------
+The references of :func:`scenesim.pipelines.reffiles.detector_reference` in the
+formats the steps read as ``override_<type>``: ``gain`` (GainModel, e-/DN),
+``readnoise`` (ReadnoiseModel: the CDS noise of two frames in DN, ``sqrt(2) * read_noise / gain``, as stcal expects:
 :func:`scenesim.adapters.stcal.stcal_read_noise`), ``saturation`` (SaturationModel,
 raw DN, bias included), ``superbias`` (SuperBiasModel, DN), ``linearity``
 (LinearityModel, ``COEFFS`` (ncoeffs, ny, nx) on bias-subtracted DN), ``dark``

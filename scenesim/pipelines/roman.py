@@ -38,21 +38,24 @@ References (:func:`write_reference_files`)
 ------------------------------------------
 ``roman_gain.asdf`` (``GainRefModel``, e-/DN), ``roman_readnoise.asdf``
 (``ReadnoiseRefModel``: DN **per read**, which is what romancal's ramp fitting
-multiplies by the gain and hands to stcal's Casertano/likelihood fitters) and
+multiplies by the gain and hands to stcal's Casertano/likelihood fitters),
 ``roman_mask.asdf`` (``MaskRefModel``: reference and hot pixels, the JWST/Roman DQ
-bits), from :func:`scenesim.pipelines.reffiles.detector_reference`.
+bits) and ``roman_saturation.asdf`` (``SaturationRefModel``: raw DN with the bias,
+the level of :func:`scenesim.pipelines.reffiles.detector_reference`; the ADC's top
+code when the scene sets no full well), from
+:func:`scenesim.pipelines.reffiles.detector_reference`.
 
 The ramp fit (:func:`run_ramp_fit`)
 -----------------------------------
 romancal's ``DQInitStep`` (``override_mask``: the L1 becomes a ``RampModel``, border
-reference pixels set aside) then ``RampFitStep`` (``override_gain``,
-``override_readnoise``), offline (CRDS disabled as in
+reference pixels set aside), ``SaturationStep`` (``override_saturation``: resultants at
+or above the level flagged, and the later ones) then ``RampFitStep``
+(``override_gain``, ``override_readnoise``), offline (CRDS disabled as in
 :func:`scenesim.pipelines.jwst.offline_crds`); the L2 ``ImageModel`` is saved as ASDF, and
 ``scenesim compare L2.asdf TRUTH`` grades it
 (:func:`scenesim.pipelines.products.read_roman_l2`).
-The rest of romancal's ``ExposurePipeline`` (dq_init, saturation, refpix,
-linearity, dark, ...) needs Roman reference files in formats scenesim does not write
-yet, so it is not run: grade scenes without bias structure, nonlinearity or IPC, or
+The rest of romancal's ``ExposurePipeline`` (refpix, linearity, dark, ...) needs
+Roman reference files in formats scenesim does not write yet, so it is not run: grade scenes without bias structure, nonlinearity or IPC, or
 read the result as "ramp fitting only".
 """
 
@@ -69,7 +72,7 @@ from scenesim.io.exposure import Exposure
 from scenesim.io.header import readout_from_table
 
 __all__ = ["write_l1", "l1_model", "write_reference_files", "run_ramp_fit",
-           "read_pattern", "AMP33_COLUMNS"]
+           "read_pattern", "AMP33_COLUMNS", "REFERENCE_TYPES"]
 
 #: Columns of the amp33 reference output (one science output's width on the WFI).
 AMP33_COLUMNS = 128
@@ -185,9 +188,13 @@ def write_l1(exposure, path, *, overwrite=False):
     return path
 
 
+#: Roman reference types written by :func:`write_reference_files`.
+REFERENCE_TYPES = ("gain", "readnoise", "mask", "saturation")
+
+
 def write_reference_files(reference, directory, *, overwrite=False):
-    """Write ``roman_gain.asdf``, ``roman_readnoise.asdf`` and ``roman_mask.asdf``
-    (module notes).
+    """Write ``roman_<type>.asdf`` for each of :data:`REFERENCE_TYPES` (module
+    notes).
 
     Returns
     -------
@@ -197,21 +204,24 @@ def write_reference_files(reference, directory, *, overwrite=False):
     rdd = _rdm()
     os.makedirs(directory, exist_ok=True)
     paths = {t: os.path.join(os.fspath(directory), f"roman_{t}.asdf")
-             for t in ("gain", "readnoise", "mask")}
+             for t in REFERENCE_TYPES}
     for t, p in paths.items():
         check_writable(f"{t} reference", p, overwrite=overwrite)
     shape = reference.detector.shape
     g = reference.gain
     data = {"gain": np.full(shape, g, dtype=np.float32),
             "readnoise": (reference.read_noise / g).astype(np.float32),
-            "mask": reference.mask.astype(np.uint32)}
+            "mask": reference.mask.astype(np.uint32),
+            "saturation": (reference.saturation / g).astype(np.float32)}
     for t, cls in (("gain", rdd.GainRefModel), ("readnoise", rdd.ReadnoiseRefModel),
-                   ("mask", rdd.MaskRefModel)):
+                   ("mask", rdd.MaskRefModel), ("saturation", rdd.SaturationRefModel)):
         m = cls.create_fake_data(shape=shape)
         if t == "mask":
             m.dq = data[t]
         else:
             m.data = data[t]
+        if t == "saturation":
+            m.dq = np.zeros(shape, dtype=np.uint32)
         m.meta.description = f"scenesim: {t} of the simulated detector"
         m.meta.author = "scenesim"
         m.meta.pedigree = "DUMMY"
@@ -228,8 +238,9 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
     l1 : str
         L1 ASDF file (:func:`write_l1`).
     references : dict
-        ``{'gain': path, 'readnoise': path, 'mask': path}``
-        (:func:`write_reference_files`).
+        ``{'gain': path, 'readnoise': path, 'mask': path}`` and, optionally,
+        ``'saturation'`` (:func:`write_reference_files`; without it the saturation
+        step is not run).
     path : str
         Output L2 ``.asdf`` file.
     algorithm : {'likely', 'ols_cas22'}, keyword-only
@@ -253,6 +264,11 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
         dq_init = DQInitStep(override_mask=os.fspath(references["mask"]))
         dq_init.prefetch_references = False
         ramp = dq_init.run(os.fspath(l1))
+        if "saturation" in references:
+            from romancal.saturation import SaturationStep
+            sat = SaturationStep(override_saturation=os.fspath(references["saturation"]))
+            sat.prefetch_references = False
+            ramp = sat.run(ramp)
         step = RampFitStep(algorithm=algorithm, include_var_rnoise=True,
                            override_gain=os.fspath(references["gain"]),
                            override_readnoise=os.fspath(references["readnoise"]))

@@ -238,3 +238,38 @@ def test_subarray_names_come_from_the_jwst_lists(tmp_path):
         else:
             assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
             assert not (tmp_path / f"{name}.fits").exists()
+
+
+def test_frame_keywords_and_int_times_against_the_clock(tmp_path):
+    """nframes 2, groupgap 1, 2 frames dropped after reset, 3 groups, 2 integrations:
+    DRPFRMS1 = 2, FRMDIVSR = NFRAMES = 2, TGROUP = 3 t_frame; each integration is its
+    reset frame plus nreads = 2 + 2 x 3 + 2 = 10 frames, so INT_TIMES steps by 11
+    t_frame and spans 11 t_frame (MJD days)."""
+    from scenesim.run import build_engine, write_exposure
+    from scenesim.scene import parse_scene
+    scene = parse_scene({
+        "seed": 4, "detector": {"preset": "NIRCAM", "nfoh": 2, "subarray": {
+            "kind": "window", "x0": 0, "y0": 0, "nx": 16, "ny": 16}},
+        "readout": {"nframes": 2, "ngroups": 3, "groupgap": 1, "nskip": 2,
+                    "nints": 2},
+        "output": {"path": "x.fits", "truth": False}})
+    engine, _ = build_engine(scene)
+    exp = write_exposure(engine, None)["exposure"]
+    path = str(tmp_path / "x_uncal.fits")
+    jwst.write_uncal(exp, path)
+    t = engine.detector.frame_time
+    with dm.RampModel(path, strict_validation=True) as m:
+        ex = m.meta.exposure
+        assert (ex.drop_frames1, ex.frame_divisor, ex.nframes, ex.groupgap) == (2, 2, 2, 1)
+        assert ex.group_time == pytest.approx(3 * t, rel=1e-12)
+        assert ex.zero_frame is False          # from a file alone: no zero frame
+        it = m.int_times
+        day = 86400.0
+        start = np.asarray(it["int_start_MJD_UTC"])
+        end = np.asarray(it["int_end_MJD_UTC"])
+    # MJD near 6e4 days in float64: ~1e-11 d = 1 us resolution
+    assert np.allclose((start[1] - start[0]) * day, 11 * t, atol=1e-5)
+    assert np.allclose((end - start) * day, 11 * t, atol=1e-5)
+    from astropy.io import fits
+    hdr = fits.getheader(path)
+    assert hdr["DRPFRMS1"] == 2 and hdr["FRMDIVSR"] == 2

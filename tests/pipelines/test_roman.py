@@ -97,3 +97,34 @@ def test_roman_scene_l1(tmp_path):
     with rdm.open(str(tmp_path / "r_l1.asdf")) as m:
         m.validate()
         assert len(m.meta.exposure.read_pattern) == 9
+
+
+def test_saturation_step_flags_the_adc_top_and_the_fit_keeps_the_rest(roman_loop,
+                                                                       tmp_path):
+    """roman_loop sets no full well, so its saturation reference is the ADC's top
+    code: a pixel whose last two resultants are put at 65535 DN is flagged SATURATED
+    by romancal's saturation step, and its slope, fitted on the four resultants
+    left, still matches the truth within 5 of the errors romancal reports."""
+    from scenesim.pipelines.command import reference_paths
+    from scenesim.pipelines.roman import run_ramp_fit
+    from scenesim.io.exposure import read_truth
+    d, _ = roman_loop
+    refs = reference_paths(d / "roman_loop_refs", "roman")
+    assert "saturation" in refs
+    with rdm.open(refs["saturation"]) as s:
+        assert np.all(s.data == 65535)
+    y, x = 71, 60                                   # the bright star's peak (2e4 e-/s)
+    with rdm.open(str(d / "roman_loop_l1.asdf")) as m:
+        m.data[-2:, y, x] = 65535
+        m.to_asdf(str(tmp_path / "sat_l1.asdf"))
+    run_ramp_fit(str(tmp_path / "sat_l1.asdf"), refs, str(tmp_path / "sat_l2.asdf"))
+    b = 4                                           # the border romancal trims
+    with rdm.open(str(tmp_path / "sat_l2.asdf")) as m:
+        assert m.meta.cal_step.saturation == "COMPLETE"
+        assert int(m.dq[y - b, x - b]) & 2          # SATURATED
+        slope = float(m.data[y - b, x - b]) * 2.0   # e-/s (gain 2)
+        sigma = float(np.sqrt(m.var_poisson[y - b, x - b]
+                              + m.var_rnoise[y - b, x - b])) * 2.0
+    truth = read_truth(str(d / "roman_loop_truth.fits"))["RATE"][y, x]
+    assert truth > 1000
+    assert abs(slope - truth) < 5 * sigma
