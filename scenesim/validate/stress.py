@@ -42,7 +42,10 @@ rate) and ``z = (slope - rate) / sqrt(V_reported)``, over the pixels not flagged
   every hit is a 10 sigma hit: noncentrality >= 10 in the optimal test for its own
   signature with the rate free (``A sqrt(s^T C^-1 s - (s^T C^-1 dt)^2 /
   (dt^T C^-1 dt))``, ``s`` the fractions of the charge in each difference, ``C``
-  their covariance, ``dt`` their spacing; from the read times).  A hit is weaker
+  their covariance, ``dt`` their spacing; from the read times), with two hits on
+  the differences the other hit leaves untouched (what any detector has left once
+  it has found the other: in a ramp of 4 or 5 differences that may be too little
+  to tell a hit from the rate).  A hit is weaker
   than its charge when it arrives during a multi-read resultant (its charge shared
   by two differences), late in the last group or early in the first (a fraction of
   it in the ramp), or in a difference that dominates the fit (the rate follows
@@ -131,11 +134,13 @@ CHI2_BAND = 0.02
 #: What the lists above mean (qualitative; the numbers are in the lists and tables).
 _NOTES = (
     "How to read these lists. *Two hits in ramps of 4 or 5 differences* "
-    "(MEDIUM8 x 5, DEEP8 x 5, ROMANSKIP6): each hit raises the common rate against "
-    "which the other is tested, and after the first is flagged (with the neighbour "
-    "that shares its multi-read resultant) one or two differences remain to compare "
-    "with, so a second hit of 10-20 sigma_d is missed more often than 1 %; the "
-    "pixel then keeps it (bias and chi2_rep of those cells below). At 200 sigma_d "
+    "(MEDIUM8 x 5, DEEP8 x 5, ROMANSKIP6, in the table below): each hit raises the "
+    "common rate against which the other is tested, and once one is flagged (with "
+    "the neighbour that shares its multi-read resultant) the one or two differences "
+    "left are often too few to tell the other from the rate, even for the optimal "
+    "test: caught10 counts only the hits that stay 10 sigma hits given the other, "
+    "caught all of them, and the pixels that keep a hit show in bias and chi2_rep "
+    "(several sigma at 10-20 sigma_d). At 200 sigma_d "
     "both are caught. *Reported errors in the photon-counting cells* (read noise "
     "0.1-1 e-, about one photon per ramp or less): the mean of the errors' "
     "variance is right to ~10 %, but a pixel with photons among neighbours without "
@@ -279,26 +284,47 @@ def _diff_cov(times, rate, read_noise):
     return dd @ cr @ dd.T
 
 
-def _hit_strength(times, hit, cdiff):
+def _signature(times, hit):
+    """Charge fractions (nd, P) a hit adds to each resultant difference: the
+    fraction ``phi_r`` of resultant ``r``'s reads after the hit time carries that
+    fraction of the charge into ``R_r``, so the differences get ``diff(phi)``."""
+    th = hit[0].reshape(-1)
+    phi = np.array([(t[:, None] > th[None, :]).mean(axis=0) for t in times])
+    return np.diff(phi, axis=0)
+
+
+def _hit_strength(times, hit, cdiff, exclude=None):
     """Where a hit's charge is and how detectable it is: (main difference (P,),
     noncentrality (P,)).
 
-    The fraction ``phi_r`` of resultant ``r``'s reads after the hit time carries
-    that fraction of the charge into ``R_r``, so the hit adds ``A s`` to the
-    differences, ``s = diff(phi)``.  Its noncentrality is that of the optimal test
-    for its own signature with the rate free,
-    ``A sqrt(s^T C^-1 s - (s^T C^-1 dt)^2 / (dt^T C^-1 dt))`` (``C`` the covariance
-    of the differences, ``dt`` their mean-time spacing): no detector does better.
-    The main difference is the one holding the largest part of the charge in units
-    of its noise."""
-    th, amp = (a.reshape(-1) for a in hit)
-    phi = np.array([(t[:, None] > th[None, :]).mean(axis=0) for t in times])
-    sig = np.diff(phi, axis=0)                                       # (nd, P)
+    The hit adds ``A s`` to the differences (``s`` = :func:`_signature`).  Its
+    noncentrality is that of the optimal test for its own signature with the rate
+    free, ``A sqrt(s^T C^-1 s - (s^T C^-1 dt)^2 / (dt^T C^-1 dt))`` (``C`` the
+    covariance of the differences, ``dt`` their mean-time spacing): no detector
+    does better.  ``exclude`` (nd, P) bool: differences left out first (those
+    another hit touches: the best a detector can do once it has found that one);
+    with fewer than two left the hit cannot be told from the rate (0).  The main
+    difference is the one holding the largest part of the charge in units of its
+    noise."""
+    amp = hit[1].reshape(-1)
+    sig = _signature(times, hit)
+    nd, npix = sig.shape
     main = (sig / np.sqrt(np.diag(cdiff))[:, None]).argmax(axis=0)
-    cinv = np.linalg.inv(cdiff)
     dt = np.diff([t.mean() for t in times])
-    h = cinv @ dt
-    lam2 = np.einsum("ip,ip->p", sig, cinv @ sig) - (h @ sig) ** 2 / (dt @ h)
+    if exclude is None:
+        exclude = np.zeros((nd, npix), bool)
+    lam2 = np.zeros(npix)
+    keys, inverse = np.unique(exclude.T, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    for k, key in enumerate(keys):
+        keep = ~key
+        if keep.sum() < 2:
+            continue
+        sel = inverse == k
+        cinv = np.linalg.inv(cdiff[np.ix_(keep, keep)])
+        sk, dk = sig[keep][:, sel], dt[keep]
+        h = cinv @ dk
+        lam2[sel] = np.einsum("ip,ip->p", sk, cinv @ sk) - (h @ sk) ** 2 / (dk @ h)
     return main, amp * np.sqrt(np.maximum(lam2, 0))
 
 
@@ -376,8 +402,11 @@ def measure_cell(cell, *, side=64, rng=None, threads=1):
         cdiff = _diff_cov(times, cell.rate, cell.read_noise)
         caught = np.ones(e.size, bool)
         strong = np.ones(e.size, bool)
-        for hit in hits:
-            main, snr = _hit_strength(times, hit, cdiff)
+        touched = [_signature(times, hit) > 0 for hit in hits]
+        for j, hit in enumerate(hits):
+            others = [t for i, t in enumerate(touched) if i != j]
+            main, snr = _hit_strength(times, hit, cdiff,
+                                      np.logical_or.reduce(others) if others else None)
             caught &= flagged[main, np.arange(e.size)]
             strong &= snr >= CAUGHT_SIGMA
         out["caught"] = float(np.mean(caught))
