@@ -129,12 +129,11 @@ def test_hit_strength_left_out_differences():
 
 def test_hit_strength_against_closed_form():
     # A RAPID ramp at rate 0 has differences with covariance sigma^2 (2 on the
-    # diagonal, -1 off it); a full hit in difference i of nd has noncentrality
-    # A sqrt(s^T C^-1 s - (s^T C^-1 1)^2 / 1^T C^-1 1) for s = e_i, which for the
-    # middle difference of 3 (dt = 1 frame, C = sigma^2 [[2,-1,0],[-1,2,-1],[0,-1,2]])
-    # is A / sigma sqrt(3/4 - (1)^2 / 3 ... ) evaluated here from the inverse:
-    # C^-1 = (1/4 sigma^2) [[3,2,1],[2,4,2],[1,2,3]], C^-1 1 = (1/4)[6,8,6]/sigma^2,
-    # 1^T C^-1 1 = 5/sigma^2, so lambda^2 = A^2/sigma^2 (1 - 4/5) = A^2/(5 sigma^2).
+    # diagonal, -1 off it); a full hit in difference i has noncentrality
+    # A sqrt(s^T C^-1 s - (s^T C^-1 1)^2 / 1^T C^-1 1) for s = e_i (dt = 1 frame).
+    # For the middle difference of 3: C^-1 = [[3,2,1],[2,4,2],[1,2,3]] / (4 sigma^2),
+    # s^T C^-1 s = 1/sigma^2, s^T C^-1 1 = 2/sigma^2, 1^T C^-1 1 = 5/sigma^2, so
+    # lambda^2 = A^2/sigma^2 (1 - 4/5) = A^2 / (5 sigma^2).
     times = [np.array([1.0]), np.array([2.0]), np.array([3.0]), np.array([4.0])]
     sigma, amp = 2.0, 30.0
     cdiff = _diff_cov(times, 0.0, sigma)
