@@ -225,12 +225,22 @@ def _alive(pid):
         return False
 
 
+def _default_signals():
+    """In the child: the default dispositions of the signals sent.  A background job
+    of a non-interactive shell (``pytest ... &``, ``nohup``) inherits SIGINT (and
+    SIGHUP) as ignored, and Python then never raises KeyboardInterrupt; a user's
+    command starts with the defaults."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _interrupt(argv, cwd, sig, when):
     """Start the command, send ``sig`` at ``when`` ('start': during start-up;
     'writing': once a temporary output file exists), and return (result, the
     children it had)."""
     proc = subprocess.Popen([sys.executable, "-m", "scenesim.cli", *argv], cwd=cwd,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_signals)
     before = set(os.listdir(cwd))
     children = set()
     t0 = time.monotonic()
