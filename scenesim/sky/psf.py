@@ -111,7 +111,6 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from astropy.io import fits
 from astropy.table import Table
 from scipy.special import erf, j0, j1
 
