@@ -46,7 +46,7 @@ from scenesim.bench.process import load_average, peak_rss_self, run_process, tai
 from scenesim.bench.workloads import OPTION_CASES, PREPARE, WORKLOADS
 
 __all__ = ["WORKLOADS", "OPTION_CASES", "PEER_WORKLOADS", "main", "floor_seconds",
-           "floor_counts", "limit_seconds", "run_case"]
+           "floor_counts", "limit_seconds", "run_case", "write_report"]
 
 #: Workloads of ``scenesim bench peers``: those with a peer.
 PEER_WORKLOADS = ("noise", "roman", "fit")
@@ -187,22 +187,25 @@ def _markdown(rows):
 
 def _peer_markdown(rows):
     """Process against process: each peer beside the scenesim case of the same input."""
-    head = ("| workload | case | scenesim process s | scenesim peak RSS MB | peer | "
-            "peer process s | peer in-process s | peer peak RSS MB | time: peer / "
-            "scenesim | memory: peer / scenesim | load before / after | notes |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    head = ("| workload | case | scenesim process s | scenesim CPU s | scenesim peak RSS "
+            "MB | peer | peer process s | peer CPU s | peer in-process s | peer peak RSS "
+            "MB | time: peer / scenesim | CPU: peer / scenesim | memory: peer / scenesim "
+            "| load before / after | notes |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
         for p in r.get("peers", ()):
             pre = (f"| {r['workload']} | {r['case']} | {r['process_wall']:.2f} | "
-                   f"{r['peak_rss_mb']:.0f} | {p['label']}")
+                   f"{r['process_cpu']:.2f} | {r['peak_rss_mb']:.0f} | {p['label']}")
             if p["status"] != "measured":
-                lines.append(f"{pre} | {NOT_MEASURED} | - | - | - | - | "
+                lines.append(f"{pre} | {NOT_MEASURED} | - | - | - | - | - | - | "
                              f"{_load(p.get('load_before'))} | {p['reason']} |")
                 continue
             lines.append(
-                f"{pre} {p['version']} | {p['wall']:.2f} | {p['inprocess']:.2f} | "
+                f"{pre} {p['version']} | {p['wall']:.2f} | {p['cpu']:.2f} | "
+                f"{p['inprocess']:.2f} | "
                 f"{p['peak_rss_mb']:.0f} | {p['wall'] / r['process_wall']:.1f} | "
+                f"{p['cpu'] / r['process_cpu']:.1f} | "
                 f"{p['peak_rss_mb'] / r['peak_rss_mb']:.1f} | "
                 f"{_load(p['load_before'])} / {_load(p['load_after'])} | "
                 f"{p['detail']}; in-process scenesim {r['wall']:.2f} s, peer "
@@ -362,10 +365,17 @@ def _versus_exact(row, arrays, exact):
 
 
 def _write(rows, out_dir, meta):
+    """Write ``bench.json`` (with the end time and load), ``bench.md`` and the plot."""
     meta = dict(meta, load_average_end=load_average(),
                 end=time.strftime("%Y-%m-%d %H:%M:%S"))
     with open(os.path.join(out_dir, "bench.json"), "w") as f:
         json.dump(dict(meta=meta, rows=rows), f, indent=1)
+    write_report(rows, out_dir, meta)
+
+
+def write_report(rows, out_dir, meta):
+    """Write ``bench.md`` (and ``bench.png``) from the rows and metadata of a run, as
+    ``bench.json`` holds them (nothing is measured here)."""
     peer_table = _peer_markdown(rows)
     with open(os.path.join(out_dir, "bench.md"), "w") as f:
         f.write(f"Benchmarks ({meta['date']} - {meta['end']}, {meta['threads']} threads, "

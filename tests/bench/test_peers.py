@@ -95,7 +95,7 @@ def test_quick_command_prints_no_peer_ratio_without_peers(tmp_path):
     assert [p["status"] for p in plan] == [peers.NOT_MEASURED]
     row = dict(data["rows"][0], workload="fit", case="512x512 ols", peers=plan)
     (line,) = [ln for ln in bench._peer_markdown([row]).splitlines() if "stcal" in ln]
-    cells = [c.strip() for c in line.split("|")[5:11]]
+    cells = [c.strip() for c in line.split("|")[6:14]]
     assert cells[1] == peers.NOT_MEASURED and set(cells[2:]) == {"-"}
 
 
