@@ -276,9 +276,20 @@ class Readout:
                 f"set or both None, got nframes={self.nframes!r}, "
                 f"groupgap={self.groupgap!r}")
         if self.nframes is not None:
-            object.__setattr__(self, "nframes", check_int("nframes", self.nframes, minimum=1))
+            # bounded before the pattern's read lists are built (a header's
+            # NFRAMES = 2**62 must not allocate them)
+            object.__setattr__(self, "nframes", check_int("nframes", self.nframes,
+                                                          minimum=1, maximum=MAX_READS))
             object.__setattr__(self, "groupgap",
-                               check_int("groupgap", self.groupgap, minimum=0))
+                               check_int("groupgap", self.groupgap, minimum=0,
+                                         maximum=MAX_READS))
+            last = self.nskip + len(res) * (self.nframes + self.groupgap)
+            if last > MAX_READS + self.groupgap:
+                raise ParameterError(
+                    f"the MULTIACCUM pattern of nframes={self.nframes}, "
+                    f"groupgap={self.groupgap}, nskip={self.nskip} and {len(res)} groups "
+                    f"needs reads up to {last - self.groupgap - 1}; at most "
+                    f"{MAX_READS} reads per integration")
             expected = _multiaccum_reads(self.nframes, len(res), self.groupgap,
                                          self.nskip)
             if res != expected:
