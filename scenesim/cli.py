@@ -23,6 +23,7 @@ removes its temporary files, prints one line and exits with 128 + the signal num
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 
@@ -182,12 +183,16 @@ def _raise_interrupted(signum, frame):
 
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
+    # First thing: a SIGTERM or SIGHUP from now on ends the command in one line.
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _raise_interrupted)
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:2] == ["noise", "calibrate"]:       # the same command, under 'noise'
         argv = argv[1:]
-    args = _parser().parse_args(argv)
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, _raise_interrupted)
+    try:
+        args = _parser().parse_args(argv)
+    except KeyboardInterrupt as exc:
+        return _interrupted("", exc)
     try:
         # The ~0.7 s of imports run with the interrupt signals blocked: one that
         # arrives then is delivered when they are done (an interrupt inside the
@@ -206,10 +211,28 @@ def main(argv=None):
         print(f"scenesim {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", signal.SIGINT)
-        print(f"scenesim {args.command}: interrupted ({signal.Signals(signum).name}); "
-              f"no partial output was left", file=sys.stderr)
-        return 128 + int(signum)
+        return _interrupted(f" {args.command}", exc)
+    except MemoryError:
+        # Reached only past the size check (scenesim.budget), e.g. with --force or
+        # when other processes took the memory; the temporary files are already gone.
+        print(f"scenesim {args.command}: error: out of memory; no partial output was "
+              f"left (see the size estimate: run without --force, or on a smaller "
+              f"array)", file=sys.stderr)
+        return 1
+    except BrokenPipeError:
+        # stdout closed early (``scenesim ... | head``): not an error of the command.
+        # Point stdout at /dev/null so that Python's exit flush does not fail again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 128 + int(signal.SIGPIPE)
+
+
+def _interrupted(command, exc):
+    """The one line of an interrupted command; its exit status (128 + signal)."""
+    signum = getattr(exc, "signum", signal.SIGINT)
+    print(f"scenesim{command}: interrupted ({signal.Signals(signum).name}); "
+          f"no partial output was left", file=sys.stderr)
+    return 128 + int(signum)
 
 
 if __name__ == "__main__":
