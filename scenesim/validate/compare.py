@@ -118,7 +118,11 @@ class Report:
                         for name, fmt in cols)
         lines = ["Slopes vs truth per true-rate bin (e-/s)", head]
         for row in self.rows:
-            lines.append(" ".join(fmt.format(row[name]) for name, fmt in cols))
+            # a statistic a bin cannot give (no pixel, or one) prints '-', not nan
+            lines.append(" ".join(
+                fmt.format(row[name]) if not _undefined(row[name]) else
+                f"{'-':>{len(fmt.format(1.0 if 'd' not in fmt else 1))}}"
+                for name, fmt in cols))
         lines += ["What each column compares (r = fit - truth):",
                   "  bias_rep, chi2_rep: mean r/sigma and r^2/sigma^2 with the errors the "
                   "fit reported (0 and 1 if right)",
@@ -135,7 +139,12 @@ class Report:
                   "chi2_fit: the fit's own chi2",
                   "  saturated pixels are judged on their usable ramp (before SATGROUP)"]
         j = self.jumps
-        if j:
+        if j and not j["n_hit"]:
+            lines += ["", f"Jumps: no pixel was hit above the threshold "
+                      f"({j['threshold_e']:.3g} e- at rate 0): completeness not measured; "
+                      f"false-positive rate {j['false_positive']:.3g} of {j['n_clean']} "
+                      f"clean pixels"]
+        elif j:
             rule = j.get("threshold_rule", "read noise")
             lines += ["", f"Jumps (hit: CR charge > 10 sigma of a two-read difference "
                       f"({rule}; {j['threshold_e']:.3g} e- at rate 0) inside a ramp): "
@@ -588,3 +597,8 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
             raise
         raise FileFormatError(f"slope file {fit_path!r} and truth file "
                               f"{truth_path!r}: {exc}") from exc
+
+
+def _undefined(value):
+    """True for a table value a bin cannot give (NaN)."""
+    return isinstance(value, (float, np.floating)) and value != value
