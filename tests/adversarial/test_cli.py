@@ -234,8 +234,26 @@ def _default_signals():
         signal.signal(sig, signal.SIG_DFL)
 
 
+def _catches(pid, sig):
+    """True once process ``pid`` has a handler for ``sig`` (``SigCgt`` of
+    /proc/PID/status).  ``scenesim.cli.main`` installs its SIGTERM handler first:
+    'start' means from then on, with the command module's imports (signals blocked)
+    still ahead.  Earlier, while the interpreter starts and imports scenesim.cli, no
+    scenesim code runs yet: SIGTERM takes its default action (exit, nothing
+    written) and SIGINT Python's KeyboardInterrupt."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("SigCgt:"):
+                    return bool(int(line.split()[1], 16) >> (int(sig) - 1) & 1)
+    except OSError:
+        pass
+    return False
+
+
 def _interrupt(argv, cwd, sig, when):
-    """Start the command, send ``sig`` at ``when`` ('start': during start-up;
+    """Start the command, send ``sig`` at ``when`` ('start': during start-up, once
+    the command has its handler (:func:`_catches`);
     'writing': once a temporary output file exists), and return (result, the
     children it had)."""
     proc = subprocess.Popen([sys.executable, "-m", "scenesim.cli", *argv], cwd=cwd,
@@ -247,7 +265,7 @@ def _interrupt(argv, cwd, sig, when):
     while time.monotonic() - t0 < 60:
         children |= _children(proc.pid)
         new = set(os.listdir(cwd)) - before
-        if when == "start" and time.monotonic() - t0 > 0.2:
+        if when == "start" and _catches(proc.pid, signal.SIGTERM):
             break
         if when == "writing" and any(n.startswith(".") for n in new):
             time.sleep(0.3)
