@@ -62,10 +62,13 @@ differences; docs/NOISE_CALIBRATION.md).
 The reset level is fitted from the mean of each integration's reads, ``M``:
 
 * ``ktc``: the per-pixel variance of ``M`` over integrations (each pixel's value
-  minus its row and output's mean, which removes pedestal and 1/f banding), minus the
-  variance of the read noise in ``M``, which ``(mean of the even reads - mean of the
-  odd reads) / 2`` estimates without any reset level; divided by ``1 - 1/m`` for the
-  row mean over ``m`` pixels.  Its uncertainty is the scatter over pixels.
+  minus its row and output's mean, which removes pedestal and 1/f banding, and minus
+  the row's projection on the template, which removes the picture frame's drift),
+  minus the variance of the read noise in ``M``, which ``(mean of the even reads -
+  mean of the odd reads) / 2`` estimates without any reset level; divided by the
+  fraction ``1 - 1/m - h`` of an iid variance those projections keep (``m`` pixels
+  in the row and output, ``h`` the template's leverage).  Its uncertainty is the
+  scatter over pixels.
   **Not identifiable from one integration** (kTC and the fixed bias pattern are then
   one image): an upper bound is given.
 * ``bias_amp``: regression of the integration-averaged ``M`` on the template of
@@ -698,25 +701,41 @@ def _reset_level(ramps, lay, template):
         offsets.append(M.mean())
     means, noises = np.array(means), np.array(noises)
     n_int = len(means)
-    m_eff = m_count[lab]
-    factor = 1.0 - 1.0 / m_eff                     # row/output mean removed
-    Md = np.array([demean(m) for m in means])
-    Nd = np.array([demean(v) for v in noises])
+    # the picture frame adds pca0 * template * (its row series averaged over the
+    # reads), different in every integration: within each row it is proportional
+    # to the template, so it is projected out of every integration's map (with the
+    # row/output means that remove pedestal and 1/f banding); for iid pixels the
+    # residual keeps the fraction 1 - 1/m - h of their variance, h = T_p^2 / sum
+    # over the row of T^2 (the leverage of the template column)
+    T = template[regular].astype(np.float64)
+    Td = demean(T)
+    rows_of = np.broadcast_to(np.arange(det.ny)[:, None], det.shape)[regular]
+    stt = np.bincount(rows_of, weights=Td ** 2, minlength=det.ny)
+    ok = stt > 1e-12 * max(float(stt.max(initial=0.0)), 1e-300)   # rows with a pattern
+    inv = np.where(ok, 1.0 / np.where(ok, stt, 1.0), 0.0)
+
+    def clean(v):
+        v = demean(v)
+        coef = np.bincount(rows_of, weights=Td * v, minlength=det.ny) * inv
+        return v - coef[rows_of] * Td
+
+    factor = 1.0 - 1.0 / m_count[lab] - Td ** 2 * inv[rows_of]
+    Md = np.array([clean(m) for m in means])
+    Nd = np.array([clean(v) for v in noises])
     est = {}
+    use = factor > 0.5            # pixels whose variance the projections mostly keep
     if n_int >= 2:
-        q = (Md.var(axis=0, ddof=1) - (Nd ** 2).mean(axis=0)) / factor
+        q = (Md.var(axis=0, ddof=1) - (Nd ** 2).mean(axis=0))[use] / factor[use]
         k2 = q.mean()
         s2 = q.std(ddof=1) / math.sqrt(q.size)
         est["ktc"] = _amp("ktc", k2, s2 ** 2)
     else:
-        q = (Md[0] ** 2 - Nd[0] ** 2) / factor
+        q = (Md[0] ** 2 - Nd[0] ** 2)[use] / factor[use]
         bound = math.sqrt(max(q.mean() + _DETECT * q.std(ddof=1) / math.sqrt(q.size), 0.0))
         est["ktc"] = Estimate("ktc", None, None, bound,
                               "not identifiable from one integration: kTC and the fixed "
                               "bias pattern are one image; bound = their total rms")
     # bias pattern: regression on the template within row/output groups
-    T = template[regular].astype(np.float64)
-    Td = demean(T)
     Mbar = means.mean(axis=0)
     Mbd = demean(Mbar)
     sxx = float(Td @ Td)
@@ -724,7 +743,6 @@ def _reset_level(ramps, lay, template):
         b = float(Td @ Mbd) / sxx
         resid = Mbd - b * Td
         s_b = math.sqrt(float(resid @ resid) / (resid.size - nlab - 1) / sxx)
-        rows_of = np.broadcast_to(np.arange(det.ny)[:, None], det.shape)[regular]
         row_weights = np.bincount(rows_of, weights=Td ** 2, minlength=det.ny) / sxx
         est["bias_amp"] = Estimate("bias_amp", b, s_b, None,
                                    "regression on the template" if b > 0 else
