@@ -86,6 +86,12 @@ class ForkedProducer:
             self._slots.append(arrays)
         ready_r, ready_w = os.pipe()
         free_r, free_w = os.pipe()
+        # The interrupt signals stay blocked across fork: one that lands while fork
+        # runs its at-fork handlers would be raised inside them, printed as
+        # "Exception ignored" and lost.  Blocked, it waits (pending in the parent
+        # only) and is raised once the producer is complete, which close() stops.
+        interrupts = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, interrupts)
         pid = os.fork()
         if pid == 0:                                    # child: never returns
             code = 1
@@ -95,8 +101,9 @@ class ForkedProducer:
                 # the parent alone handles interrupts and stops the child
                 # (close()); the child also ends when the parent dies (EOF on the
                 # free pipe, EPIPE on the ready pipe)
-                for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                for sig in interrupts:
                     signal.signal(sig, signal.SIG_IGN)
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
                 for j in range(self.count):
                     if j >= self.depth and os.read(free_r, 1) != b"\x01":
                         break                           # parent gone
@@ -114,6 +121,11 @@ class ForkedProducer:
         os.close(free_r)
         self._pid, self._ready, self._free = pid, ready_r, free_w
         self._next = 0
+        try:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)   # pending ones: now
+        except BaseException:
+            self.close()
+            raise
 
     @property
     def pid(self):
@@ -149,7 +161,12 @@ class ForkedProducer:
     def release(self, j):
         """The parent is done with result ``j``: its slot may be reused."""
         if j + self.depth < self.count:
-            os.write(self._free, b"\x01")
+            try:
+                os.write(self._free, b"\x01")
+            except BrokenPipeError:
+                # the child is gone: the next get() says how (its error, or that
+                # it ended without a result)
+                pass
 
     def close(self):
         """Stop the child (if still running), reap it and close the pipes."""
