@@ -133,6 +133,15 @@ def test_killed_worker_is_retried_without_partial_files(reference, tmp_path):
         assert _science(t.path) == _science(r.path)
 
 
+def _default_signals():
+    """In the child: the default dispositions of the signals sent.  A background job
+    of a non-interactive shell (``pytest ... &``, ``nohup``) inherits SIGINT as
+    ignored, and Python then never raises KeyboardInterrupt; a user's command starts
+    with the defaults."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def _wait_for(predicate, timeout):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -148,7 +157,8 @@ def test_interrupt_then_resume_recomputes_nothing_finished(reference, tmp_path):
     n = 24
     cmd = [sys.executable, "-m", "scenesim.cli", "batch", str(scene), "-n", str(n),
            "--out", str(out), "--workers", "2", "-q"]
-    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE,
+    proc = subprocess.Popen(cmd, start_new_session=True, preexec_fn=_default_signals,
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         assert _wait_for(lambda: len(glob.glob(str(out / "r*.json"))) >= 3, 120)
