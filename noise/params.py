@@ -47,10 +47,14 @@ that is known:
 * :meth:`NoiseParams.check_adc` (a scene, which knows the gain and the ADC bits): no
   amplitude that reaches every pixel (all but ``rtn_amp``) may exceed
   :data:`ADC_CLIP_FACTOR` = 100 times the ADC range in electrons, ``gain * (2**bits -
-  1)``.  Above it every pixel clips at the ADC: a constant ``bias_offset`` beyond it
-  puts every pixel at code 0 or the top code, and at most ``0.4 / 100`` = 0.4 % of a
-  Gaussian component's values (density at most ``1 / (sqrt(2 pi) sigma)``) fall inside
-  the range.
+  1)``.  Above it at most ``0.4 / 100`` = 0.4 % of a Gaussian component's values
+  (density at most ``1 / (sqrt(2 pi) sigma)``) fall inside the range.  The constant
+  ``bias_offset`` (the mean reset level) has a tighter bound: with ``s`` the rms
+  spread of the other components around it (the root sum of squares of the
+  amplitudes, the reference pixels' white noise included), ``bias_offset - 5 s`` above
+  the range puts every pixel above the top code (charge only adds), and
+  ``bias_offset + 5 s`` below 0 puts every pixel without charge at code 0
+  (:data:`BIAS_SPREAD_SIGMA`).
 
 The 1/f synthesis bounds two options: ``f_min >= 1e-20`` Hz (:data:`MIN_F_MIN`; a
 flat PSD below a period of 3e12 years; lower values need hundreds of filter bands and
@@ -70,7 +74,7 @@ from noise.validate import check_float, describe, is_real, is_sequence
 from noise.errors import ParameterError, ParameterTypeError
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE", "MAX_AMPLITUDE",
-           "ADC_CLIP_FACTOR", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
+           "ADC_CLIP_FACTOR", "BIAS_SPREAD_SIGMA", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
 
 #: Largest amplitude (and ``|bias_offset|``, ``rd_noise * ref_ratio``), e-: float32
 #: frames stay finite (module notes).
@@ -78,6 +82,9 @@ MAX_AMPLITUDE = 1e30
 #: Amplitudes above this multiple of the ADC range (e-) clip every pixel at the ADC
 #: (module notes, :meth:`NoiseParams.check_adc`).
 ADC_CLIP_FACTOR = 100.0
+#: ``bias_offset`` more than this many rms spreads of the other components beyond
+#: the ADC range (above its top or below 0) clips every (dark) pixel (module notes).
+BIAS_SPREAD_SIGMA = 5.0
 #: Smallest ``f_min``, Hz (module notes).
 MIN_F_MIN = 1e-20
 #: ``pink_spectrum`` PSD values lie in ``[1 / PSD_RANGE, PSD_RANGE]`` (module notes).
@@ -282,6 +289,34 @@ class NoiseParams:
                     f"at the ADC: its size must be <= {ADC_CLIP_FACTOR:g} x the ADC range "
                     f"('gain' {float(gain):g} e-/DN x {2 ** int(adc_bits) - 1} DN of "
                     f"'adc_bits' {int(adc_bits)} = {adc_range:g} e-), i.e. <= {limit:g} e-")
+        spread = self.spread()
+        lo = self.bias_offset - BIAS_SPREAD_SIGMA * spread
+        hi = self.bias_offset + BIAS_SPREAD_SIGMA * spread
+        if lo > adc_range or hi < 0:
+            where = "above the ADC's top code" if lo > adc_range else "below code 0"
+            raise ParameterError(
+                f"'bias_offset' = {self.bias_offset!r} e- would put every pixel {where}: "
+                f"with the other components' rms spread of {spread:.4g} e- it must lie "
+                f"within {BIAS_SPREAD_SIGMA:g} x that spread of the ADC range [0, "
+                f"{adc_range:g}] e- ('gain' {float(gain):g} e-/DN x "
+                f"{2 ** int(adc_bits) - 1} DN of 'adc_bits' {int(adc_bits)}), i.e. in "
+                f"[{-BIAS_SPREAD_SIGMA * spread:.6g}, "
+                f"{adc_range + BIAS_SPREAD_SIGMA * spread:.6g}] e-")
+
+    def spread(self):
+        """Rms spread (e-) of the components around the mean reset level
+        ``bias_offset``: the root sum of squares of every amplitude that reaches
+        every pixel (the largest per-output value; the white noise at the larger of
+        the regular and reference-pixel levels), ``rtn_amp`` left out."""
+        total = 0.0
+        for f in dataclasses.fields(self):
+            if f.name in _OPTIONS or f.name in ("rtn_amp", "bias_offset"):
+                continue
+            value = max(abs(v) for v in self._values(f.name))
+            if f.name == "rd_noise":
+                value *= max(1.0, float(self.ref_ratio))
+            total += float(value) ** 2
+        return math.sqrt(total)
 
     def per_output(self, name, n_out):
         """Amplitude ``name`` as an array of ``n_out`` values (e-)."""

@@ -15,7 +15,9 @@ given to each way in: a scene mapping (:func:`parse_scene`), a scene file
 (:func:`load_scene`), ``Scene.replace`` in the library, :func:`noise.write_noise_fits`
 with ``unit='DN'``, and the commands ``scenesim run`` and ``scenesim noise``.  Each
 must refuse it before any work in one line naming the key (and its table, for a
-scene), and accept the value at the limit.
+scene), and accept the value at the limit.  The constant ``bias_offset`` has the
+tighter bound of the mean level (5 rms spreads of the other components beyond the
+range, :data:`noise.params.BIAS_SPREAD_SIGMA`), tested on both sides.
 """
 
 import dataclasses
@@ -82,14 +84,45 @@ def test_scene_mapping_and_file_refuse_it(key, cls, tmp_path):
     assert str(tmp_path / "s.toml") in str(info.value)
 
 
-@pytest.mark.parametrize("key", AMPLITUDES)
+@pytest.mark.parametrize("key", [k for k in AMPLITUDES if k != "bias_offset"])
 def test_the_limit_itself_is_accepted(key):
     scene = parse_scene(_mapping(key, LIMIT))
     assert getattr(scene.noise, key) == LIMIT
-    if key == "bias_offset":
-        assert parse_scene(_mapping(key, -LIMIT)).noise.bias_offset == -LIMIT
-        with pytest.raises(ParameterError, match="'bias_offset'"):
-            parse_scene(_mapping(key, -VALUES["adc"]))
+
+
+def _nirspec_spread():
+    """Rms spread (e-) of the nirspec preset's components around the bias, from the
+    preset's amplitudes (root sum of squares; white noise at the larger of the
+    regular and reference-pixel levels)."""
+    p = noise.NIRSPEC_DEFAULTS
+    amps = [max(p.rd_noise if isinstance(p.rd_noise, tuple) else (p.rd_noise,))
+            * max(1.0, p.ref_ratio)]
+    for name in ("c_pink", "u_pink", "acn", "pca0", "pedestal", "ktc", "bias_amp"):
+        v = getattr(p, name)
+        amps.append(max(v) if isinstance(v, tuple) else v)
+    return sum(a * a for a in amps) ** 0.5
+
+
+@pytest.mark.parametrize("side", ["top", "bottom"])
+def test_a_bias_that_puts_every_pixel_outside_the_adc_is_refused(side):
+    # The constant reset level clips every pixel once it lies more than 5 rms spreads
+    # s of the other components beyond the ADC range [0, gain (2**bits - 1)] e-:
+    # above the top code (charge only adds), or below 0 for every pixel without
+    # charge.  Before, only 100 x the range was refused (`scenesim noise --unit DN
+    # --gain 0.001` wrote every pixel at 65535).  Just inside is accepted, just
+    # outside refused, in one line naming the key.
+    s = _nirspec_spread()
+    adc_range = GAIN * (2 ** BITS - 1)
+    edge = adc_range + 5 * s if side == "top" else -5 * s
+    step = 1e-6 * max(abs(edge), 1.0)
+    inside = edge - step if side == "top" else edge + step
+    outside = edge + step if side == "top" else edge - step
+    assert parse_scene(_mapping("bias_offset", inside)).noise.bias_offset == inside
+    with pytest.raises(ParameterError) as info:
+        parse_scene(_mapping("bias_offset", outside))
+    _check(str(info.value), "bias_offset")
+    assert ("above the ADC's top code" if side == "top" else "below code 0") in \
+        str(info.value)
 
 
 @pytest.mark.parametrize("key", AMPLITUDES)
@@ -98,8 +131,10 @@ def test_library_scene_replace_refuses_it(key):
     with pytest.raises(ParameterError) as info:
         scene.replace(noise=scene.noise.replace(**{key: VALUES["adc"]}))
     _check(str(info.value), key)
-    # a smaller ADC range under the same amplitudes: the gain named too
-    scene = parse_scene(_mapping(key, LIMIT))
+    # a smaller ADC range under the same amplitudes: the gain named too (the bias
+    # at the top code: 8190 e- - 5 x ~500 e- of spread is above half the range)
+    start = GAIN * (2 ** BITS - 1) if key == "bias_offset" else LIMIT
+    scene = parse_scene(_mapping(key, start))
     with pytest.raises(ParameterError) as info:
         scene.replace(effects=dataclasses.replace(scene.effects, gain=GAIN / 2))
     _check(str(info.value), key)
@@ -119,7 +154,9 @@ def test_write_noise_fits_in_dn_refuses_it(key, tmp_path):
     assert os.listdir(tmp_path) == []
     # in electrons (float32) nothing clips; at the limit the DN file is written
     noise.write_noise_fits(tmp_path / "e.fits", gen, 2, unit="e")
-    at_limit = noise.NoiseGenerator(det, noise.ZERO_NOISE.replace(**{key: limit16}),
+    # (the bias alone, with nothing around it, may reach the top code itself)
+    at = GAIN * 65535 if key == "bias_offset" else limit16
+    at_limit = noise.NoiseGenerator(det, noise.ZERO_NOISE.replace(**{key: at}),
                                     rng=1, threads=1)
     noise.write_noise_fits(tmp_path / "dn.fits", at_limit, 2, unit="DN", gain=GAIN)
     assert sorted(os.listdir(tmp_path)) == ["dn.fits", "e.fits"]
