@@ -103,7 +103,12 @@ Outputs (bytes): exposure ``2 N`` (none with ``ramp = false``); truth ``8 P + 4 
 P + 33 * 9 E`` (``RATE`` and ``RATE_IPC`` float32, ``SATREAD`` and ``SATGROUP`` int16,
 the ``CRS`` table) ``+ 8 N`` per saved cube (the cube in the file and its temporary
 raw copy); fit file ``32 P + 8 nints P`` (eight maps and two per-integration cubes);
-plus 64 kB of headers and tables per file.
+plus 64 kB of headers and tables per file.  The pipeline products of ``scenesim run``
+(:data:`PRODUCTS`): the JWST uncal ``3 N + 4 P + 2 nints P`` (uint16 ``SCI``, uint8
+``GROUPDQ``, uint32 ``PIXELDQ``, uint16 ``ZEROFRAME``); the Roman L1 ``2 N`` plus the
+amp33 channel, ``2 x 128 ny`` per resultant; the reference files ``4 P (8 + 7)`` (the
+2-D maps and 7 linearity planes, float32) ``+ 4 ngroups P`` (the dark cube), plus
+their headers.  A ``ZEROFRAME`` re-run happens after the run and needs no more memory.
 """
 
 import contextlib
@@ -356,7 +361,32 @@ def _noise_parts(det, p):
              "naxis2)", template)]
 
 
-def estimate_budget(scene, *, options=None):
+#: Pipeline products of ``scenesim run`` counted in the output estimate.
+PRODUCTS = ("uncal", "l1", "reffiles")
+#: Coefficient planes of a linearity reference
+#: (:data:`scenesim.pipelines.reffiles.LINEARITY_DEGREE` + 1).
+_LINEARITY_PLANES = 7
+
+
+def _product_outputs(path, products, P, N, ny, ngroups, nints):
+    """The pipeline products' outputs (label, bytes), module notes."""
+    stem = path[:-len(".fits.gz")] if path.endswith(".fits.gz") else \
+        os.path.splitext(path)[0]
+    out = []
+    if "uncal" in products:
+        out.append((f"the JWST uncal {stem + '_uncal.fits'!r} (--uncal)",
+                    3 * N + 4 * P + 2 * nints * P + _HEADERS))
+    if "l1" in products:
+        out.append((f"the Roman L1 {stem + '_l1.asdf'!r} (--l1)",
+                    2 * N + 2 * 128 * ny * ngroups * nints + _HEADERS))
+    if "reffiles" in products:
+        out.append((f"the reference files in {stem + '_refs'!r} (--reffiles)",
+                    4 * P * (8 + _LINEARITY_PLANES) + 4 * ngroups * P
+                    + 10 * _HEADERS))
+    return out
+
+
+def estimate_budget(scene, *, options=None, products=()):
     """The :class:`Budget` of running ``scene`` (module notes), without checking it.
 
     Parameters
@@ -367,8 +397,12 @@ def estimate_budget(scene, *, options=None):
     options : scenesim.engine.EngineOptions, optional
         The engine options of the run (the '2d' shortcut and ``shot_noise = false``
         keep the charge in float64, which the estimate already assumes).
+    products : sequence of {'uncal', 'l1', 'reffiles'}
+        Pipeline products the command writes after the run (``--uncal``, ``--l1``,
+        ``--reffiles``), counted in the output (module notes).
     """
     check_instance("scene", scene, Scene, "a scenesim.scene.Scene")
+    products = tuple(check_choice("products", p, PRODUCTS) for p in products)
     check_instance("options", options, EngineOptions, "a scenesim.engine.EngineOptions",
                    allow_none=True)
     det, src, eff, out = scene.detector, scene.sources, scene.effects, scene.output
@@ -428,6 +462,7 @@ def estimate_budget(scene, *, options=None):
     if out.fit:
         outputs.append((f"the fit file {derived_path(path, '_' + out.fit)!r}",
                         32 * P + 8 * nints * P + _HEADERS))
+    outputs += _product_outputs(path, products, P, N, det.ny, ngroups, nints)
     output = math.fsum(b for _, b in outputs)
     return Budget(memory=memory, output=output,
                   memory_parts=tuple((k, float(v)) for k, v in parts if v),
@@ -436,7 +471,7 @@ def estimate_budget(scene, *, options=None):
                   output_dir=os.path.dirname(os.path.abspath(path)))
 
 
-def check_budget(scene, *, force=False, options=None):
+def check_budget(scene, *, force=False, options=None, products=()):
     """Estimate what running ``scene`` needs and refuse it if the machine cannot.
 
     Parameters
@@ -447,6 +482,8 @@ def check_budget(scene, *, force=False, options=None):
         Do not refuse (the command's ``--force``); the returned budget's
         :meth:`~Budget.warning` then says which limit is exceeded.
     options : scenesim.engine.EngineOptions, optional
+    products : sequence of {'uncal', 'l1', 'reffiles'}
+        As in :func:`estimate_budget`.
 
     Returns
     -------
@@ -462,7 +499,7 @@ def check_budget(scene, *, force=False, options=None):
         and ``--force``.
     """
     force = check_bool("force", force)
-    budget = estimate_budget(scene, options=options)
+    budget = estimate_budget(scene, options=options, products=products)
     if not force:
         budget.check()
     return budget

@@ -83,7 +83,8 @@ def run_command(args):
         res = run_scene(scene, output=args.output, seed=args.seed, options=options,
                         progress=not args.quiet, fit=args.fit, refpix=args.refpix,
                         compare=True if args.compare else None, plots=args.plots,
-                        overwrite=args.overwrite, force=args.force)
+                        overwrite=args.overwrite, force=args.force,
+                        products=tuple(k for k, v in products.items() if v))
     written = write_run_products(scene if args.seed is None else scene.replace(
         seed=args.seed), res, options=options, overwrite=args.overwrite, **products)
     if res.cleaned and not args.quiet:

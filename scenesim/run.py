@@ -202,7 +202,7 @@ def _progress(nreads, enabled):
 
 def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progress=True,
               fit=None, refpix=None, compare=None, plots=None, overwrite=False,
-              force=False):
+              force=False, products=()):
     """Run ``scene``: simulate, write the exposure and truth, then fit and compare.
 
     Parameters
@@ -227,6 +227,9 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
         before any work); the limit exceeded is then a
         :class:`~scenesim.budget.BudgetWarning`, as is a run that uses more than half
         of either.
+    products : sequence of {'uncal', 'l1', 'reffiles'}
+        Pipeline products the caller writes after the run (``scenesim run --uncal
+        --l1 --reffiles``): counted in the size check's output estimate only.
 
     Returns
     -------
@@ -246,7 +249,7 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     scene = scene.ensure_seed().replace(output=out_cfg)
     exp_path, truth_path, fit_path = _output_paths(scene, out_cfg, overwrite=overwrite,
                                                    plots=plots)
-    check_budget(scene, force=force, options=options).warn()
+    check_budget(scene, force=force, options=options, products=products).warn()
     cleaned = clean_stale_temps([exp_path, truth_path, fit_path])
     engine, rendered = build_engine(scene, options=options)
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf) + \

@@ -308,3 +308,25 @@ def test_one_line_warnings_prints_budget_warnings_as_one_line(capsys):
         warnings.simplefilter("always")
         warnings.warn("the run needs a lot", BudgetWarning)
     assert capsys.readouterr().err == "scenesim run: warning: the run needs a lot\n"
+
+
+def test_pipeline_products_are_counted_by_hand():
+    # The products `scenesim run --uncal --l1 --reffiles` writes after the run (issue
+    # 12: the size check ignored them).  16 x 16 pixels, RAPID x 3, 2 integrations.
+    scene = _scene()
+    base = estimate_budget(scene)
+    b = estimate_budget(scene, products=("uncal", "l1", "reffiles"))
+    P, nints, ngroups, ny = 16 * 16, 2, 3, 16
+    N = nints * ngroups * P
+    # uncal: SCI uint16 2 N, GROUPDQ uint8 N, PIXELDQ uint32 4 P, ZEROFRAME 2 nints P
+    uncal = 3 * N + 4 * P + 2 * nints * P + HEADERS
+    # L1: 2 N and the amp33 channel, 128 columns of uint16 per row and resultant
+    l1 = 2 * N + 2 * 128 * ny * ngroups * nints + HEADERS
+    # references: 8 maps and 7 linearity planes (float32), the dark cube, 10 headers
+    refs = 4 * P * 15 + 4 * ngroups * P + 10 * HEADERS
+    assert b.output == base.output + uncal + l1 + refs
+    assert [label.split(" ")[1] for label, _ in b.output_parts][-3:] == \
+        ["JWST", "Roman", "reference"]
+    assert b.memory == base.memory                    # written after the run
+    with pytest.raises(ParameterError, match="'products'"):
+        estimate_budget(scene, products=("fits",))
