@@ -112,6 +112,7 @@ their headers.  A ``ZEROFRAME`` re-run happens after the run and needs no more m
 """
 
 import contextlib
+import dataclasses
 import math
 import os
 import shutil
@@ -131,7 +132,7 @@ from scenesim.engine import EngineOptions
 from scenesim.scene.schema import Scene
 
 __all__ = ["Budget", "BudgetWarning", "estimate_budget", "check_budget",
-           "check_noise_budget", "one_line_warnings", "available_memory", "free_disk",
+           "check_noise_budget", "check_batch_budget", "one_line_warnings", "available_memory", "free_disk",
            "MEMORY_FRACTION", "WARN_FRACTION"]
 
 #: A run is refused when its memory exceeds this fraction of the available memory.
@@ -556,5 +557,64 @@ def check_noise_budget(detector, params, nframes, *, nints=1, unit="e", path,
                     available_memory=available_memory(), free_disk=free_disk(path),
                     output_dir=os.path.dirname(os.path.abspath(path)))
     if not force:
+        budget.check()
+    return budget
+
+
+def check_batch_budget(scenes, *, workers=None, fitters=(), force=False):
+    """Estimate what a batch's remaining tasks need and refuse it if the machine
+    cannot (``scenesim batch``; :func:`check_budget` for one run).
+
+    Parameters
+    ----------
+    scenes : sequence of (Scene, int)
+        Each grid point's validated scene, with the ``[output]`` of its tasks (the
+        output directory), and the number of its tasks left to run.
+    workers : int or None
+        Worker processes of the local cluster, which share this machine's memory:
+        each may run the largest task at once.  None (an existing dask cluster, whose
+        machines are not known here): the memory is not checked.
+    fitters : sequence of str
+        The batch's fitters: each task writes one slope file per fitter (the memory
+        of one fit, as they run one after the other).
+    force : bool
+        Do not refuse; the returned budget's :meth:`~Budget.warning` says which limit
+        is exceeded.
+
+    Returns
+    -------
+    Budget
+        Memory: ``workers`` times the largest task's; output: the sum over the tasks
+        left (their exposures, truth files and slope files, uncompressed).
+    """
+    fitters = tuple(fitters)
+    memory, output, largest, parts, out_dir = 0.0, 0.0, None, [], None
+    for scene, count in scenes:
+        cfg = scene.output
+        one = estimate_budget(scene.replace(output=dataclasses.replace(
+            cfg, fit=fitters[0] if fitters else "")))
+        fit_file = sum(b for label, b in one.output_parts if label.startswith(
+            "the fit file"))
+        per_task = one.output + max(len(fitters) - 1, 0) * fit_file
+        output += count * per_task
+        parts.append((f"{count} tasks of {_size(per_task)} each", count * per_task))
+        if largest is None or one.memory > largest.memory:
+            largest = one
+        out_dir = one.output_dir
+    if largest is None:
+        return None
+    if workers is not None:
+        memory = workers * largest.memory
+        mem_parts = tuple((f"{workers} local workers x {label}", workers * b)
+                          for label, b in largest.memory_parts)
+        avail = available_memory()
+    else:
+        mem_parts, avail = (), None
+    budget = Budget(memory=memory, output=output, memory_parts=mem_parts,
+                    output_parts=tuple(parts),
+                    cosmic_ray_events=largest.cosmic_ray_events,
+                    available_memory=avail, free_disk=free_disk(os.path.join(
+                        out_dir, "x")), output_dir=out_dir)
+    if not check_bool("force", force):
         budget.check()
     return budget

@@ -65,7 +65,8 @@ def batch_command(args):
     res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
                     threads=args.threads, retries=args.retries,
                     connect_timeout=args.connect_timeout,
-                    progress=not args.quiet and sys.stderr.isatty(), log=log)
+                    progress=not args.quiet and sys.stderr.isatty(), log=log,
+                    force=args.force)
     n = len(res.ran)
     rate = f" ({60 * n / res.seconds:.1f} exposures/min)" if n else ""
     log(f"batch: {n} run, {len(res.skipped)} already finished, {len(res.failed)} "

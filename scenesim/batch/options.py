@@ -31,4 +31,7 @@ def add_batch_arguments(p):
                    help="times a failed task is run again (default 2)")
     p.add_argument("--connect-timeout", type=float, default=10.0,
                    help="seconds to wait for the scheduler (default 10)")
+    p.add_argument("--force", action="store_true",
+                   help="run even when the tasks left need more memory (local "
+                        "workers) or disk than this machine has")
     p.add_argument("-q", "--quiet", action="store_true")

@@ -33,6 +33,7 @@ completes the rest.  Only task descriptions (a scene and a seed) and records (a 
 kB) pass through the scheduler.
 """
 
+import collections
 import contextlib
 import dataclasses
 import importlib.util
@@ -47,6 +48,7 @@ from dataclasses import dataclass
 
 from noise.errors import ParameterError, ScenesimError
 from noise.fitsio import TEMP_PATTERN, remove_stale_temps
+from scenesim.budget import check_batch_budget
 from scenesim.batch.manifest import (Manifest, batch_lock, check_same_batch,
                                      load_record, read_manifest)
 from scenesim.batch.pool import pool_reports
@@ -246,7 +248,8 @@ def _pool(plan, records):
 
 
 def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
-              connect_timeout=10.0, progress=True, log=None, on_result=None):
+              connect_timeout=10.0, progress=True, log=None, on_result=None,
+              force=False):
     """Run the tasks of ``plan`` that are not finished, on dask; pool the results.
 
     Parameters
@@ -269,6 +272,11 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
         Called with each line of news (workers, dashboard link, tasks to run).
     on_result : callable, optional
         Called with ``(task, record)`` when a task finishes (in this process).
+    force : bool
+        Run even when the tasks left need more memory (local cluster: each worker
+        may hold the largest task) or disk than this machine has
+        (:func:`scenesim.budget.check_batch_budget`, checked before any cluster
+        starts).
 
     A script that calls this with the default local cluster must guard its entry
     point with ``if __name__ == "__main__":``: the cluster's worker processes are
@@ -319,6 +327,13 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
     # read-only look first: a batch with nothing left to run starts no cluster
     todo = [t for t in tasks if not _finished(plan, load_record(t))] \
         if os.path.isdir(plan.out_dir) else tasks
+    counts = collections.Counter(t.point for t in todo)
+    first = {}
+    for t in todo:
+        first.setdefault(t.point, t.scene)
+    check_batch_budget([(first[k], n) for k, n in counts.items()],
+                       workers=workers if target is None else None,
+                       fitters=plan.fitters, force=force)
     with contextlib.ExitStack() as stack:
         client = cluster = None
         if todo:

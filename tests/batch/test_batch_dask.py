@@ -292,3 +292,26 @@ name = "SCA02"
     # the second detector's read noise is its own
     rdn = [fits.getheader(plan.tasks()[i].path["truth"])["RDNOISE"] for i in (0, 2)]
     assert rdn[1] == 12.0 and rdn[0] != 12.0
+
+
+@pytest.mark.parametrize("limit", ["memory", "disk"])
+def test_a_batch_the_machine_cannot_hold_is_refused_before_any_task(
+        small_scene, tmp_path, monkeypatch, limit):
+    # The size check of `scenesim run`, for a batch: the local workers each hold
+    # the largest task at once, and the tasks left write their files (issue 12:
+    # `scenesim batch` did not check).  Limits patched to 1 MB: refused in one line
+    # naming the override, before any cluster starts or any file is written.
+    import scenesim.budget as budget_module
+    from noise.errors import ParameterError
+    if limit == "memory":
+        monkeypatch.setattr(budget_module, "available_memory", lambda: 1e6)
+    else:
+        monkeypatch.setattr(budget_module, "free_disk", lambda path: 1e6)
+    out = tmp_path / "b"
+    plan = plan_batch(small_scene, out=out, realisations=4)
+    with pytest.raises(ParameterError) as info:
+        run_batch(plan, workers=2, progress=False)
+    msg = str(info.value)
+    assert "\n" not in msg and "--force" in msg
+    assert ("2 local workers" in msg) if limit == "memory" else ("4 tasks" in msg)
+    assert not out.exists()
