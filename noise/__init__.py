@@ -12,7 +12,7 @@ write_noise_fits
     Stream a ramp to FITS (float32 e- or uint16 DN), atomically.
 """
 
-import importlib
+from noise.lazy import lazy_exports
 
 #: Public name -> the module that defines it (imported on first use, so that
 #: ``import noise`` is cheap and the command can install its signal handlers
@@ -51,15 +51,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name):
-    try:
-        module = _EXPORTS[name]
-    except KeyError:
-        raise AttributeError(f"module 'noise' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports('noise', _EXPORTS, globals())

@@ -22,7 +22,7 @@ One subpackage per stage, one implementation of each physical step:
 The noise model lives in the sibling package :mod:`noise`.
 """
 
-import importlib
+from noise.lazy import lazy_exports
 
 #: Public name -> the module that defines it (imported on first use, so that
 #: ``import scenesim`` is cheap and the command can install its signal handlers
@@ -76,15 +76,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name):
-    try:
-        module = _EXPORTS[name]
-    except KeyError:
-        raise AttributeError(f"module 'scenesim' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports('scenesim', _EXPORTS, globals())

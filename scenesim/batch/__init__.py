@@ -21,7 +21,7 @@ dask is an optional dependency (``pip install 'scenesim[batch]'``): this package
 imports without it, and says how to install it when a batch runs.
 """
 
-import importlib
+from noise.lazy import lazy_exports
 
 #: Public name -> the module that defines it (imported on first use: the command
 #: line imports :mod:`scenesim.batch.options` without the batch machinery).
@@ -45,15 +45,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name):
-    try:
-        module = _EXPORTS[name]
-    except KeyError:
-        raise AttributeError(f"module 'scenesim.batch' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports('scenesim.batch', _EXPORTS, globals())

@@ -117,9 +117,16 @@ def floor_seconds(n_normal, n_poisson, lam, threads, *, repeats=3, sampler="nump
 
 def _noise_normals_per_read(det, params):
     """Unavoidable normals of one materialised read of the noise model (no kTC)."""
+    white = det.ny * det.nx if params.enabled("rd_noise") else 0
+    return white + pink_samples_per_read(det, params)
+
+
+def pink_samples_per_read(det, params):
+    """1/f time-line samples of one materialised read (correlated and uncorrelated
+    pink, ACN's two half-rate series, the picture frame's rows)."""
     nout = det.n_out_active
     L = det.frame_samples
-    n = det.ny * det.nx if params.enabled("rd_noise") else 0
+    n = 0
     if params.c_pink > 0:
         n += L
     if params.enabled("u_pink"):

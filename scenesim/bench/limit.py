@@ -29,7 +29,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from noise.errors import ParameterError
-from scenesim.bench.floor import floor_seconds
+from scenesim.bench.floor import floor_seconds, pink_samples_per_read
 
 __all__ = ["pink_samples", "fft_seconds", "write_seconds", "limit_seconds"]
 
@@ -59,18 +59,7 @@ def pink_samples(det, params, n_reads):
     """
     if params is None:
         return 0
-    nout = det.n_out_active
-    L = det.frame_samples
-    n = 0
-    if params.c_pink > 0:
-        n += L
-    if params.enabled("u_pink"):
-        n += int(np.count_nonzero(params.per_output("u_pink", nout) > 0)) * L
-    if params.enabled("acn"):
-        n += int(np.count_nonzero(params.per_output("acn", nout) > 0)) * 2 * (L // 2)
-    if params.pca0 > 0:
-        n += det.ny + det.nfoh
-    return int(n_reads) * n
+    return int(n_reads) * pink_samples_per_read(det, params)
 
 
 def fft_seconds(n_samples, threads, *, nfft=32768, repeats=3):
