@@ -41,6 +41,39 @@ Subarrays
 ``(ny + nfoh) * (nx + nroh) * dt``.  ``stripe``: full-width rows ``y0 .. y0+ny-1`` read
 through all outputs, so a frame is ``(ny + nfoh) * (naxis1 / n_out + nroh) * dt``.
 Reference pixels of a subarray are those of the full array that fall inside it.
+
+Interleaved reference samples (IRS2) and a reference output
+-------------------------------------------------------------------------
+NIRSpec's IRS2 mode (Rauscher et al. 2017, PASP 129, 105003; the jwst
+pipeline's ``jwst.refpix.irs2_subtract_reference``) makes every output step out to
+reference pixels while it reads a row.  :class:`Interleave` describes it: per output
+row, ``normal / 2`` normal pixels, then blocks of ``jump`` idle pixel times, ``reference``
+reference samples, ``jump`` idle pixel times and ``normal`` normal pixels, the last
+block ending after ``normal / 2`` normal pixels.  The interleaved samples take time
+slots, so with ``B = ncols_out / normal`` blocks a row is::
+
+    row_samples = ncols_out + B * (reference + 2 * jump) + nroh
+
+pixel times.  NIRSpec (jwst 3.0: ``scipix_n = 16``, ``refpix_r = 4``, one pixel time of
+jump overhead either side, ``pad = 8`` of new-row overhead): ``512 + 32 * 6 + 8 = 712``
+pixel times per row, 640 samples written per output row (512 normal, 128 reference)
+and, with one row of new-frame overhead, ``t_frame = 712 * 2049 * 10 us = 14.58888 s``
+(jwst's comment: 14.5889 s).  Normal pixel ``j`` (fast-scan order) of a row is read at
+slot ``j + (reference + 2 jump) * floor((j + normal/2) / normal)`` of the row; the
+``m``-th interleaved sample at ``m + (normal + 2 jump) * floor(m / reference) + normal/2
++ jump`` (:meth:`Detector.normal_slots`, :meth:`Detector.reference_slots`).
+
+``ref_output = True`` adds a reference output clocked in step with the science
+outputs: it writes one sample at every slot where a science output writes one (NIRSpec's
+"fifth output"; Roman's amp 33 would be the same).
+
+The *raw* frame is every written sample, in the layout of the jwst pipeline's IRS2
+code (detector orientation): the reference output's block first, then one block
+per science output, each of ``raw_ncols_out = ncols_out + B * reference`` columns in
+column order (a reversed output's block mirrored); the reference output's block is laid
+out mirrored with respect to output 0's (jwst flips sections 0, 2 and 4 to bring every
+section into time order).  NIRSpec full frame: ``(1 + 4) * 640 = 3200`` columns by 2048
+rows.  :meth:`Detector.raw_columns` says what each raw column holds.
 """
 
 import dataclasses
@@ -54,7 +87,7 @@ from noise.validate import (check_bool, check_float, check_instance, check_int, 
                             describe)
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 
-__all__ = ["Subarray", "Detector", "PRESETS", "preset", "detector_from_header",
+__all__ = ["Subarray", "Interleave", "Detector", "PRESETS", "preset", "detector_from_header",
            "frame_slot", "exposure_slots"]
 
 
@@ -109,6 +142,68 @@ class Subarray:
 
 
 @dataclass(frozen=True)
+class Interleave:
+    """Interleaved reference sampling (IRS2) of every output row.
+
+    Parameters
+    ----------
+    normal : int
+        Normal pixels read between two excursions to the reference pixels (even,
+        >= 2); a row starts and ends with ``normal // 2`` of them.  jwst's
+        ``NRS_NORM`` (``scipix_n``), 16 for NIRSpec.
+    reference : int
+        Reference samples per excursion (even, >= 2: pairs of reads of one reference
+        pixel).  jwst's ``NRS_REF`` (``refpix_r``), 4 for NIRSpec.
+    jump : int
+        Idle pixel times stepping out to the reference pixels, and again stepping
+        back (>= 0); 1 for NIRSpec (jwst: the ``+ 2`` of ``scipix_n + refpix_r + 2``).
+    """
+
+    normal: int = 16
+    reference: int = 4
+    jump: int = 1
+
+    def __post_init__(self):
+        check_int("interleave.normal", self.normal, minimum=2)
+        check_int("interleave.reference", self.reference, minimum=2)
+        check_int("interleave.jump", self.jump, minimum=0)
+        for field in ("normal", "reference"):
+            if getattr(self, field) % 2:
+                raise ParameterError(
+                    f"'interleave.{field}' must be even, got {getattr(self, field)!r} "
+                    f"(a row starts with normal/2 normal pixels; reference samples "
+                    f"are pairs of reads)")
+
+    @property
+    def period(self):
+        """Pixel times from one excursion to the next: ``normal + reference + 2 jump``."""
+        return self.normal + self.reference + 2 * self.jump
+
+
+def _as_interleave(value):
+    """``value`` as an :class:`Interleave` (from a mapping or a sequence of up to three
+    ints), or None."""
+    if value is None or isinstance(value, Interleave):
+        return value
+    try:
+        if isinstance(value, dict):
+            unknown = set(value) - {"normal", "reference", "jump"}
+            if unknown:
+                raise ParameterError(
+                    f"'interleave' has unknown keys {sorted(unknown)}; allowed: "
+                    f"'normal', 'reference', 'jump'")
+            return Interleave(**value)
+        if isinstance(value, (list, tuple)) and 1 <= len(value) <= 3:
+            return Interleave(*value)
+    except TypeError:
+        pass
+    raise ParameterTypeError(
+        f"'interleave' must be a noise.clock.Interleave, a table "
+        f"{{normal, reference, jump}}, a list [normal, reference, jump] or none, got "
+        f"{describe(value)}")
+
+
+@dataclass(frozen=True)
 class Detector:
     """Frozen description of an HxRG array and how it is clocked.
 
@@ -134,6 +229,11 @@ class Detector:
         Pixel pitch in micrometres (used for cosmic-ray rates per cm^2).
     subarray : Subarray or None
         Readout window; ``None`` for full frame.
+    interleave : Interleave or None
+        Interleaved reference sampling (IRS2) in every output row (module
+        notes); ``None``: traditional clocking.  Also given as a table or list.
+    ref_output : bool
+        A reference output read in step with the science outputs (module notes).
     """
 
     name: str = "H2RG"
@@ -147,8 +247,12 @@ class Detector:
     reverse_scan: bool = False
     pixel_pitch: float = 18.0
     subarray: Subarray | None = None
+    interleave: Interleave | None = None
+    ref_output: bool = False
 
     def __post_init__(self):
+        object.__setattr__(self, "interleave", _as_interleave(self.interleave))
+        check_bool("ref_output", self.ref_output)
         check_int("naxis1", self.naxis1, minimum=1)
         check_int("naxis2", self.naxis2, minimum=1)
         check_int("n_out", self.n_out, minimum=1)
@@ -181,6 +285,19 @@ class Detector:
                 raise ParameterError(
                     f"a 'stripe' subarray spans the full width: x0=0 and "
                     f"nx={self.naxis1} required, got x0={sub.x0}, nx={sub.nx}")
+        extra = self.interleave is not None or self.ref_output
+        if extra and sub is not None and sub.kind == "window":
+            what = "'interleave'" if self.interleave is not None else "'ref_output'"
+            raise ParameterError(
+                f"{what} needs every output reading full rows (full frame or a "
+                f"'stripe' subarray), got a 'window' subarray {sub.nx}x{sub.ny} read "
+                f"through one output")
+        il = self.interleave
+        if il is not None and (self.naxis1 // self.n_out) % il.normal:
+            raise ParameterError(
+                f"'interleave.normal'={il.normal} must divide the columns per output, "
+                f"'naxis1'/'n_out' = {self.naxis1}/{self.n_out} = "
+                f"{self.naxis1 // self.n_out} (a whole number of excursions per row)")
 
     # ------------------------------------------------------------------ builders
     def window(self, x0, y0, nx, ny, name=""):
@@ -235,9 +352,111 @@ class Detector:
         return self.nx // self.n_out_active
 
     @property
+    def n_excursions(self):
+        """Excursions to the interleaved reference pixels per output row (0 without
+        interleave)."""
+        il = self.interleave
+        return 0 if il is None else self.ncols_out // il.normal
+
+    @property
+    def raw_ncols_out(self):
+        """Samples written per output row: normal pixels plus interleaved ones."""
+        il = self.interleave
+        return self.ncols_out + (0 if il is None else self.n_excursions * il.reference)
+
+    @property
+    def n_raw_outputs(self):
+        """Outputs writing samples: the active science outputs, plus the reference
+        output if any."""
+        return self.n_out_active + int(self.ref_output)
+
+    @property
+    def raw_nx(self):
+        """Columns of the raw frame (every written sample; module notes)."""
+        return self.n_raw_outputs * self.raw_ncols_out
+
+    @property
+    def raw_shape(self):
+        """Raw frame shape ``(ny, raw_nx)``."""
+        return (self.ny, self.raw_nx)
+
+    @property
+    def has_raw_samples(self):
+        """True if samples other than the image's pixels are written (interleaved
+        reference samples or a reference output)."""
+        return self.interleave is not None or self.ref_output
+
+    @property
     def row_samples(self):
-        """Pixel times per row per output, overhead included."""
-        return self.ncols_out + self.nroh
+        """Pixel times per row per output, overheads (row, and the interleaved
+        samples with their jumps) included."""
+        il = self.interleave
+        if il is None:
+            return self.ncols_out + self.nroh
+        return (self.ncols_out + self.n_excursions * (il.reference + 2 * il.jump)
+                + self.nroh)
+
+    def normal_slots(self):
+        """Slot in the row (pixel times from the row's start) of each normal pixel,
+        in fast-scan order, shape (ncols_out,), int64."""
+        j = np.arange(self.ncols_out)
+        il = self.interleave
+        if il is None:
+            return j
+        return j + (il.reference + 2 * il.jump) * ((j + il.normal // 2) // il.normal)
+
+    def reference_slots(self):
+        """Slot in the row of each interleaved reference sample, in time order, shape
+        (n_excursions * reference,), int64 (empty without interleave)."""
+        il = self.interleave
+        if il is None:
+            return np.zeros(0, dtype=np.int64)
+        m = np.arange(self.n_excursions * il.reference)
+        return m + (il.normal + 2 * il.jump) * (m // il.reference) + il.normal // 2 + il.jump
+
+    def raw_slots(self):
+        """Slots in the row of the samples an output writes, in time order, shape
+        (raw_ncols_out,): normal and interleaved together."""
+        return np.sort(np.concatenate([self.normal_slots(), self.reference_slots()]))
+
+    def raw_columns(self):
+        """What each column of the raw frame holds (module notes).
+
+        Returns
+        -------
+        output : ndarray (raw_nx,), int
+            Science output (0-based), or -1 for the reference output.
+        slot : ndarray (raw_nx,), int
+            Slot of the sample in its output's row (pixel times from the row start).
+        image_x : ndarray (raw_nx,), int
+            Image column of a normal pixel; -1 for a reference sample (interleaved
+            or reference output).
+        """
+        rn, ncol = self.raw_ncols_out, self.ncols_out
+        slots = self.raw_slots()
+        is_normal = np.isin(slots, self.normal_slots())
+        # fast-scan index of each normal sample among the normal ones
+        fast_normal = np.cumsum(is_normal) - 1
+        outs = ([-1] if self.ref_output else []) + list(range(self.n_out_active))
+        output, slot, image_x = [], [], []
+        for o in outs:
+            rev = (not self.output_reversed(0)) if o < 0 else self.output_reversed(o)
+            f = np.arange(rn)[::-1] if rev else np.arange(rn)  # fast index per column
+            output.append(np.full(rn, o))
+            slot.append(slots[f])
+            if o < 0:
+                image_x.append(np.full(rn, -1))
+            else:
+                j = fast_normal[f]
+                local = (ncol - 1 - j) if self.output_reversed(o) else j
+                image_x.append(np.where(is_normal[f], o * ncol + local, -1))
+        return np.concatenate(output), np.concatenate(slot), np.concatenate(image_x)
+
+    def raw_sample_index(self):
+        """Index of each raw sample in its output's frame time line, shape
+        (ny, raw_nx), int64: ``y * row_samples + slot``."""
+        _, slot, _ = self.raw_columns()
+        return np.arange(self.ny)[:, None] * self.row_samples + slot[None, :]
 
     @property
     def frame_samples(self):
@@ -280,6 +499,8 @@ class Detector:
         local = col % ncol
         rev = (out % 2 == 1) != self.reverse_scan
         fast = np.where(rev, ncol - 1 - local, local)
+        if self.interleave is not None:            # interleaved samples take slots
+            fast = self.normal_slots()[fast]
         # int32 (half the memory of int64 at 4096^2); samples per frame stay < 2**31
         idx = (np.arange(self.ny, dtype=np.int32)[:, None] * np.int32(self.row_samples)
                + fast[None, :].astype(np.int32))
@@ -292,7 +513,8 @@ class Detector:
         Returns
         -------
         ndarray, shape (ny, nx), int32 (read-only, cached)
-            ``y * (ncols_out + nroh) + x_fast``.
+            ``y * row_samples + slot``, ``slot = x_fast`` without interleave
+            (:meth:`normal_slots` with it).
         """
         return self._sample_index
 
@@ -343,7 +565,20 @@ class Detector:
             ("SUBSIZE1", self.nx, "[pix] columns read"),
             ("SUBSIZE2", self.ny, "[pix] rows read"),
             ("TFRAME", self.frame_time, "[s] frame time"),
-        ]
+        ] + self._raw_cards()
+
+    def _raw_cards(self):
+        """IRS2/reference-output cards, only when the detector has them (so other
+        headers are unchanged)."""
+        cards = []
+        il = self.interleave
+        if il is not None:
+            cards += [("NRS_NORM", il.normal, "IRS2: normal pixels between excursions"),
+                      ("NRS_REF", il.reference, "IRS2: reference samples per excursion"),
+                      ("NRS_JUMP", il.jump, "[pix times] IRS2 jump overhead, each way")]
+        if self.ref_output:
+            cards.append(("REFOUT", True, "reference output read in step"))
+        return cards
 
 
 def detector_from_header(header):
@@ -371,6 +606,11 @@ def detector_from_header(header):
             nroh=int(get("NROH")), nfoh=int(get("NFOH")),
             dt=float(get("PIXDWELL")), ref_border=int(get("REFBORD")),
             reverse_scan=bool(get("REVSCAN")), pixel_pitch=float(get("PIXPITCH")))
+        if "NRS_NORM" in header:
+            det = dataclasses.replace(det, interleave=Interleave(
+                int(get("NRS_NORM")), int(get("NRS_REF")), int(get("NRS_JUMP"))))
+        if header.get("REFOUT", False):
+            det = dataclasses.replace(det, ref_output=True)
         kind = str(header.get("SUBKIND", "full"))
         if kind != "full":
             det = dataclasses.replace(det, subarray=Subarray(
@@ -414,6 +654,11 @@ def detector_from_header(header):
 #: 142)`` = 4.914704 us (114 ppm shorter), so the frame is exactly 3.04 s.  Pixel read
 #: times within a frame differ from romancal's by up to the guide-window time
 #: (~0.18 s); resultant times, which use only the frame time, agree exactly.
+#: ``NIRSPEC-IRS2``: NIRSpec's H2RG in IRS2 mode as the jwst 3.0 pipeline lays it out
+#: (``jwst.refpix.irs2_subtract_reference``): 16 normal pixels between excursions of 4
+#: reference samples with one pixel time of jump each way, 8 pixel times of new-row
+#: overhead (its ``pad``), one row of new-frame overhead and the reference output:
+#: 712 pixel times per row, 3200 x 2048 raw samples, t_frame = 14.58888 s.
 PRESETS = {
     "H1RG": Detector(name="H1RG", naxis1=1024, naxis2=1024, n_out=16, nroh=12, nfoh=1,
                      dt=1e-5, ref_border=4, pixel_pitch=18.0),
@@ -427,6 +672,9 @@ PRESETS = {
                        dt=1e-5, ref_border=4, pixel_pitch=18.0),
     "NIRSPEC": Detector(name="NIRSPEC", naxis1=2048, naxis2=2048, n_out=4, nroh=12,
                         nfoh=1, dt=1e-5, ref_border=4, pixel_pitch=18.0),
+    "NIRSPEC-IRS2": Detector(name="NIRSPEC-IRS2", naxis1=2048, naxis2=2048, n_out=4,
+                             nroh=8, nfoh=1, dt=1e-5, ref_border=4, pixel_pitch=18.0,
+                             interleave=Interleave(16, 4, 1), ref_output=True),
     "WFI": Detector(name="WFI", naxis1=4096, naxis2=4096, n_out=32, nroh=14, nfoh=260,
                     dt=3.04 / (4356 * 142), ref_border=4, pixel_pitch=10.0),
 }

@@ -62,6 +62,31 @@ same pixels through the same clock; their sum is one Gaussian 1/f process of amp
 ``hypot(c_pink, u_pink)`` and is synthesised as one series (the same law for a third
 less work).
 
+Interleaved reference samples and the reference output
+-------------------------------------------------------
+On a detector with :class:`noise.clock.Interleave` (IRS2) the 1/f lines run
+through every slot of the longer rows, and each image pixel takes its line sample at
+its own slot (:meth:`noise.clock.Detector.normal_slots`), so the interleaved samples
+sit in the gaps of the time line that the normal pixels skip.  :meth:`NoiseGenerator.raw_frame`
+(and ``frames(..., raw=True)``) also gives those samples, and the reference output's
+(``ref_output``), in the raw layout of :meth:`noise.clock.Detector.raw_columns`:
+
+* an interleaved sample of output ``o`` at slot ``t`` gets the correlated pink, the
+  uncorrelated pink and the ACN of output ``o`` at ``t`` (the same line samples its
+  neighbours in time see), the frame's pedestal, white noise of ``rd_noise[o] *
+  ref_ratio`` and a kTC reset level shared by each pair of reads (one reference pixel
+  read twice, as jwst's IRS2 code reads them);
+* the reference output gets the correlated pink at its slot (the one series every
+  output shares), its own uncorrelated pink and ACN (stream keys of an output numbered
+  ``n_out_active``, amplitudes the mean of the science outputs'), the pedestal and
+  white noise of ``mean(rd_noise) * ref_ratio``; it reads no pixel, so no kTC;
+* the constant ``bias_offset`` is added to every sample; the picture-frame and bias
+  templates, and RTN, are maps of the image's pixels and are not applied to them.
+
+The image pixels are unchanged by asking for the raw frame (the extra samples draw
+from their own streams, ``NOISE_COMPONENTS['raw']``); on detectors without interleave
+or reference output every frame is as before.
+
 Randomness: every component, output, chunk and block has its own stream,
 ``SeedSequence(entropy, spawn_key=prefix + (component, ...))``, so the frames do not
 depend on the chunking, on the number of threads, or on which other components are
@@ -243,7 +268,8 @@ class NoiseGenerator:
         # one active output: correlated and uncorrelated pink land on the same pixels
         # through the same clock, and their sum is one Gaussian 1/f process of
         # amplitude hypot(c_pink, u_pink) (same filters): synthesised as one series
-        self._merged = nout == 1 and p.c_pink > 0 and u_amps[0] > 0
+        self._merged = nout == 1 and p.c_pink > 0 and u_amps[0] > 0 \
+            and not det.ref_output   # the reference output needs c_pink on its own
         if p.c_pink > 0:
             amp = math.hypot(p.c_pink, u_amps[0]) if self._merged else p.c_pink
             self._common = PinkSeries(1 / det.dt, L, [amp],
@@ -264,6 +290,21 @@ class NoiseGenerator:
                         0.5 / det.dt, L // 2, [amp, amp],
                         seed_keys=[self.key + (NOISE_COMPONENTS["acn"], o, 0),
                                    self.key + (NOISE_COMPONENTS["acn"], o, 1)], **kw)
+        # the reference output's own series: keys of an output numbered n_out_active
+        self._ref_u = self._ref_acn = None
+        if det.ref_output:
+            if p.enabled("u_pink"):
+                self._ref_u = PinkSeries(
+                    1 / det.dt, L, [float(np.mean(u_amps))],
+                    seed_keys=[self.key + (NOISE_COMPONENTS["u_pink"], nout)], **kw)
+            if p.enabled("acn"):
+                amp = float(np.mean(p.per_output("acn", nout)))
+                self._ref_acn = PinkSeries(
+                    0.5 / det.dt, L // 2, [amp, amp],
+                    seed_keys=[self.key + (NOISE_COMPONENTS["acn"], nout, 0),
+                               self.key + (NOISE_COMPONENTS["acn"], nout, 1)], **kw)
+        # interleaved samples: image pixels take their line samples at their own slots
+        self._gather = det.normal_slots() if det.interleave is not None else None
         self._pf = None
         self._template = None
         if p.pca0 > 0 or p.bias_amp > 0:
@@ -300,6 +341,8 @@ class NoiseGenerator:
             self._rtn_slot = None
         self._reset_int = None
         self._reset_level = None
+        self._reset_int_raw = None
+        self._reset_level_raw = None
         self._lines = None
         self._ped_block = None
 
@@ -333,7 +376,8 @@ class NoiseGenerator:
             for (series, per_row, _, o), line in zip(jobs, set_store):
                 # (nseries, n) destination; ACN: (2, n) even/odd view of one line
                 outs.append(line[None, :] if per_row == rs else line.reshape(-1, 2).T)
-                view = line.reshape(rows, rs)[:, :ncol]
+                view = line.reshape(rows, rs)
+                view = view[:, :ncol] if self._gather is None else view
                 for out in (range(det.n_out_active) if o is None else [o]):
                     views[out].append(view)
             sets.append((outs, views))
@@ -426,6 +470,102 @@ class NoiseGenerator:
             f"components are those with amplitude > 0 among c_pink, u_pink, pink, acn, "
             f"pca0")
 
+    # ------------------------------------------------------------- raw samples
+    @functools.cached_property
+    def _raw_layout(self):
+        """``(extra, normal, image_x, per_output)``: raw columns that are not image
+        pixels and those that are (with their image columns), and per output
+        (-1: the reference output) the extra columns' positions and slots."""
+        det = self.detector
+        output, slot, image_x = det.raw_columns()
+        extra = np.flatnonzero(image_x < 0)
+        normal = np.flatnonzero(image_x >= 0)
+        per_output = []
+        for o in np.unique(output[extra]).tolist():
+            pos = np.flatnonzero(output[extra] == o)
+            per_output.append((o, pos, slot[extra[pos]]))
+        return extra, normal, image_x[normal], per_output
+
+    def _frame_line(self, series_list, slot):
+        """The sum of the time lines of ``series_list`` over frame slot ``slot``,
+        (ny + nfoh, row_samples) float32 (an ACN pair interleaved even/odd)."""
+        det = self.detector
+        L = self._L
+        line = np.zeros(L, dtype=np.float32)
+        for series in series_list:
+            if series is None:
+                continue
+            if series.nseries == 2:                      # ACN: even, odd samples
+                pair = series.get(slot * (L // 2), L // 2)
+                line[0::2] += pair[0]
+                line[1::2] += pair[1]
+            else:
+                line += series.get(slot * L, L)[0]
+        return line.reshape(det.ny + det.nfoh, det.row_samples)
+
+    def extra_samples(self, slot, integration):
+        """Noise of the raw samples that are not image pixels (interleaved reference
+        samples and the reference output; module notes), frame slot ``slot`` of
+        ``integration``: shape (ny, n), float32, e-, in the order of the raw columns
+        that hold them (:meth:`noise.clock.Detector.raw_columns`, ``image_x < 0``)."""
+        det, p = self.detector, self.params
+        extra, _, _, per_output = self._raw_layout
+        ny = det.ny
+        out = np.zeros((ny, extra.size), dtype=np.float32)
+        if p.enabled("rd_noise"):
+            rd = p.per_output("rd_noise", det.n_out_active)
+            sigma = np.empty(extra.size, dtype=np.float32)
+            for o, pos, _ in per_output:
+                sigma[pos] = (np.mean(rd) if o < 0 else rd[o]) * p.ref_ratio
+            standard_normal(self._stream(NOISE_COMPONENTS["raw"], 0, slot), out)
+            out *= sigma
+        if p.ktc > 0 and det.interleave is not None:
+            if self._reset_int_raw != integration:
+                # one level per reference pixel: each pair of reads shares it
+                npair = (extra.size + 1) // 2
+                z = self._stream(NOISE_COMPONENTS["raw"], 1, integration) \
+                    .standard_normal((ny, npair), dtype=np.float32)
+                lvl = np.zeros((ny, extra.size), dtype=np.float32)
+                for o, pos, slots in per_output:
+                    if o < 0:
+                        continue
+                    order = np.argsort(slots)       # time order within the row
+                    pair = np.empty(pos.size, dtype=np.int64)
+                    pair[order] = np.arange(pos.size) // 2
+                    lvl[:, pos] = np.float32(p.ktc) * z[:, pos[0] // 2 + pair]
+                self._reset_level_raw = lvl
+                self._reset_int_raw = integration
+            out += self._reset_level_raw
+        scalar = np.float32(self.pedestal(slot) + p.bias_offset)
+        if scalar:
+            out += scalar
+        for o, pos, slots in per_output:
+            if o < 0:
+                series = [self._common, self._ref_u, self._ref_acn]
+            else:
+                series = [self._common, self._u_pink[o], self._acn[o]]
+            if all(s is None for s in series):
+                continue
+            line = self._frame_line(series, slot)
+            out[:, pos] += line[:ny][:, slots]
+        return out
+
+    def raw_frame(self, slot, integration, image=None):
+        """Every sample written in frame slot ``slot`` of ``integration``, in the raw
+        layout (:meth:`noise.clock.Detector.raw_columns`), shape ``raw_shape``,
+        float32, e-: the image pixels (``image``, the float32 e- frame of
+        :meth:`frame` of that slot; made if None) and :meth:`extra_samples`."""
+        det = self.detector
+        if image is None:
+            if self._level_map and self._reset_int != integration:
+                self._reset_int = None
+            image = self.frame(slot, integration)
+        extra, normal, image_x, _ = self._raw_layout
+        raw = np.empty(det.raw_shape, dtype=np.float32)
+        raw[:, normal] = image[:, image_x]
+        raw[:, extra] = self.extra_samples(slot, integration)
+        return raw
+
     def _advance_rtn(self, slot):
         p, det = self.params, self.detector
         n = self._rtn_idx.size
@@ -497,6 +637,8 @@ class NoiseGenerator:
                 if not out_views:
                     continue
                 lines = [view[a - r_base:b - r_base] for view in out_views]
+                if self._gather is not None:      # the normal pixels' slots only
+                    lines = [line[:, self._gather] for line in lines]
                 if len(lines) > 1:            # sum the lines in scan order, then add once
                     tmp = np.add(lines[0], lines[1], out=tmp_buf[:b - a])
                     for line in lines[2:]:
@@ -589,7 +731,7 @@ class NoiseGenerator:
         return img
 
     def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None,
-               reuse=False):
+               reuse=False, raw=False):
         """Iterate over ``(integration, read, frame)`` of the requested reads in time order.
 
         Every argument is checked when this is called, before any frame is made.
@@ -617,6 +759,11 @@ class NoiseGenerator:
             with a frame by then (the charge engine: 1; the FITS writer, which writes
             one frame while the next is made: 2).  Saves a fresh frame per read (and
             the kernel's zeroing of its pages).  Default 0: a new array per read.
+        raw : bool, keyword-only
+            Yield raw frames (:meth:`raw_frame`, shape ``detector.raw_shape``): the
+            image pixels and the interleaved reference and reference-output samples;
+            a new array per read (``reuse`` then applies to the image frames made
+            inside).  Only for detectors that write such samples.
 
         Returns
         -------
@@ -633,7 +780,22 @@ class NoiseGenerator:
             dn_gain = check_float("dn_gain", dn_gain, minimum=0.0, strict_min=True)
         nbuf = int(reuse) if isinstance(reuse, bool) else check_int("reuse", reuse,
                                                                       minimum=0)
+        if not isinstance(raw, bool):
+            raise ParameterTypeError(f"'raw' must be True or False, got {describe(raw)}")
+        if raw:
+            if not self.detector.has_raw_samples:
+                raise ParameterError(
+                    f"'raw'=True: detector {self.detector.name!r} writes no samples "
+                    f"besides its image pixels (no 'interleave', no 'ref_output')")
+            return self._raw_frames(nreads, reads, ints, dn_gain, nbuf)
         return self._frames(nreads, reads, ints, dn_gain, nbuf)
+
+    def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf):
+        adc = None if dn_gain is None else ADC(dn_gain)
+        self._reset_int_raw = None
+        for i, k, img in self._frames(nreads, reads, ints, None, nbuf):
+            raw = self.raw_frame(frame_slot(i, k, nreads), i, image=img)
+            yield i, k, (raw if adc is None else adc.to_dn(raw))
 
     def _frames(self, nreads, reads, ints, dn_gain, nbuf):
         self._rtn_state = self._rtn_slot = None
@@ -908,6 +1070,8 @@ class NoiseGenerator:
                 a, b = int(rel[q0]), int(rel[q1 - 1]) + 1
                 for o in range(det.n_out_active):
                     views = [line.reshape(span, -1, rs)[a:b, :ny, :ncol]
+                             if self._gather is None else
+                             line.reshape(span, -1, rs)[a:b, :ny][..., self._gather]
                              for line, owner in zip(store, owners)
                              if owner is None or owner == o]
                     if not views:

@@ -23,7 +23,9 @@ in a scene), component ``c`` draws from ``root + (NOISE_COMPONENTS[c], ...)``:
 white ``(1, slot, chunk)``, correlated pink ``(2, group)``, uncorrelated pink ``(3,
 output, group)``, ACN ``(4, output, even/odd, group)``, picture frame ``(5,
 group)``, pedestal ``(6, block)``, kTC and bias ``(7, integration, chunk)``, RTN
-``(8, 0)`` (which pixels) and ``(8, 2, slot)`` (transitions); ``group`` counts the
+``(8, 0)`` (which pixels) and ``(8, 2, slot)`` (transitions), the raw samples that
+are not image pixels (interleaved reference samples, reference output) white ``(9, 0,
+slot)`` and kTC ``(9, 1, integration)``; ``group`` counts the
 1/f synthesis groups of :mod:`noise.pink` from 1.
 
 :func:`noise.fast.seedhash.spawned_generators` builds many of these generators at
@@ -52,7 +54,7 @@ COSMIC_RAYS = (3,)
 HOT_PIXELS = (4,)
 #: Noise components and their first key under the noise generator's root.
 NOISE_COMPONENTS = {"white": 1, "c_pink": 2, "u_pink": 3, "acn": 4, "pca0": 5,
-                    "pedestal": 6, "ktc": 7, "rtn": 8}
+                    "pedestal": 6, "ktc": 7, "rtn": 8, "raw": 9}
 
 
 def root_seed(rng):

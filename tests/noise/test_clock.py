@@ -163,6 +163,10 @@ DOCUMENTED = {
                    ref_border=4, pixel_pitch=18.0, frame_time=10.73677 - 1e-5),
     "NIRSPEC": dict(naxis1=2048, naxis2=2048, n_out=4, nroh=12, nfoh=1, dt=1e-5,
                     ref_border=4, pixel_pitch=18.0, frame_time=10.73677 - 1e-5),
+    # jwst 3.0 irs2_subtract_reference: 712 pixel times per row, tframe 14.5889 s
+    "NIRSPEC-IRS2": dict(naxis1=2048, naxis2=2048, n_out=4, nroh=8, nfoh=1, dt=1e-5,
+                         ref_border=4, pixel_pitch=18.0, frame_time=14.58888,
+                         raw_shape=(2048, 3200), ref_output=True),
     # Roman WFI: romancal's ROMAN_READ_TIME, 3.04 s; 32 outputs, 10 um pixels.
     "WFI": dict(naxis1=4096, naxis2=4096, n_out=32, ref_border=4, pixel_pitch=10.0,
                 frame_time=3.04),
