@@ -40,6 +40,27 @@ Schemes
 
     Each step runs when the image contains its reference pixels (a subarray may have
     only some); when it has neither, the scheme cannot run.
+``'irs2'`` (interleaved reference samples, NIRSpec's IRS2; :func:`correct_irs2`)
+    Needs the *raw* frames of a detector with :class:`noise.clock.Interleave` (every
+    written sample, :meth:`noise.clock.Detector.raw_columns`), and returns the image
+    pixels.  Per output and frame, the interleaved reference samples are put on the
+    output's time line at their slots; each excursion gives two values, the mean of
+    its samples at even slots and the mean of those at odd slots (the two ACN
+    phases); each of the two series is smoothed by a running mean over ``window``
+    excursions (truncated at the frame's ends) and interpolated linearly in time to
+    every normal pixel of the same slot parity, which is subtracted.  So pedestal,
+    correlated and uncorrelated 1/f and ACN are removed up to about ``1 / (2 window
+    period dt)`` (1 kHz for NIRSpec with ``window = 5``), per output, at the price of
+    the white noise of the estimate, about ``(ref_ratio rd)^2 / (reference / 2) /
+    window``.  Each reference sample's mean over the groups of its integration, less
+    the mean of those means over the output's samples of the same slot parity, is
+    subtracted first (its reset level; a constant per pixel, which cancels in every
+    difference of reads).  The reference output is not used: it sees the correlated
+    1/f only, which the interleaved samples of each output already carry.
+    Unlike the jwst pipeline's IRS2 step (Rauscher et al. 2017), which weighs the
+    reference samples with frequency-domain coefficients fitted to darks (its
+    ``refpix`` reference file), this is the time-domain interpolation only: no
+    calibration file, nothing fitted.
 
 The correction works on frames or resultants alike (any leading axes), in the input's
 floating dtype (integers become float64); statistics are computed in float64 one block
@@ -60,12 +81,12 @@ from noise.clock import Detector
 from noise.errors import ParameterError
 from noise.validate import check_choice, check_float, check_instance, check_int
 
-__all__ = ["SCHEMES", "correct_reference", "reference_layout", "reference_edges",
+__all__ = ["SCHEMES", "correct_reference", "correct_irs2", "irs2_noise_study", "reference_layout", "reference_edges",
            "check_correction_options", "running_mean", "window_bounds",
            "clipped_mean_variance_factor"]
 
 #: Reference-correction schemes accepted by :func:`correct_reference`.
-SCHEMES = ("none", "median", "jwst")
+SCHEMES = ("none", "median", "jwst", "irs2")
 
 _FRAMES_PER_BLOCK = 8
 _MAXITERS = 5
@@ -141,6 +162,11 @@ def check_correction_options(detector, scheme, side_window, sigma):
         raise ParameterError(
             f"'side_window' must be an odd integer >= 1 (rows), got {side_window!r}")
     check_float("sigma", sigma, minimum=0.0, strict_min=True)
+    if scheme == "irs2" and detector.interleave is None:
+        raise ParameterError(
+            f"scheme 'irs2' needs interleaved reference samples, but detector "
+            f"{detector.name!r} has no 'interleave' (use a detector such as preset "
+            f"'NIRSPEC-IRS2', or scheme 'jwst'/'median'/'none')")
     rows, cols = reference_layout(detector)
     if scheme == "median" and rows.size == 0:
         raise ParameterError(
@@ -165,8 +191,9 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
         ``detector.shape``.
     detector : noise.clock.Detector
         Geometry: outputs, reference border, subarray position.
-    scheme : {'jwst', 'median', 'none'}
-        See the module notes.
+    scheme : {'jwst', 'median', 'none', 'irs2'}
+        See the module notes; ``'irs2'`` takes the raw frames (:func:`correct_irs2`)
+        and returns the image pixels.
     side_window : int
         Rows of the running mean of the side reference columns (odd, >= 1).
     sigma : float
@@ -189,6 +216,9 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
     if not isinstance(detector, Detector):
         raise ParameterError(
             f"'detector' must be a noise.clock.Detector, got {type(detector).__name__}")
+    if scheme == "irs2":
+        check_correction_options(detector, scheme, side_window, sigma)
+        return correct_irs2(cube, detector)
     cube = np.asarray(cube)
     if cube.dtype.kind not in "iuf":
         raise ParameterError(f"'cube' must be a real numeric array, got dtype {cube.dtype}")
@@ -231,6 +261,140 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
             side = blk[:, :, cols].astype(np.float64).mean(axis=-1)  # (F, ny)
             smooth = running_mean(side, side_window)
             blk -= smooth[:, :, None].astype(dtype)
+    return out
+
+
+def _irs2_plan(detector):
+    """Per science output: columns of its interleaved samples and their slots, and of
+    its normal samples with their slots and image columns (all in time order)."""
+    output, slot, image_x = detector.raw_columns()
+    plan = []
+    for o in range(detector.n_out_active):
+        ref = np.flatnonzero((output == o) & (image_x < 0))
+        ref = ref[np.argsort(slot[ref])]
+        nor = np.flatnonzero((output == o) & (image_x >= 0))
+        nor = nor[np.argsort(slot[nor])]
+        plan.append((ref, slot[ref], nor, slot[nor], image_x[nor]))
+    return plan
+
+
+def correct_irs2(raw, detector, *, window=5):
+    """The ``'irs2'`` scheme (module notes): raw frames in, corrected image out.
+
+    Parameters
+    ----------
+    raw : ndarray, shape (..., ny, raw_nx)
+        Raw frames or resultants of ``detector`` (:meth:`noise.clock.Detector.raw_columns`
+        layout), e- or DN.  With three or more axes, axis -3 is the groups of one
+        integration (each reference sample's mean over it is removed first).
+    detector : noise.clock.Detector
+        With ``interleave``.
+    window : int
+        Excursions in the running mean of each parity's reference series (odd, >= 1).
+
+    Returns
+    -------
+    ndarray, shape (..., ny, nx), float64
+        The corrected image pixels (the detector's image layout).
+    """
+    if not isinstance(detector, Detector):
+        raise ParameterError(
+            f"'detector' must be a noise.clock.Detector, got {type(detector).__name__}")
+    if detector.interleave is None:
+        raise ParameterError(
+            f"'irs2' correction needs interleaved reference samples, but detector "
+            f"{detector.name!r} has no 'interleave'")
+    check_int("window", window, minimum=1)
+    if window % 2 == 0:
+        raise ParameterError(f"'window' must be an odd integer >= 1 (excursions), got "
+                             f"{window!r}")
+    raw = np.asarray(raw)
+    if raw.dtype.kind not in "iuf" or raw.ndim < 2 or raw.shape[-2:] != detector.raw_shape:
+        raise ParameterError(
+            f"'raw' must be a real array of shape (..., {detector.ny}, {detector.raw_nx}) "
+            f"(the raw frames of {detector.name!r}, interleaved samples included), got "
+            f"{raw.dtype} {raw.shape}")
+    ny, rs = detector.ny, detector.row_samples
+    lead = raw.shape[:-2]
+    out = np.empty(lead + detector.shape, dtype=np.float64)
+    rows = np.arange(ny)[:, None] * rs
+    for ref, rslot, nor, nslot, image_x in _irs2_plan(detector):
+        r = raw[..., ref].astype(np.float64)
+        if r.ndim >= 3:
+            # each reference pixel's reset level: its mean over the groups, less the
+            # mean of those over the output's samples of one slot parity (so the
+            # groups' common mean, e.g. a pedestal, stays in and is removed with it)
+            off = r.mean(axis=-3, keepdims=True)
+            for parity in (0, 1):
+                same = (rslot % 2) == parity
+                off[..., same] -= off[..., same].mean(axis=(-2, -1), keepdims=True)
+            r -= off
+        r = r.reshape((-1, ny, ref.size))
+        n = raw[..., nor].astype(np.float64).reshape((-1, ny, nor.size))
+        n_exc = detector.n_excursions
+        per = ref.size // n_exc
+        for parity in (0, 1):
+            pick = (rslot[:per] % 2) == parity          # the same in every excursion
+            vals = r.reshape(r.shape[0], ny, n_exc, per)[..., pick].mean(axis=-1)
+            t_ref = (rows + rslot.reshape(n_exc, per)[:, pick].mean(axis=-1)).ravel()
+            vals = vals.reshape(vals.shape[0], -1)
+            vals = running_mean(vals, window)
+            cols = (nslot % 2) == parity
+            t_nor = (rows + nslot[cols]).ravel()
+            for f in range(n.shape[0]):
+                est = np.interp(t_nor, t_ref, vals[f]).reshape(ny, -1)
+                n[f][:, cols] -= est
+        out.reshape((-1,) + detector.shape)[..., image_x] = n
+    return out
+
+
+def irs2_noise_study(detector, params, *, nreads=10, nramps=2, seed=2017,
+                     windows=(1, 3, 9), threads=None):
+    """What the IRS2 correction buys: total noise per CDS and per slope in the regular
+    pixels of noise-only ramps, with no correction, the border (``'jwst'``) scheme and
+    ``'irs2'`` (one row per ``window``), all on the same ramps.
+
+    Ramp ``r`` draws from ``SeedSequence(seed, spawn_key=(r,))``.  CDS: reads 1 - 0;
+    slope: the equal-weight least-squares slope over the ``nreads`` reads.
+
+    Returns
+    -------
+    list of dict
+        ``{'scheme', 'cds', 'cds_err', 'slope', 'slope_err'}``: rms of the CDS (e-)
+        and of the slope (e-/s) in regular pixels, over ``nramps`` ramps (``_err``:
+        the standard error of the rms from the ramp-to-ramp scatter, 0 with one ramp).
+    """
+    from noise.generator import NoiseGenerator     # scenesim.calib imports no generator
+    check_int("nreads", nreads, minimum=2)
+    check_int("nramps", nramps, minimum=1)
+    reg = ~detector.reference_mask()
+    _, _, image_x = detector.raw_columns()
+    normal = image_x >= 0
+    k = np.arange(nreads) - (nreads - 1) / 2
+    rows = {}
+    for r in range(nramps):
+        gen = NoiseGenerator(detector, params, threads=threads,
+                             rng=np.random.SeedSequence(seed, spawn_key=(r,)))
+        raw = np.stack([f for *_, f in gen.frames(nreads, raw=True)]).astype(np.float64)
+        img = np.empty((nreads,) + detector.shape)
+        img[..., image_x[normal]] = raw[..., normal]
+        runs = [("none", img), ("border (jwst)", correct_reference(img, detector))]
+        runs += [(f"irs2, window {w}", correct_irs2(raw, detector, window=w))
+                 for w in windows]
+        for name, c in runs:
+            cds = (c[1] - c[0])[reg]
+            slope = np.tensordot(k, c, axes=(0, 0))[reg] / (k ** 2).sum() \
+                / detector.frame_time
+            rows.setdefault(name, []).append((np.mean(cds ** 2), np.mean(slope ** 2)))
+    out = []
+    for name, v in rows.items():
+        v = np.array(v)
+        rms = np.sqrt(v.mean(axis=0))
+        # rms = sqrt(mean var): error of the mean of the ramps' variances, propagated
+        err = (v.std(axis=0, ddof=1) / np.sqrt(len(v)) / (2 * rms)) if len(v) > 1 \
+            else np.zeros(2)
+        out.append(dict(scheme=name, cds=float(rms[0]), cds_err=float(err[0]),
+                        slope=float(rms[1]), slope_err=float(err[1])))
     return out
 
 

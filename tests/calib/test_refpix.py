@@ -221,7 +221,7 @@ def test_subarray_without_reference_pixels():
     with pytest.raises(ParameterError, match="reference rows"):
         correct_reference(np.zeros((1, 8, 64)), stripe, scheme="median")
     assert correct_reference(np.zeros((1, 8, 64)), stripe, scheme="jwst").shape == (1, 8, 64)
-    assert SCHEMES == ("none", "median", "jwst")
+    assert SCHEMES == ("none", "median", "jwst", "irs2")
 
 
 def test_median_with_ktc_spread_theory():
