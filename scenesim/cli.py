@@ -8,6 +8,7 @@ Subcommands::
     scenesim fit EXPOSURE.fits [-o OUT] [--refpix none|median|jwst] [--fitter cds|ols|gls]
     scenesim compare FIT.fits TRUTH.fits [--plots DIR]       fit vs. injected truth
     scenesim bench [WORKLOAD ...] [--quick] [--peers [--ng PATH]] [--scaling]
+        [--fit-sizes N,... --fit-resultants N,...]           the fit's scaling grid
     scenesim pipeline jwst|roman INPUT --refs DIR [--truth T]  the real pipelines, offline
     scenesim batch SCENE.toml --realisations N --out DIR     many realisations on dask
     scenesim compare --pool DIR                              pooled over a batch
@@ -127,6 +128,12 @@ def _parser():
                    help="the original NG program (not on the package index), with --peers")
     b.add_argument("--scaling", action="store_true",
                    help="run each case again on one thread (1- and N-thread times)")
+    b.add_argument("--fit-sizes", default=None, metavar="N,N,...",
+                   help="fit workload: only its scaling grid, at these array sizes "
+                        "(default 512,1024,2048,4096)")
+    b.add_argument("--fit-resultants", default=None, metavar="N,N,...",
+                   help="fit workload: only its scaling grid, at these ramp lengths "
+                        "(default 5,10,20,50,100,200)")
     b.set_defaults(target="scenesim.commands:bench_command")
 
     pl = sub.add_parser("pipeline", help="run JWST Detector1 or romancal's ramp fit "

@@ -146,4 +146,17 @@ def bench_command(args):
     """``scenesim bench``: run the benchmarks (and, with ``--peers``, their peers)."""
     return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
                       threads=args.threads, peers=args.peers, ng=args.ng,
-                      scaling=args.scaling, command=shlex.join(["scenesim"] + sys.argv[1:]))
+                      scaling=args.scaling, command=shlex.join(["scenesim"] + sys.argv[1:]),
+                      fit_sizes=_int_list("--fit-sizes", args.fit_sizes),
+                      fit_resultants=_int_list("--fit-resultants", args.fit_resultants))
+
+
+def _int_list(option, text):
+    """``'5,10,20'`` as ``[5, 10, 20]`` (None stays None)."""
+    if text is None:
+        return None
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError as exc:
+        raise ParameterError(f"'{option}' must be comma-separated integers, got "
+                             f"{text!r}") from exc

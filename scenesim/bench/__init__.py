@@ -43,7 +43,8 @@ from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
 from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
 from scenesim.bench.process import load_average, peak_rss_self, run_process, tail
-from scenesim.bench.workloads import OPTION_CASES, PREPARE, WORKLOADS
+from scenesim.bench.workloads import (FIT_SCALING_NRES, FIT_SCALING_SIZES, OPTION_CASES,
+                                      PREPARE, WORKLOADS, fit_scaling_cases)
 
 __all__ = ["WORKLOADS", "OPTION_CASES", "PEER_WORKLOADS", "main", "floor_seconds",
            "floor_counts", "limit_seconds", "run_case", "write_report"]
@@ -98,6 +99,8 @@ def _slug(case):
 
 
 def _label(case):
+    if isinstance(case, tuple) and len(case) == 3:
+        return f"{case[0]}x{case[0]} {case[1]} x{case[2]}"
     if isinstance(case, tuple) and isinstance(case[1], bool):
         return f"{case[0]} ({'defeated' if case[1] else 'skipped'})"
     if isinstance(case, tuple) and isinstance(case[0], str):
@@ -185,6 +188,49 @@ def _markdown(rows):
     return head + "\n".join(lines) + "\n"
 
 
+def _exponent(x, y):
+    """Least-squares slope of log y against log x (None with fewer than 2 points)."""
+    if len(x) < 2 or len(set(x)) < 2:
+        return None
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
+
+
+def _scaling_markdown(rows):
+    """The fit's scaling cases: time and peak memory against ramp length and size,
+    with the fitted exponents (each number from this run's rows)."""
+    cases = [r for r in rows if r["workload"] == "fit" and "nres" in r]
+    if not cases:
+        return ""
+    head = ("| size | resultants | in-process s | process s | peak RSS MB | cube MB "
+            "(float32) | peak / cube | peak / peak at fewest resultants | ns per pixel "
+            "x resultant | time per resultant / at fewest | read pass s | np.sum s | "
+            "wall / np.sum |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    lines, fits = [], []
+    for size in sorted({r["size"] for r in cases}):
+        rs = sorted((r for r in cases if r["size"] == size), key=lambda r: r["nres"])
+        r0 = rs[0]
+        for r in rs:
+            per = r["wall"] / (size * size * r["nres"]) * 1e9
+            per0 = r0["wall"] / (size * size * r0["nres"]) * 1e9
+            lines.append(
+                f"| {size}x{size} | {r['nres']} | {r['wall']:.2f} | "
+                f"{r['process_wall']:.2f} | {r['peak_rss_mb']:.0f} | {r['cube_mb']:.0f} "
+                f"| {r['peak_rss_mb'] / r['cube_mb']:.2f} | "
+                f"{r['peak_rss_mb'] / r0['peak_rss_mb']:.2f} | {per:.1f} | "
+                f"{per / per0:.2f} | {r['read_pass']:.2f} | {r['baseline']:.3f} | "
+                f"{_fmt(r['ratio'], '.0f')} |")
+        n = [r["nres"] for r in rs]
+        long = [r for r in rs if r["nres"] >= 20]
+        fits.append(
+            f"| {size}x{size} | {min(n)}-{max(n)} | "
+            f"{_fmt(_exponent(n, [r['wall'] for r in rs]), '.2f')} | "
+            f"{_fmt(_exponent([r['nres'] for r in long], [r['wall'] for r in long]), '.2f')}"
+            f" | {_fmt(_exponent(n, [r['peak_rss_mb'] for r in rs]), '.2f')} |")
+    return (head + "\n".join(lines) + "\n\nExponents (least squares of log against "
+            "log resultants):\n\n| size | resultants | time, all | time, >= 20 "
+            "resultants | peak RSS |\n|---|---|---|---|---|\n" + "\n".join(fits) + "\n")
+
+
 def _peer_markdown(rows):
     """Process against process: each peer beside the scenesim case of the same input."""
     head = ("| workload | case | scenesim process s | scenesim CPU s | scenesim peak RSS "
@@ -243,7 +289,7 @@ def _plot(rows, path):
 
 
 def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=False,
-         ng=None, scaling=False, command=None):
+         ng=None, scaling=False, command=None, fit_sizes=None, fit_resultants=None):
     """Run the named workloads (all if empty), write ``bench.json``/``.md``/``.png``.
 
     Parameters
@@ -265,6 +311,11 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
         Run each case again on one thread (when ``threads`` > 1).
     command : str or None
         The command line, recorded in the outputs.
+    fit_sizes, fit_resultants : sequence of int or None
+        The fit's scaling grid (:func:`scenesim.bench.workloads.fit_scaling_cases`):
+        given either, the ``fit`` workload runs only that grid (the default of the
+        other: :data:`~scenesim.bench.workloads.FIT_SCALING_SIZES` or
+        :data:`~scenesim.bench.workloads.FIT_SCALING_NRES`).
 
     Returns
     -------
@@ -287,6 +338,10 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
         raise ParameterError("'--ng' runs NG as a peer: give it with --peers (or the "
                              "'peers' workload)")
     ng = check_ng_path(ng)
+    grid = _fit_grid(fit_sizes, fit_resultants)
+    if grid and "fit" not in names:
+        raise ParameterError("'fit_sizes'/'fit_resultants' set the fit workload's "
+                             f"scaling grid: add the 'fit' workload (got {names})")
     os.makedirs(out_dir, exist_ok=True)
     meta = dict(command=command or f"scenesim.bench.main({names!r}, quick={quick}, "
                                    f"threads={threads}, peers={peers}, ng={ng!r}, "
@@ -301,19 +356,37 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
     try:
         for name in names:
             fn, full, small = WORKLOADS[name]
-            for case in (small if quick else full):
+            cases = grid if name == "fit" and grid else (small if quick else full)
+            for case in cases:
                 rows.append(_run_one(name, case, threads, work, scaling=scaling,
-                                     peers=peers, ng=ng, exact=exact))
+                                     peers=peers, ng=ng, exact=exact, cases=cases))
                 _write(rows, out_dir, meta)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0
 
 
-def _run_one(name, case, threads, work, *, scaling, peers, ng, exact):
+def _fit_grid(sizes, nres):
+    """The fit's scaling cases asked for (checked), or None."""
+    if sizes is None and nres is None:
+        return None
+    got = {}
+    for label, values, default, least in (
+            ("fit_sizes", sizes, FIT_SCALING_SIZES, 8),
+            ("fit_resultants", nres, FIT_SCALING_NRES, 2)):
+        values = default if values is None else list(values)
+        if not values or any(isinstance(v, bool) or not isinstance(v, (int, np.integer))
+                             or v < least for v in values):
+            raise ParameterError(f"'{label}' must be integers >= {least}, got "
+                                 f"{values!r}")
+        got[label] = sorted(set(int(v) for v in values))
+    return fit_scaling_cases(got["fit_sizes"], got["fit_resultants"])
+
+
+def _run_one(name, case, threads, work, *, scaling, peers, ng, exact, cases=()):
     """One case: the scenesim process, floors and limit, one-thread run, peers."""
     print(f"[bench] {name} {_label(case)} ...", flush=True)
-    kwargs = PREPARE[name](case, work) if name in PREPARE else {}
+    kwargs = PREPARE[name](case, work, cases) if name in PREPARE else {}
     r = _run_child(name, case, threads, work, kwargs)
     arrays = {k: r.pop(k) for k in ("slope", "sigma_opt") if k in r}
     row = _row(name, case, r, threads, work)
@@ -322,6 +395,9 @@ def _run_one(name, case, threads, work, *, scaling, peers, ng, exact):
     extra = (f" floor {row['floor']:.2f} s, limit {row['limit']:.2f} s (wall/limit "
              f"{_fmt(row['limit_ratio'], '.1f')})" if "floor" in row
              else f" np.sum {row['baseline']:.3f} s")
+    if "read_pass" in row:
+        extra += (f", read pass {row['read_pass']:.3f} s, cube {row['cube_mb']:.0f} MB "
+                  f"in float32")
     print(f"[bench] {name} {_label(case)}: in-process {row['wall']:.2f} s, process "
           f"{row['process_wall']:.2f} s, peak {row['peak_rss_mb']:.0f} MB,{extra}, "
           f"ratio {_fmt(row['ratio'], '.1f')}, load {_load(row['load_before'])}",
@@ -383,6 +459,10 @@ def write_report(rows, out_dir, meta):
                 f"{'/'.join(map(str, meta['load_average_start']))} at the start, "
                 f"{'/'.join(map(str, meta['load_average_end']))} at the end)\n\n"
                 f"    {meta['command']}\n\n" + _markdown(rows))
+        scaling = _scaling_markdown(rows)
+        if scaling:
+            f.write("\nThe fit's scaling (cube read by row blocks from its file; "
+                    f"{meta['threads']} threads):\n\n" + scaling)
         if peer_table:
             f.write("\nPeers, process against process, on the same input:\n\n"
                     + peer_table)

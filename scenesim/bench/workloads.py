@@ -10,6 +10,14 @@ on a cube loaded from a file that the runner prepares once per size
 (:data:`PREPARE`, :func:`fit_input`), the very file the stcal peer fits
 (:mod:`scenesim.bench.peers`).  :func:`roman_scene` and :func:`fit_input` are the
 inputs the peers share.
+
+The fit's **scaling** cases ``(size, 'gls', nres)`` (issue 16) fit ``nres``
+resultants of a ``size`` x ``size`` exposure file (:func:`write_fit_ramp`: uint16 DN
+in the ``SCI`` cube, one file per size holding the run's longest ramp) read by row
+blocks (:func:`scenesim.io.cuberows.exposure_rows`): the cube is never in memory,
+so the process's peak memory is what the streamed fit needs.  Beside the fit they
+time, in the same process, one read of the cube by the same row blocks and one
+``np.sum`` of each block (the memory-bandwidth baseline).
 """
 
 import os
@@ -23,8 +31,14 @@ import noise
 from noise import pink
 from noise.errors import ParameterError
 from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout
+from astropy.io import fits
+from noise.fitsio import StreamingFITS
+from scenesim.bench.process import peak_rss_self
 from scenesim.engine import ChargeEngine, EngineOptions
+from scenesim.io.cuberows import exposure_rows
+from scenesim.io.header import filetype_card, nextend_card
 from scenesim.rampfit import fit_ramps, optimal_variance
+from scenesim.rampfit.solver import row_chunks
 from scenesim.run import write_exposure
 from scenesim.sky.psf import GaussianPSF, render_point_sources
 from scenesim.bench.floor import floor_counts, typical_lambda
@@ -33,7 +47,9 @@ from scenesim.bench.limit import pink_samples
 
 __all__ = ['WORKLOADS', 'OPTION_CASES', 'PREPARE', 'FIT_JUMP_SIGMA', 'bench_noise',
            'bench_jwst', 'bench_roman', 'bench_timeseries', 'bench_fit', 'bench_options',
-           'bench_pink', 'bench_skips', 'roman_scene', 'fit_input', 'prepare_fit']
+           'bench_pink', 'bench_skips', 'roman_scene', 'fit_input', 'prepare_fit',
+           'write_fit_ramp', 'fit_scaling_cases', 'FIT_SCALING_SIZES',
+           'FIT_SCALING_NRES']
 
 
 # --------------------------------------------------------------------- workloads
@@ -199,10 +215,69 @@ def fit_input(size):
     return cube, dict(t_frame=tf, read_noise=_FIT_RN, rate=_FIT_RATE)
 
 
-def prepare_fit(spec, directory):
-    """Write :func:`fit_input` of this case's size to ``directory`` once; return the
-    keyword arguments of :func:`bench_fit` (``cube`` = the ``.npy`` path; the slopes
-    are saved in ``directory`` too)."""
+#: Array sizes and resultant counts of the fit's scaling cases (full run).
+FIT_SCALING_SIZES = (512, 1024, 2048, 4096)
+FIT_SCALING_NRES = (5, 10, 20, 50, 100, 200)
+#: The same for ``--quick``.
+_FIT_SCALING_QUICK = ((128, 256), (5, 20, 50))
+#: Bias (DN) of the scaling cases' files: keeps read noise above 0 in uint16.
+_FIT_BIAS_DN = 1000.0
+
+
+def fit_scaling_cases(sizes, nres):
+    """The scaling cases ``(size, 'gls', n)`` for every size and resultant count."""
+    return [(int(s), "gls", int(n)) for s in sizes for n in nres]
+
+
+def write_fit_ramp(path, size, nres):
+    """Write the exposure file of the fit's scaling cases, one resultant at a time.
+
+    ``size`` x ``size`` pixels, ``nres`` RAPID resultants (one read each at ``(k + 1)
+    t_frame``), 10 e-/s Poisson, white read noise 10 e- per read, gain 1, a bias of
+    1000 DN, rounded to uint16 DN (seed 6; the first ``n`` resultants are the same
+    whatever ``nres``).  Only one frame is in memory at a time.
+    """
+    tf = noise.preset("H2RG").frame_time
+    g = np.random.default_rng(6)
+    acc = np.zeros((size, size), dtype=np.float32)
+    ro = Readout.named("RAPID", nres)
+    cards = [filetype_card("exposure"), nextend_card(2),
+             ("GAIN", 1.0, "e-/DN"), ("RDNOISE", _FIT_RN, "e- per read, not CDS"),
+             ("TFRAME", tf, "s"), ("NGROUPS", nres, ""), ("NINTS", 1, "")]
+    with open(path, "wb") as f:
+        s = StreamingFITS(f)
+        s.begin_image((), np.uint8, cards)
+        s.end_image()
+        s.begin_image((1, nres, size, size), np.uint16, name="SCI")
+        for _ in range(nres):
+            acc += g.poisson(_FIT_RATE * tf, (size, size)).astype(np.float32)
+            dn = acc + np.float32(_FIT_BIAS_DN) + np.float32(_FIT_RN) * \
+                g.standard_normal((size, size), dtype=np.float32)
+            s.write(np.clip(np.rint(dn), 0, 65535).astype(np.uint16))
+        s.end_image()
+        s.append_hdu(fits.BinTableHDU(ro.read_table(tf), name="READS"))
+
+
+def prepare_fit(spec, directory, cases=()):
+    """Write the input of this fit case to ``directory`` once; return the keyword
+    arguments of :func:`bench_fit`.
+
+    ``(size, fitter)``: :func:`fit_input` as ``.npy`` (``cube`` = its path; the slopes
+    are saved in ``directory`` too).  ``(size, 'gls', nres)``: the exposure file of
+    :func:`write_fit_ramp` holding the longest ramp of that size among ``cases``
+    (``cube`` = its path).
+    """
+    if len(spec) == 3:
+        size = spec[0]
+        longest = max([c[2] for c in cases if len(c) == 3 and c[0] == size]
+                      + [spec[2]])
+        path = os.path.join(directory, f"fit_ramp_{size}.fits")
+        if not os.path.exists(path) or exposure_rows(path).shape[1] < spec[2]:
+            for old in os.listdir(directory):     # one size's file at a time on disk
+                if old.startswith("fit_ramp_"):
+                    os.unlink(os.path.join(directory, old))
+            write_fit_ramp(path, size, longest)
+        return dict(cube=path)
     path = os.path.join(directory, f"fit_cube_{spec[0]}.npy")
     if not os.path.exists(path):
         cube, _ = fit_input(spec[0])
@@ -211,14 +286,18 @@ def prepare_fit(spec, directory):
 
 
 def bench_fit(spec, threads, *, cube=None, out_dir=None):
-    """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter.
+    """Ramp fit of ``size`` x ``size`` x 20 RAPID resultants with one fitter, or a
+    scaling case.
 
     ``spec`` = ``(size, fitter)``, fitter ``'cds'``, ``'ols'``, ``'gls'`` or
     ``'gls-jump'`` (GLS with jump detection at :data:`FIT_JUMP_SIGMA`).  ``cube``: the
     ``.npy`` file of :func:`prepare_fit` (made in memory when None).  ``out_dir``:
     where the slopes and variances are saved (``.npy``, after the timed fit), as the
-    stcal peer saves its own.
+    stcal peer saves its own.  ``spec`` = ``(size, 'gls', nres)``: a scaling case
+    (module notes, :func:`_bench_fit_scaling`); ``cube`` is its exposure file.
     """
+    if len(spec) == 3:
+        return _bench_fit_scaling(spec, threads, cube)
     size, fitter = spec
     _, meta = fit_input(0)
     tf, rn = meta["t_frame"], meta["read_noise"]
@@ -240,6 +319,46 @@ def bench_fit(spec, threads, *, cube=None, out_dir=None):
                 detail=f"{size}x{size}x{ngroups}, 10 e-/s, 10 e- per read, {fitter}"
                        + (f" ({FIT_JUMP_SIGMA} sigma)" if thr else ""),
                 median_slope=float(np.nanmedian(slope)))
+
+
+def _bench_fit_scaling(spec, threads, path):
+    """GLS fit of the first ``nres`` resultants of ``path`` read by row blocks.
+
+    Also times, in this process and on the fit's own row blocks: one read of the cube
+    (``read_pass``: file to float32 e-) and ``np.sum`` over each block read
+    (``baseline``: the memory-bandwidth time of the cube's float32 values).
+    """
+    size, fitter, nres = spec
+    if path is None:
+        raise ParameterError("the fit's scaling cases need their exposure file "
+                             "(prepare_fit)")
+    src = exposure_rows(path, nres=nres)
+    tf = noise.preset("H2RG").frame_time
+    times = [np.array([(k + 1) * tf]) for k in range(nres)]
+    bounds = row_chunks(size, size, nres)
+    t_read = t_sum = 0.0
+    for y0, y1 in bounds:
+        t0 = time.perf_counter()
+        blk = src.rows(y0, y1)
+        t1 = time.perf_counter()
+        blk.sum(dtype=np.float64)
+        t_sum += time.perf_counter() - t1
+        t_read += t1 - t0
+    del blk
+    rss_before = peak_rss_self()
+    wall, cpu, res = _timed(lambda: fit_ramps(src, times, read_noise=_FIT_RN,
+                                              fitter=fitter, threads=threads))
+    return dict(wall=wall, cpu=cpu, baseline=t_sum, read_pass=t_read,
+                baseline_kind="memory bandwidth: np.sum over each row block of the "
+                              "float32 cube",
+                nres=nres, size=size, blocks=len(bounds),
+                cube_mb=nres * size * size * 4 / 2 ** 20,
+                file_mb=os.path.getsize(path) / 2 ** 20,
+                rss_before_fit_mb=rss_before,
+                detail=f"{size}x{size}x{nres} RAPID, 10 e-/s, 10 e- per read, "
+                       f"{fitter}, read by {len(bounds)} row blocks from a uint16 "
+                       f"exposure file",
+                median_slope=float(np.median(np.asarray(res.slope, np.float64))))
 
 
 #: Approximation options measured by ``bench options`` (the exact path is the default).
@@ -392,8 +511,10 @@ WORKLOADS = {
     "noise": (bench_noise, [10, 40, 88], [1, 5]),
     "jwst": (bench_jwst, ["full", "full-engine"], ["quick", "quick-engine"]),
     "roman": (bench_roman, ["full"], ["quick"]),
-    "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls", "gls-jump")],
-            [(512, f) for f in ("cds", "ols", "gls", "gls-jump")]),
+    "fit": (bench_fit, [(2048, f) for f in ("cds", "ols", "gls", "gls-jump")]
+            + fit_scaling_cases(FIT_SCALING_SIZES, FIT_SCALING_NRES),
+            [(512, f) for f in ("cds", "ols", "gls", "gls-jump")]
+            + fit_scaling_cases(*_FIT_SCALING_QUICK)),
     "timeseries": (bench_timeseries, [300], [30]),
     "options": (bench_options, [(c, "full") for c in OPTION_CASES],
                 [(c, "quick") for c in OPTION_CASES]),
@@ -406,6 +527,7 @@ WORKLOADS = {
     "batch": (bench_batch, [24], [4]),
 }
 
-#: Workload name -> function(case, directory) that writes the case's input to
-#: ``directory`` (once) and returns extra keyword arguments of the workload.
+#: Workload name -> function(case, directory, cases) that writes the case's input to
+#: ``directory`` (once; ``cases``: all the run's cases of that workload) and returns
+#: extra keyword arguments of the workload.
 PREPARE = {"fit": prepare_fit}

@@ -99,14 +99,35 @@ is rounded before the fitter sees it (to 2^14 e- at 1e11 e-), noise the model do
 not include (chi2 1.05 there): keep resultants above ~1e9 e- in float64, or take
 the differences before casting.
 
-Cost: working memory beyond the outputs (36 bytes per pixel per integration) is
-bounded by the row chunks, about 15 MiB per thread.  The second solve at the weight
-rate costs nothing where every pixel is bright enough not to need its neighbours
+Row blocks
+----------
+The fit runs by blocks of rows (``block_rows``; by default about
+:data:`scenesim.rampfit.solver.CHUNK_PIXELS` pixels, so the cost per difference is
+the same at every ramp length: time linear in the number of resultants), each read
+from ``resultants`` when a worker thread takes it up: a view of an in-memory array,
+or a read from a file through a row source (:mod:`scenesim.io.cuberows`), so a cube
+larger than memory can be fitted.  The fit passes over the blocks up to four times:
+a finiteness check (float data only), the first fit, and with GLS the solves at the
+weight rate, which re-read only the blocks holding a pixel to refit (a block where
+most pixels are refitted is solved whole; the few refitted pixels of the other blocks
+are gathered into batches of a block's size).  The neighbourhood rates between the
+passes use the per-pixel outputs of the whole frame.  Every step is per pixel, so the
+result does not depend on the block size or the thread count, to the last bit.
+
+Cost: memory is the outputs, ~40 bytes per pixel per integration (670 MB at
+4096 x 4096, whatever the ramp length), plus ~30 bytes per value of the blocks in
+flight (two per thread; ~130 MB per block at 200 resultants); the cube itself is
+held only when the caller passes it as an array.  Time: ~25 numpy calls per
+difference and solve, each a pass over one block's (pixels,) vector: the fit is
+bound by the number of those passes, not by reading the cube
+(``scenesim bench fit``, BENCHMARKS.md).  The second solve at the weight rate costs
+nothing where every pixel is bright enough not to need its neighbours
 (``kappa^2 < 3e-3``), up to ~2 solves more (jump detection repeated only on pixels
 with a jump) in dark, read-noise dominated frames.  Measured timings are in
 ``docs/VALIDATION_FIT.md``.
 """
 
+import collections
 import contextlib
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -123,7 +144,7 @@ from scenesim.io.fitfile import FitResult
 from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
 from scenesim.rampfit.jumps import flag_jumps
 from scenesim.rampfit.local_rate import local_rates, uses_neighbours
-from scenesim.rampfit.solver import CHUNK_ELEMS, TINY, ldl_pass, quad_form, row_chunks
+from scenesim.rampfit.solver import TINY, ldl_pass, quad_form, row_chunks
 from scenesim.rampfit.times import check_read_times
 
 __all__ = ["FITTERS", "VARIANCE_RATES", "fit_ramps"]
@@ -139,23 +160,29 @@ _F32 = np.float32
 _OUTPUTS = ("slope", "var_read", "chi2", "dof", "dq", "slope_ints", "var_ints",
             "n_jumps")
 _AUX = ("pcoef", "pcoef_ints")
-#: Above this fraction of refitted pixels the refit runs by row chunks (no gather).
+#: Above this fraction of a row block's pixels refitted, the refit solves the whole
+#: block (no gather) and keeps those pixels.
 _DENSE_REFIT = 0.5
+#: Row blocks in flight per worker thread (each holds its rows' resultants).
+_WINDOW = 2
 
 
 # ---------------------------------------------------------------------- entry point
 def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
               saturated=None, jump_threshold=None, n_iter=2, refmask=None,
-              zero_point=None, threads=None, variance_rate="local"):
+              zero_point=None, threads=None, variance_rate="local", block_rows=None):
     """Fit a rate to every pixel's resultants.
 
     Parameters
     ----------
-    resultants : ndarray, shape (nres, ny, nx) or (nints, nres, ny, nx), e-
+    resultants : ndarray, shape (nres, ny, nx) or (nints, nres, ny, nx), e-, or a row source
         Resultants of one or several integrations, in electrons (DN times gain;
         nothing else subtracted).  Any real dtype; differences are taken in the
         input dtype (float64 for integers), the rest in float32 (module notes:
-        keep resultants above ~1e9 e- in float64).
+        keep resultants above ~1e9 e- in float64).  A *row source*
+        (:mod:`scenesim.io.cuberows`, e.g. :func:`scenesim.io.cuberows.exposure_rows`
+        of an exposure file) is read by row blocks, so the cube is never held in
+        memory (module notes, "Row blocks").
     read_times : sequence of nres arrays, seconds from reset
         Times of the reads averaged into each resultant: 1-D ``(N_i,)`` arrays, the
         same for every pixel (uneven Roman-style tables and gaps are allowed), or
@@ -198,6 +225,11 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         depends on its own ramp only).  An array: a rate known independently of
         these data (e.g. a dark calibration or a deeper exposure), clipped at 0,
         for the weights and the variance: optimal and calibrated.
+    block_rows : int or None
+        Rows per block (>= 1) read and solved at once; None: about
+        :data:`scenesim.rampfit.solver.CHUNK_PIXELS` pixels per block (fewer for
+        ramps above 256 resultants).  The result does not depend on it, to the
+        last bit.
 
     Returns
     -------
@@ -209,8 +241,8 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         On bad input, before any work.
     """
     check_choice("fitter", fitter, FITTERS)
-    res4, sat4 = _check_resultants(resultants, saturated)
-    nints, nres, ny, nx = res4.shape
+    src, sat = _check_resultants(resultants, saturated)
+    nints, nres, ny, nx = src.shape
     times, shift = check_read_times(read_times, nres, (ny, nx))
     read_noise = check_map("read_noise", read_noise, (ny, nx), minimum=0.0)
     gain = check_float("gain", gain, minimum=0.0, strict_min=True)
@@ -223,17 +255,20 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     variance_rate = _check_variance_rate(variance_rate, (ny, nx))
     threads = min(os.cpu_count() or 1, 8) if threads is None else check_int(
         "threads", threads, minimum=1)
-    _check_finite(res4, sat4)
+    if block_rows is not None:
+        block_rows = check_int("block_rows", block_rows, minimum=1)
+    bounds = row_chunks(ny, nx, nints * nres, rows=block_rows)
+    _check_finite(src, sat, bounds)
 
     cov = RampCovariance(times)
-    bounds = row_chunks(ny, nx * nints * nres)
     s2 = float(read_noise) ** 2 if np.isscalar(read_noise) else \
         (read_noise ** 2).astype(_F32)
-    setup = _Setup(res4, sat4, s2, cov, fitter, thr, n_iter, zero_point, shift)
+    setup = _Setup(src, sat, s2, cov, fitter, thr, n_iter, zero_point, shift, bounds,
+                   _WINDOW * threads)
     pool = ThreadPoolExecutor(max_workers=threads) \
         if threads > 1 and len(bounds) > 1 else None
     with pool if pool is not None else contextlib.nullcontext():
-        out = _fit_chunks(setup, bounds, pool)
+        out = _fit_chunks(setup, pool)
         if refmask is not None:
             out["dq"][refmask] |= np.uint32(REFERENCE_PIXEL | DO_NOT_USE)
         local = fitter == "gls" and isinstance(variance_rate, str) and \
@@ -258,7 +293,21 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
 
 # ---------------------------------------------------------------------- validation
 def _check_resultants(resultants, saturated):
-    """``resultants`` and ``saturated`` as (nints, nres, ny, nx) arrays (or None)."""
+    """``resultants`` and ``saturated`` as row sources of shape (nints, nres, ny, nx)
+    (``saturated`` None if not given)."""
+    if _is_row_source(resultants):
+        src = _check_row_source(resultants)
+    else:
+        src = _ArrayRows(_resultant_array(resultants))
+    if saturated is None:
+        return src, None
+    sat = check_mask("saturated", saturated, src.shape if src.ndim == 4 else
+                     src.shape[1:])
+    return src, _ArrayRows(sat if sat.ndim == 4 else sat[None])
+
+
+def _resultant_array(resultants):
+    """``resultants`` as a 3-D or 4-D real ndarray (checked)."""
     if not isinstance(resultants, np.ndarray):
         try:
             resultants = np.asarray(resultants)
@@ -272,14 +321,63 @@ def _check_resultants(resultants, saturated):
         raise ParameterError(
             f"'resultants' must have shape (nres, ny, nx) or (nints, nres, ny, nx), "
             f"got shape {resultants.shape}")
-    res4 = resultants if resultants.ndim == 4 else resultants[None]
-    if min(res4.shape) == 0:
+    if min(resultants.shape) == 0:
         raise ParameterError(f"'resultants' must not be empty, got shape "
                              f"{resultants.shape}")
-    if saturated is None:
-        return res4, None
-    sat = check_mask("saturated", saturated, resultants.shape)
-    return res4, sat if sat.ndim == 4 else sat[None]
+    return resultants
+
+
+def _is_row_source(obj):
+    return not isinstance(obj, np.ndarray) and callable(getattr(obj, "rows", None)) \
+        and hasattr(obj, "shape") and hasattr(obj, "dtype")
+
+
+def _check_row_source(src):
+    """A row source (:mod:`scenesim.io.cuberows`) with a 4-D shape and a real dtype."""
+    shape = tuple(src.shape)
+    if len(shape) != 4 or not all(isinstance(v, (int, np.integer)) and v > 0
+                                  for v in shape):
+        raise ParameterError(
+            f"'resultants' row source must have a shape (nints, nres, ny, nx) of "
+            f"positive integers, got {shape!r}")
+    if np.dtype(src.dtype).kind not in "iuf":
+        raise ParameterError(f"'resultants' row source must give real numbers (e-), "
+                             f"got dtype {src.dtype}")
+    return _SourceRows(src, shape)
+
+
+class _ArrayRows:
+    """An in-memory (nints, nres, ny, nx) array (or a 3-D one, one integration) as a
+    row source: blocks are views."""
+
+    all_finite = False
+
+    def __init__(self, array):
+        self.ndim = array.ndim
+        self.array = array if array.ndim == 4 else array[None]
+        self.shape = self.array.shape
+        self.dtype = array.dtype
+
+    def rows(self, y0, y1):
+        return self.array[:, :, y0:y1]
+
+
+class _SourceRows:
+    """A caller's row source, its blocks checked for shape."""
+
+    ndim = 4
+
+    def __init__(self, src, shape):
+        self.src, self.shape, self.dtype = src, shape, np.dtype(src.dtype)
+        self.all_finite = bool(getattr(src, "all_finite", False))
+
+    def rows(self, y0, y1):
+        blk = np.asarray(self.src.rows(y0, y1))
+        want = self.shape[:2] + (y1 - y0, self.shape[3])
+        if blk.shape != want:
+            raise ParameterError(f"'resultants' row source gave shape {blk.shape} for "
+                                 f"rows {y0}:{y1}, expected {want}")
+        return blk
 
 
 def _check_variance_rate(variance_rate, shape):
@@ -291,28 +389,32 @@ def _check_variance_rate(variance_rate, shape):
         raise ParameterError(f"{exc}; or an array of shape {shape} (e-/s)") from exc
 
 
-def _check_finite(res4, sat4):
-    """Raise unless ``res4`` is finite wherever ``sat4`` does not flag it."""
-    nints, nres = res4.shape[:2]
-    for k in range(nints):
-        for r in range(nres):
-            bad = ~np.isfinite(res4[k, r])
-            if sat4 is not None:
-                bad &= ~sat4[k, r]
-            if bad.any():
-                raise ParameterError(
-                    f"'resultants' must be finite where not flagged in 'saturated'; "
-                    f"integration {k} resultant {r} has {int(bad.sum())} NaN or inf "
-                    f"values")
+def _check_finite(src, sat, bounds):
+    """Raise unless the resultants are finite wherever ``sat`` does not flag them
+    (one pass over the row blocks; none for integer data)."""
+    if src.all_finite or src.dtype.kind in "iu":
+        return
+    nints, nres = src.shape[:2]
+    nbad = np.zeros((nints, nres), np.int64)
+    for y0, y1 in bounds:
+        bad = ~np.isfinite(src.rows(y0, y1))
+        if sat is not None:
+            bad &= ~sat.rows(y0, y1)
+        nbad += bad.sum(axis=(2, 3))
+    if nbad.any():
+        k, r = np.argwhere(nbad)[0]
+        raise ParameterError(
+            f"'resultants' must be finite where not flagged in 'saturated'; "
+            f"integration {k} resultant {r} has {int(nbad[k, r])} NaN or inf values")
 
 
 # ---------------------------------------------------------------------- chunks
 @dataclass(frozen=True, eq=False)
 class _Setup:
-    """What every row chunk of one :func:`fit_ramps` call needs (validated)."""
+    """What every row block of one :func:`fit_ramps` call needs (validated)."""
 
-    res4: np.ndarray
-    sat4: object
+    src: object                # row source of the resultants
+    sat: object                # row source of the saturation flags, or None
     s2: object                 # read variance per read: float, or (ny, nx) float32
     cov: RampCovariance
     fitter: str
@@ -320,17 +422,20 @@ class _Setup:
     n_iter: int
     zero_point: object
     shift: object
+    bounds: list               # the row blocks [(y0, y1), ...]
+    window: int                # row blocks in flight on the pool
 
     def chunk(self, y0, y1):
-        """Arguments of :func:`_fit_block` for rows ``y0:y1``, pixels flattened."""
-        nints, nres = self.res4.shape[:2]
+        """Arguments of :func:`_fit_block` for rows ``y0:y1``, pixels flattened
+        (the rows read from the source)."""
+        nints, nres = self.src.shape[:2]
 
         def pix(a):
             return None if a is None or np.isscalar(a) else a[y0:y1].reshape(-1)
 
-        blk = self.res4[:, :, y0:y1].reshape(nints, nres, -1)
-        sblk = None if self.sat4 is None else \
-            self.sat4[:, :, y0:y1].reshape(nints, nres, -1)
+        blk = self.src.rows(y0, y1).reshape(nints, nres, -1)
+        sblk = None if self.sat is None else \
+            self.sat.rows(y0, y1).reshape(nints, nres, -1)
         s2 = self.s2 if np.isscalar(self.s2) else self.s2[y0:y1].reshape(-1)
         zp = self.zero_point if self.zero_point is None or np.isscalar(
             self.zero_point) else pix(self.zero_point)
@@ -338,9 +443,30 @@ class _Setup:
                 pix(self.shift))
 
 
-def _fit_chunks(setup, bounds, pool):
-    """Fit every row chunk; return the dict of (ny, nx) / (nints, ny, nx) outputs."""
-    nints, _, ny, nx = setup.res4.shape
+def _run(pool, items, window):
+    """Call ``fn(arg)`` for each ``(fn, arg)`` of the iterable ``items``: here, or on
+    the pool with at most ``window`` in flight (each holds a row block, so the
+    memory stays bounded while ``items`` reads ahead)."""
+    if pool is None:
+        for fn, arg in items:
+            fn(arg)
+        return
+    pending = collections.deque()
+    try:
+        for fn, arg in items:
+            pending.append(pool.submit(fn, arg))
+            if len(pending) >= window:
+                pending.popleft().result()
+        while pending:
+            pending.popleft().result()
+    finally:
+        for f in pending:
+            f.cancel()
+
+
+def _fit_chunks(setup, pool):
+    """Fit every row block; return the dict of (ny, nx) / (nints, ny, nx) outputs."""
+    nints, _, ny, nx = setup.src.shape
     out = {"slope": np.zeros((ny, nx), _F32), "var_read": np.zeros((ny, nx), _F32),
            "chi2": np.zeros((ny, nx), _F32), "dof": np.zeros((ny, nx), np.int32),
            "dq": np.zeros((ny, nx), np.uint32),
@@ -361,11 +487,7 @@ def _fit_chunks(setup, bounds, pool):
             else:
                 out[key][y0:y1] = val.reshape(shp)
 
-    if pool is None:
-        for b in bounds:
-            work(b)
-    else:
-        list(pool.map(work, bounds))
+    _run(pool, ((work, b) for b in setup.bounds), setup.window)
     return out
 
 
@@ -404,66 +526,77 @@ def _refit_at_rate(setup, out, rate, refit, pool):
     differences: jump detection does not depend on the weights, so it is only
     repeated on the pixels that had a jump.  Updates the slopes, read variances,
     Poisson coefficients, chi-squares and per-integration values of ``out``.
-    """
-    nints, nres, ny, nx = setup.res4.shape
-    ys, xs = np.divmod(np.flatnonzero(refit), nx)
-    if ys.size == 0:
-        return
-    if ys.size > _DENSE_REFIT * refit.size:
-        _refit_rows(setup, out, rate, refit, pool)
-        return
-    jumped = out["n_jumps"][ys, xs] > 0
-    step = max(1, CHUNK_ELEMS // (nints * nres))
 
-    def work(c0):
-        y, x = ys[c0:c0 + step], xs[c0:c0 + step]
-        sat = None if setup.sat4 is None else setup.sat4[:, :, y, x]
-        s2 = setup.s2 if np.isscalar(setup.s2) else setup.s2[y, x]
-        got = _fit_block(setup.res4[:, :, y, x], sat, s2, setup.cov, "gls", setup.thr,
-                         1, None, None, frate=rate[y, x],
-                         fstart=out["slope"][y, x], jumped=jumped[c0:c0 + step])
-        ok = got["by_diff"]
+    Row blocks are read again (only those with a pixel to refit): a block where most
+    pixels are refitted (dark frames) is solved whole and the others dropped; from the
+    other blocks the refitted pixels are gathered into batches of about a block's
+    pixels (the same per-pixel solve either way; fewer than a block's pixels in a
+    batch would multiply numpy's per-call overhead).
+    """
+    nints, nres, ny, nx = setup.src.shape
+    jumped = out["n_jumps"] > 0
+
+    def keep(y, x, got, ok):
         y, x = y[ok], x[ok]
         for key in ("slope", "var_read", "pcoef", "chi2"):
             out[key][y, x] = got[key][ok]
         for key in ("slope_ints", "var_ints", "pcoef_ints"):
             out[key][:, y, x] = got[key][:, ok]
 
-    starts = range(0, ys.size, step)
-    if pool is None:
-        for c0 in starts:
-            work(c0)
-    else:
-        list(pool.map(work, starts))
-
-
-def _refit_rows(setup, out, rate, refit, pool):
-    """:func:`_refit_at_rate` by row chunks, for frames where most pixels are
-    refitted (dark frames): contiguous slices instead of gathering the pixels (the
-    same per-pixel solve; the few pixels not in ``refit`` are solved and dropped)."""
-    nints, nres, ny, nx = setup.res4.shape
-    bounds = row_chunks(ny, nx * nints * nres)
-
-    def work(bound):
+    def fit_rows(bound):
         y0, y1 = bound
         args = setup.chunk(y0, y1)
         got = _fit_block(*args[:6], 1, None, None,
                          frate=rate[y0:y1].reshape(-1),
                          fstart=out["slope"][y0:y1].reshape(-1),
-                         jumped=out["n_jumps"][y0:y1].reshape(-1) > 0)
-        ok = got["by_diff"] & refit[y0:y1].reshape(-1)
-        y, x = np.divmod(np.flatnonzero(ok), nx)
-        y = y + y0
-        for key in ("slope", "var_read", "pcoef", "chi2"):
-            out[key][y, x] = got[key][ok]
-        for key in ("slope_ints", "var_ints", "pcoef_ints"):
-            out[key][:, y, x] = got[key][:, ok]
+                         jumped=jumped[y0:y1].reshape(-1))
+        y, x = np.divmod(np.arange((y1 - y0) * nx), nx)
+        keep(y + y0, x, got, got["by_diff"] & refit[y0:y1].reshape(-1))
 
-    if pool is None:
-        for b in bounds:
-            work(b)
-    else:
-        list(pool.map(work, bounds))
+    def fit_pixels(batch):
+        y, x, res, sat = batch
+        s2 = setup.s2 if np.isscalar(setup.s2) else setup.s2[y, x]
+        got = _fit_block(res, sat, s2, setup.cov, "gls", setup.thr, 1, None, None,
+                         frate=rate[y, x], fstart=out["slope"][y, x],
+                         jumped=jumped[y, x])
+        keep(y, x, got, got["by_diff"])
+
+    _run(pool, _refit_items(setup, refit, fit_rows, fit_pixels), setup.window)
+
+
+def _refit_items(setup, refit, fit_rows, fit_pixels):
+    """The work of :func:`_refit_at_rate`: ``(fit_rows, (y0, y1))`` for dense blocks,
+    ``(fit_pixels, (y, x, res, sat))`` for batches gathered from the sparse ones."""
+    nints, nres, ny, nx = setup.src.shape
+    y0, y1 = setup.bounds[0]
+    target = (y1 - y0) * nx                # a batch holds about one block's pixels
+    parts, count = [], 0
+
+    def batch():
+        y, x, res, sat = zip(*parts)
+        return (np.concatenate(y), np.concatenate(x), np.concatenate(res, axis=2),
+                None if setup.sat is None else np.concatenate(sat, axis=2))
+
+    for y0, y1 in setup.bounds:
+        m = refit[y0:y1].reshape(-1)
+        n = int(np.count_nonzero(m))
+        if n == 0:
+            continue
+        if n > _DENSE_REFIT * m.size:
+            yield fit_rows, (y0, y1)
+            continue
+        flat = np.flatnonzero(m)
+        res = setup.src.rows(y0, y1).reshape(nints, nres, -1)[:, :, flat]
+        sat = None if setup.sat is None else \
+            setup.sat.rows(y0, y1).reshape(nints, nres, -1)[:, :, flat]
+        y, x = np.divmod(flat, nx)
+        parts.append((y + y0, x, res, sat))
+        count += n
+        if count >= target:
+            yield fit_pixels, batch()
+            parts, count = [], 0
+    if parts:
+        yield fit_pixels, batch()
 
 
 # ---------------------------------------------------------------------- one chunk

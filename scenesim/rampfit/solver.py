@@ -16,19 +16,37 @@ removed by replacing their row and column of ``W`` by the identity, which makes
 Poisson part of ``C``), which propagates the weights through the model covariance.
 
 Chunks: per-pixel work arrays are processed in row chunks of about
-:data:`CHUNK_ELEMS` float32 values per (nints, nres, pixels) array
-(:func:`row_chunks`), small enough for the per-difference vectors to stay in cache,
-large enough to amortise numpy's per-call overhead.  numpy releases the GIL in its
-loops, so chunks run in parallel on a thread pool.  No pixel's result depends on the
-chunking.
+:data:`CHUNK_PIXELS` pixels whatever the ramp length (:func:`chunk_pixels`,
+:func:`row_chunks`), fewer only where a (nints, nres, pixels) array would exceed
+:data:`CHUNK_VALUES` values.  The loops over the differences make ~25 numpy calls
+per difference, each over one (pixels,) vector: a chunk of a fixed number of
+pixels keeps the cost of a call per pixel the same at every ramp length, so the
+fit is linear in the number of resultants (a chunk of a fixed number of *values*,
+as before, gave 5 x 512 pixels at 200 resultants: numpy's per-call overhead then
+grew the cost per difference, time ~ nres^1.3).  16384 pixels is where a call's
+overhead (~1 us) is small against its loop and its (pixels,) vectors (64 kB) still
+sit in the 2 MB per-core L2 cache (measured: 512^2 x 200, one thread, 1.31 s at
+16384 pixels against 1.77 s at 4096 and 1.69 s at 65536).  numpy releases the GIL
+in its loops, so chunks run in parallel on a thread pool.  No pixel's result
+depends on the chunking.
 """
 
 import numpy as np
 
-__all__ = ["CHUNK_ELEMS", "TINY", "ldl_pass", "quad_form", "row_chunks"]
+__all__ = ["CHUNK_ELEMS", "CHUNK_PIXELS", "CHUNK_VALUES", "TINY", "chunk_pixels",
+           "ldl_pass", "quad_form", "row_chunks"]
 
-#: Target number of float32 values per (nints, nres, pixels) chunk array.
+#: Target number of float32 values per chunk array of the pixel-only steps (the
+#: neighbourhood sorts of :mod:`scenesim.rampfit.local_rate`).
 CHUNK_ELEMS = 1 << 19
+
+#: Pixels per chunk of the ramp solves, whatever the ramp length (module notes).
+CHUNK_PIXELS = 1 << 14
+
+#: At most this many values per (nints, nres, pixels) chunk array: ramps longer
+#: than 256 resultants get fewer pixels per chunk, so that a chunk's work arrays
+#: stay bounded (~30 bytes per value over the fit's arrays: ~120 MB per thread).
+CHUNK_VALUES = 1 << 22
 
 #: Least pivot or variance used as a divisor (guards exact zeros).
 TINY = 1e-30
@@ -36,10 +54,20 @@ TINY = 1e-30
 _F32 = np.float32
 
 
-def row_chunks(ny, values_per_row):
-    """``[(y0, y1), ...]`` row ranges covering ``ny`` rows, each about
-    :data:`CHUNK_ELEMS` values when a row holds ``values_per_row`` values."""
-    rows = max(1, CHUNK_ELEMS // values_per_row)
+def chunk_pixels(values_per_pixel):
+    """Pixels per chunk for ``values_per_pixel`` values (nints x nres) per pixel:
+    :data:`CHUNK_PIXELS`, fewer where that would exceed :data:`CHUNK_VALUES`."""
+    return max(1, min(CHUNK_PIXELS, CHUNK_VALUES // max(1, int(values_per_pixel))))
+
+
+def row_chunks(ny, nx, values_per_pixel, *, rows=None):
+    """``[(y0, y1), ...]`` row ranges covering ``ny`` rows of ``nx`` pixels.
+
+    Each holds ``rows`` rows, or (``rows=None``) about :func:`chunk_pixels`
+    pixels (at least one row) for ``values_per_pixel`` values per pixel.
+    """
+    if rows is None:
+        rows = max(1, chunk_pixels(values_per_pixel) // max(1, nx))
     return [(y, min(y + rows, ny)) for y in range(0, ny, rows)]
 
 

@@ -240,7 +240,7 @@ def model_chi2(resultants, read_times, rate, read_noise, *, valid=None, ddof=1):
     rate_map = np.broadcast_to(np.asarray(rate, dtype=_F32), (ny, nx))
     s2_map = np.broadcast_to(np.asarray(read_noise, dtype=float) ** 2, (ny, nx))
     raw = np.zeros((ny, nx), _F32)
-    for y0, y1 in row_chunks(ny, nx * nints * nres):
+    for y0, y1 in row_chunks(ny, nx, nints * nres):
         f = rate_map[y0:y1].reshape(-1)
         s2 = s2_map[y0:y1].reshape(-1).astype(_F32)
         fc = np.maximum(f, np.where(s2 == 0, _F32(RATE_FLOOR), _F32(0)))

@@ -77,3 +77,34 @@ def test_quick_options_report_errors_against_exact(tmp_path):
     assert rows["exact (quick)"]["max_scatter_dev"] < 0.06
     assert rows["arrivals=2d (quick)"]["max_diff_sigma"] > 1.0
     assert "speed-up vs exact" in (out / "bench.md").read_text()
+
+
+def test_fit_scaling_grid_reports_time_memory_and_exponents(tmp_path):
+    """The fit's scaling cases stream their exposure file and report what they
+    measured; the slopes are right (a broken stream would not fit 10 e-/s)."""
+    out = tmp_path / "f"
+    assert bench.main(["fit"], out_dir=str(out), threads=1, fit_sizes=[64],
+                      fit_resultants=[5, 10]) == 0
+    rows = json.loads((out / "bench.json").read_text())["rows"]
+    assert [(r["size"], r["nres"]) for r in rows] == [(64, 5), (64, 10)]
+    for r in rows:
+        assert r["wall"] > 0 and r["peak_rss_mb"] > 0 and r["baseline"] > 0
+        assert r["read_pass"] > 0 and r["blocks"] == 1
+        assert r["cube_mb"] == pytest.approx(r["nres"] * 64 * 64 * 4 / 2 ** 20)
+        # 10 e-/s over 5 x 10.737 s with 10 e- per read: one slope's sd is ~0.56
+        # e-/s, the median of 4096 has sd 1.25 x 0.56 / 64 = 0.011: 0.06 is 5 sigma
+        assert abs(r["median_slope"] - 10.0) < 0.06
+    md = (out / "bench.md").read_text()
+    assert "| 64x64 | 5 |" in md and "| 64x64 | 10 |" in md
+    assert "Exponents (least squares of log against log resultants)" in md
+    assert "| 64x64 | 5-10 |" in md
+
+
+def test_fit_scaling_grid_arguments_are_checked_before_work(tmp_path):
+    for kw in (dict(fit_sizes=[0]), dict(fit_resultants=[1]),
+               dict(fit_sizes=[64.5]), dict(fit_resultants=[])):
+        with pytest.raises(ParameterError, match="fit_"):
+            bench.main(["fit"], out_dir=str(tmp_path / "x"), **kw)
+    with pytest.raises(ParameterError, match="add the 'fit' workload"):
+        bench.main(["noise"], out_dir=str(tmp_path / "x"), fit_sizes=[64])
+    assert not os.path.exists(tmp_path / "x")
