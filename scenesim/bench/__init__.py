@@ -201,34 +201,34 @@ def _scaling_markdown(rows):
     cases = [r for r in rows if r["workload"] == "fit" and "nres" in r]
     if not cases:
         return ""
-    head = ("| size | resultants | in-process s | process s | peak RSS MB | cube MB "
-            "(float32) | peak / cube | peak / peak at fewest resultants | ns per pixel "
-            "x resultant | time per resultant / at fewest | read pass s | np.sum s | "
-            "wall / np.sum |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    head = ("| size | resultants | in-process s | CPU s | process s | peak RSS MB | cube "
+            "MB (float32) | peak / cube | peak / peak at fewest resultants | ns per "
+            "pixel x resultant (CPU) | CPU per resultant / at fewest | read pass s | "
+            "np.sum s | wall / np.sum | load |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines, fits = [], []
     for size in sorted({r["size"] for r in cases}):
         rs = sorted((r for r in cases if r["size"] == size), key=lambda r: r["nres"])
         r0 = rs[0]
         for r in rs:
-            per = r["wall"] / (size * size * r["nres"]) * 1e9
-            per0 = r0["wall"] / (size * size * r0["nres"]) * 1e9
+            per = r["cpu"] / (size * size * r["nres"]) * 1e9
+            per0 = r0["cpu"] / (size * size * r0["nres"]) * 1e9
             lines.append(
-                f"| {size}x{size} | {r['nres']} | {r['wall']:.2f} | "
+                f"| {size}x{size} | {r['nres']} | {r['wall']:.2f} | {r['cpu']:.2f} | "
                 f"{r['process_wall']:.2f} | {r['peak_rss_mb']:.0f} | {r['cube_mb']:.0f} "
                 f"| {r['peak_rss_mb'] / r['cube_mb']:.2f} | "
                 f"{r['peak_rss_mb'] / r0['peak_rss_mb']:.2f} | {per:.1f} | "
                 f"{per / per0:.2f} | {r['read_pass']:.2f} | {r['baseline']:.3f} | "
-                f"{_fmt(r['ratio'], '.0f')} |")
-        n = [r["nres"] for r in rs]
-        long = [r for r in rs if r["nres"] >= 20]
-        fits.append(
-            f"| {size}x{size} | {min(n)}-{max(n)} | "
-            f"{_fmt(_exponent(n, [r['wall'] for r in rs]), '.2f')} | "
-            f"{_fmt(_exponent([r['nres'] for r in long], [r['wall'] for r in long]), '.2f')}"
-            f" | {_fmt(_exponent(n, [r['peak_rss_mb'] for r in rs]), '.2f')} |")
+                f"{_fmt(r['ratio'], '.0f')} | {_load(r.get('load_before'))} |")
+        fits.append(f"| {size}x{size} | " + " | ".join(
+            _fmt(_exponent([r["nres"] for r in sel], [r[key] for r in sel]), ".2f")
+            for key in ("wall", "cpu", "peak_rss_mb")
+            for sel in (rs, [r for r in rs if r["nres"] >= 20])) + " |")
     return (head + "\n".join(lines) + "\n\nExponents (least squares of log against "
-            "log resultants):\n\n| size | resultants | time, all | time, >= 20 "
-            "resultants | peak RSS |\n|---|---|---|---|---|\n" + "\n".join(fits) + "\n")
+            "log resultants; all the size's cases, then those with >= 20 resultants):"
+            "\n\n| size | wall, all | wall, >= 20 | CPU, all | CPU, >= 20 | peak RSS, "
+            "all | peak RSS, >= 20 |\n|---|---|---|---|---|---|---|\n"
+            + "\n".join(fits) + "\n")
 
 
 def _peer_markdown(rows):

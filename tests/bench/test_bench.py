@@ -96,8 +96,8 @@ def test_fit_scaling_grid_reports_time_memory_and_exponents(tmp_path):
         assert abs(r["median_slope"] - 10.0) < 0.06
     md = (out / "bench.md").read_text()
     assert "| 64x64 | 5 |" in md and "| 64x64 | 10 |" in md
-    assert "Exponents (least squares of log against log resultants)" in md
-    assert "| 64x64 | 5-10 |" in md
+    assert "Exponents (least squares of log against log resultants" in md
+    assert md.count("| 64x64 |") == 3
 
 
 def test_fit_scaling_grid_arguments_are_checked_before_work(tmp_path):
