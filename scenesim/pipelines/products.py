@@ -3,11 +3,14 @@
 * :func:`fit_header`: the primary header of a slope file: FITS (scenesim fits, JWST
   ``rate``/``rateints``) or, for a Roman L2 ASDF file, the FITS-like cards ``compare``
   reads (``S_IPC``/``S_DARK`` from its ``cal_step``).
-* :func:`subtracted_dark_rate`: the dark rate a JWST pipeline subtracted.  When
+* :func:`subtracted_dark_rate`: the dark rate a pipeline subtracted.  When
   ``S_DARK = 'COMPLETE'`` the rate file lacks the dark current and hot pixels the
-  truth includes; the dark reference it names (``R_DARK``) gives what was taken out:
-  a linear dark ramp changes any linear fit's slope by exactly its own slope, which
-  is ``(SCI[-1] - SCI[0]) / ((ngroups - 1) (nframes + groupgap) t_frame)`` DN/s.
+  truth includes; the dark reference it names (``R_DARK``) gives what was taken out.
+  JWST (FITS ``DarkModel``): a linear dark ramp changes any linear fit's slope by
+  exactly its own slope, which is ``(SCI[-1] - SCI[0]) / ((ngroups - 1) (nframes +
+  groupgap) t_frame)`` DN/s.  Roman (ASDF ``DarkRefModel``, named by the L2's
+  ``meta.ref_file.dark``): romancal subtracts its ``dark_slope`` (DN/s) from the
+  fitted slopes.
 * :func:`subtract_dark`: the truth with that dark removed (``RATE``, and ``RATE_IPC``
   by the dark seen through the IPC kernel), so ``compare`` grades what the pipeline
   was asked to recover.
@@ -75,16 +78,20 @@ def fit_header(path):
             value = str(getattr(steps, name, "INCOMPLETE")) if name in steps else \
                 "INCOMPLETE"
             hdr[key] = value
+        refs = m.meta.get("ref_file", {})
+        if "dark" in refs:
+            hdr["R_DARK"] = str(refs["dark"])
     return hdr
 
 
 def subtracted_dark_rate(header, t_frame, gain):
-    """Dark rate (e-/s, (ny, nx)) a JWST pipeline took out of a rate file, or None.
+    """Dark rate (e-/s, (ny, nx)) a pipeline took out of a slope file, or None.
 
     Parameters
     ----------
     header : astropy.io.fits.Header
-        The rate file's primary header (``S_DARK``, ``R_DARK``).
+        The rate file's primary header (``S_DARK``, ``R_DARK``), or the cards
+        :func:`fit_header` makes of a Roman L2.
     t_frame : float
         Frame time, s (the truth's ``TFRAME``).
     gain : float
@@ -103,6 +110,14 @@ def subtracted_dark_rate(header, t_frame, gain):
         return None, (f"the pipeline subtracted a dark (R_DARK = {path!r}) that is not "
                       f"readable here: the truth still includes dark current and hot "
                       f"pixels")
+    if is_asdf(path):
+        with _open_roman(path) as m:
+            if "dark_slope" not in m:
+                raise FileFormatError(f"dark reference {path!r} has no 'dark_slope' (a "
+                                      f"Roman DarkRefModel)")
+            rate = np.asarray(m.dark_slope, dtype=np.float64) * float(gain)
+        return rate, (f"the pipeline subtracted the dark {os.path.basename(path)}: "
+                      f"compared with the truth minus its rate")
     with fits.open(path) as hdul:
         sci = np.asarray(hdul["SCI"].data, dtype=np.float64)
         h = hdul[0].header

@@ -37,6 +37,17 @@ What each reference holds, and how it follows from the forward model of
   (:meth:`Nonlinearity.invert`) on ``m`` in ``[0, p(full_well)]``, of degree
   :data:`LINEARITY_DEGREE`; its largest error over that range is recorded
   (``linearity_error``, e-).  Linear detector: ``[0, 1]``.
+* **nonlinearity** (the inverse of the linearity): the engine's own law ``m = p(q)``
+  written in DN, ``m_DN = q_DN + c2 g q_DN**2 + c3 g**2 q_DN**3 + ...``, exact (it is
+  a polynomial); romancal's linearity step needs it to rebuild the reads of a
+  resultant (``InverselinearityRefModel``).  Linear detector: ``[0, 1]``.
+* Both polynomials act on *bias-subtracted* DN.  A pipeline that applies them to raw
+  DN (romancal has no bias step before ``linearity``) needs them re-centred on each
+  pixel's bias: :func:`shift_polynomial` gives the per-pixel coefficients of
+  ``x -> P(x - b)``.  The per-integration part of the reset level (kTC, pedestal:
+  tens of e-) is not in ``b``; it moves the point where the polynomial is evaluated
+  by ``delta``, which changes a linearised slope by the relative amount ``2 a2
+  delta`` (``a2`` the quadratic coefficient per DN: 3e-5 for 1.6e-6 /DN and 10 DN).
 * **dark** (e-/s): dark current plus hot pixels, the same draws as the run's
   (:func:`scenesim.sky.rates.scene_rates` draws them from the scene seed's
   ``HOT_PIXELS`` stream); 0 on reference pixels.  It is the dark *before* IPC: the
@@ -50,6 +61,7 @@ What each reference holds, and how it follows from the forward model of
   (JWST's ``ipc`` step) needs.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,7 +75,8 @@ from scenesim.sky.maps import load_map
 from scenesim.sky.sources import draw_hot_pixels
 
 __all__ = ["DetectorReference", "detector_reference", "linearity_coefficients",
-           "ipc_inverse_kernel", "HOT", "LINEARITY_DEGREE", "SATURATION_MARGIN_SIGMA"]
+           "nonlinearity_coefficients", "shift_polynomial", "ipc_inverse_kernel", "HOT",
+           "LINEARITY_DEGREE", "SATURATION_MARGIN_SIGMA"]
 
 #: JWST DQ bit of a hot pixel (``HOT`` = 2**11 in the JWST DQ definitions).
 HOT = 2 ** 11
@@ -92,6 +105,9 @@ class DetectorReference:
         ``q_DN = sum_i linearity[i] * m_DN**i`` on bias-subtracted DN.
     linearity_error : float
         Largest error of that polynomial on ``[0, p(full_well)]``, e-.
+    nonlinearity : ndarray, shape (ncoeffs,), float64
+        ``m_DN = sum_i nonlinearity[i] * q_DN**i`` on bias-subtracted DN: the
+        engine's law, which ``linearity`` inverts (:func:`nonlinearity_coefficients`).
     dark : ndarray, shape (ny, nx), float64, e-/s
     mask : ndarray, shape (ny, nx), uint32, JWST DQ bits
     ipc_kernel : ndarray, shape (3, 3), float64
@@ -108,6 +124,7 @@ class DetectorReference:
     saturation: np.ndarray
     linearity: np.ndarray
     linearity_error: float
+    nonlinearity: np.ndarray
     dark: np.ndarray
     mask: np.ndarray
     ipc_kernel: np.ndarray
@@ -156,6 +173,65 @@ def linearity_coefficients(nonlinearity, full_well, gain, *, degree=LINEARITY_DE
     coeffs = a / gain / m_dn_scale ** np.arange(degree + 1)
     coeffs[0] = 0.0 if abs(a[0]) < 1e-9 * full_well else coeffs[0]
     return coeffs, err
+
+
+def nonlinearity_coefficients(nonlinearity, gain):
+    """The engine's nonlinearity ``m = p(q)`` as a polynomial in DN.
+
+    Parameters
+    ----------
+    nonlinearity : scenesim.detector.nonlinearity.Nonlinearity or None
+        ``m = q + c2 q**2 + c3 q**3 + ...`` in e-; None (or linear) gives ``[0, 1]``.
+    gain : float
+        e-/DN (> 0).
+
+    Returns
+    -------
+    ndarray, shape (ncoeffs,), float64
+        ``m/gain = sum_i b[i] (q/gain)**i``, lowest order first: ``b = [0, 1, c2 gain,
+        c3 gain**2, ...]`` (substituting ``q = gain q_DN`` and dividing by ``gain``).
+    """
+    if not (np.isfinite(gain) and gain > 0):
+        raise ParameterError(f"'gain' must be a finite number > 0 (e-/DN), got {gain!r}")
+    if nonlinearity is None or nonlinearity.is_linear:
+        return np.array([0.0, 1.0])
+    c = np.asarray(nonlinearity.coeffs, dtype=np.float64)
+    return np.concatenate([[0.0, 1.0], c * float(gain) ** np.arange(1, c.size + 1)])
+
+
+def shift_polynomial(coeffs, offset):
+    """Coefficients of ``x -> P(x - offset)``, for each offset.
+
+    ``P(x - b) = sum_k a_k (x - b)**k = sum_i x**i sum_{k >= i} a_k C(k, i) (-b)**(k-i)``
+    (binomial expansion), in float64.
+
+    Parameters
+    ----------
+    coeffs : array_like, shape (n,)
+        ``a_k`` of ``P``, lowest order first.
+    offset : array_like, any shape
+        ``b`` (the same unit as ``x``; e.g. a per-pixel bias in DN).
+
+    Returns
+    -------
+    ndarray, shape (n,) + offset.shape, float64
+        Lowest order first.
+    """
+    a = np.asarray(coeffs, dtype=np.float64)
+    if a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)):
+        raise ParameterError(f"'coeffs' must be a non-empty 1-D array of finite numbers, "
+                             f"got {coeffs!r}")
+    b = np.asarray(offset, dtype=np.float64)
+    n = a.size
+    out = np.zeros((n,) + b.shape)
+    minus_b = -b
+    for i in range(n):
+        # sum over k >= i of a_k C(k, i) (-b)^(k - i), by Horner in (-b)
+        acc = np.zeros(b.shape)
+        for k in range(n - 1, i - 1, -1):
+            acc = acc * minus_b + a[k] * math.comb(k, i)
+        out[i] = acc
+    return out
 
 
 def ipc_inverse_kernel(kernel, *, size=5, grid=64):
@@ -266,6 +342,8 @@ def detector_reference(scene, engine):
     mask[hot] |= np.uint32(HOT)
     return DetectorReference(detector=det, gain=gain, read_noise=read_noise, bias=bias,
                              saturation=saturation, linearity=coeffs,
-                             linearity_error=err, dark=dark, mask=mask,
+                             linearity_error=err,
+                             nonlinearity=nonlinearity_coefficients(nl, gain),
+                             dark=dark, mask=mask,
                              ipc_kernel=kernel, ipc_inverse=ipc_inverse_kernel(kernel),
                              adc_top=top)

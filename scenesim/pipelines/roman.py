@@ -36,27 +36,54 @@ files: amp33 gives the file its complete layout, not a usable correction.
 
 References (:func:`write_reference_files`)
 ------------------------------------------
-``roman_gain.asdf`` (``GainRefModel``, e-/DN), ``roman_readnoise.asdf``
-(``ReadnoiseRefModel``: DN **per read**, which is what romancal's ramp fitting
-multiplies by the gain and hands to stcal's Casertano/likelihood fitters),
-``roman_mask.asdf`` (``MaskRefModel``: reference and hot pixels, the JWST/Roman DQ
-bits) and ``roman_saturation.asdf`` (``SaturationRefModel``: raw DN with the bias,
-the level of :func:`scenesim.pipelines.reffiles.detector_reference`; the ADC's top
-code when the scene sets no full well), from
-:func:`scenesim.pipelines.reffiles.detector_reference`.
+From :func:`scenesim.pipelines.reffiles.detector_reference`, in the units romancal
+reads them in:
 
-The ramp fit (:func:`run_ramp_fit`)
+* ``roman_gain.asdf`` (``GainRefModel``, e-/DN);
+* ``roman_readnoise.asdf`` (``ReadnoiseRefModel``: DN **per read**, which is what
+  romancal's ramp fitting multiplies by the gain and hands to stcal's
+  Casertano/likelihood fitters);
+* ``roman_mask.asdf`` (``MaskRefModel``: reference and hot pixels, the JWST/Roman DQ
+  bits);
+* ``roman_saturation.asdf`` (``SaturationRefModel``: raw DN with the bias, the level of
+  ``detector_reference``; the ADC's top code when the scene sets no full well);
+* when the detector is nonlinear, ``roman_linearity.asdf`` (``LinearityRefModel``) and
+  ``roman_inverselinearity.asdf`` (``InverselinearityRefModel``), ``coeffs`` (ncoeffs,
+  ny, nx) float32, lowest order first.  romancal has no bias step: its ``linearity``
+  step applies the polynomial to the raw resultants, bias included.  So the
+  linearity is ``detector_reference``'s polynomial of bias-subtracted DN re-centred on
+  each pixel's bias ``b`` (``x -> L(x - b)``,
+  :func:`scenesim.pipelines.reffiles.shift_polynomial`): it returns linear,
+  bias-free DN.  The inverse maps those back to raw DN: ``y -> b + p(y)``, the
+  engine's law in DN plus the bias (exact; stcal's read-level correction uses it to
+  rebuild the reads averaged into each resultant from a straight-line model, then
+  linearises each read).  In float32, as stcal evaluates them, the pair reproduced
+  the exact inverse to 0.013 DN over the whole well (7.7 % nonlinear at 8e4 e-, bias
+  2000-8000 DN) and returned raw DN to 0.012 DN, against read noise of a few DN
+  (``tests/pipelines/test_roman.py`` bounds both).
+* when the scene has dark current or hot pixels, ``roman_dark.asdf`` (``DarkRefModel``:
+  ``dark_slope``, DN/s, the dark rate before IPC; ``dark_slope_error`` 0).  romancal
+  1.1 subtracts it from the fitted slopes, after ``ramp_fit``.
+
+The pipeline (:func:`run_ramp_fit`)
 -----------------------------------
-romancal's ``DQInitStep`` (``override_mask``: the L1 becomes a ``RampModel``, border
-reference pixels set aside), ``SaturationStep`` (``override_saturation``: resultants at
-or above the level flagged, and the later ones) then ``RampFitStep``
-(``override_gain``, ``override_readnoise``), offline (CRDS disabled as in
-:func:`scenesim.pipelines.jwst.offline_crds`); the L2 ``ImageModel`` is saved as ASDF, and
-``scenesim compare L2.asdf TRUTH`` grades it
-(:func:`scenesim.pipelines.products.read_roman_l2`).
-The rest of romancal's ``ExposurePipeline`` (refpix, linearity, dark, ...) needs
-Roman reference files in formats scenesim does not write yet, so it is not run: grade scenes without bias structure, nonlinearity or IPC, or
-read the result as "ramp fitting only".
+romancal's steps in ``ExposurePipeline``'s order, each with its ``override_<type>``,
+offline (CRDS disabled as in :func:`scenesim.pipelines.jwst.offline_crds`):
+``DQInitStep`` (``mask``: the L1 becomes a ``RampModel``, border reference pixels set
+aside), ``SaturationStep`` (``saturation``: resultants at or above the level flagged,
+and the later ones), ``LinearityStep`` (``linearity`` and ``inverselinearity``, when
+written), ``RampFitStep`` (``gain``, ``readnoise``), then ``DarkCurrentStep``
+(``dark``, when written).  The L2 ``ImageModel`` is saved as ASDF, and ``scenesim
+compare L2.asdf TRUTH`` grades it (:func:`scenesim.pipelines.products.read_roman_l2`;
+when the dark step ran, the truth loses the dark the L2 names in
+``meta.ref_file.dark``).
+
+Not run, for want of a scenesim reference or of a signal to correct: ``refpix``
+(amp33 carries no correlated noise, above), ``dark_decay`` and ``wfi18_transient``
+(scenesim simulates neither effect), ``assign_wcs``, ``flatfield``, ``photom`` and what
+follows (no optics).  So read an L2 of a scene with bias drifts, 1/f or pedestal noise
+as "without reference-pixel correction": romancal cannot remove the noise common to a
+frame (``docs/VALIDATION_PIPELINES.md`` measures what that costs on a small window).
 """
 
 import os
@@ -70,6 +97,7 @@ from noise.validate import check_writable
 
 from scenesim.io.exposure import Exposure
 from scenesim.io.header import readout_from_table
+from scenesim.pipelines.reffiles import shift_polynomial
 
 __all__ = ["write_l1", "l1_model", "write_reference_files", "run_ramp_fit",
            "read_pattern", "AMP33_COLUMNS", "REFERENCE_TYPES"]
@@ -188,40 +216,86 @@ def write_l1(exposure, path, *, overwrite=False):
     return path
 
 
-#: Roman reference types written by :func:`write_reference_files`.
-REFERENCE_TYPES = ("gain", "readnoise", "mask", "saturation")
+#: Roman reference types written by :func:`write_reference_files` (the last three only
+#: for a nonlinear detector, or one with a dark).
+REFERENCE_TYPES = ("gain", "readnoise", "mask", "saturation", "linearity",
+                   "inverselinearity", "dark")
+
+#: Reference types every :func:`run_ramp_fit` needs.
+_REQUIRED = ("gain", "readnoise", "mask")
+
+
+def _reference_arrays(reference):
+    """``{reftype: {field: array}}`` of the Roman references of ``reference``
+    (module notes): only the types this detector needs."""
+    shape = reference.detector.shape
+    g = reference.gain
+    f32 = np.float32
+    zeros_dq = np.zeros(shape, dtype=np.uint32)
+    arrays = {"gain": {"data": np.full(shape, g, dtype=f32)},
+              "readnoise": {"data": (reference.read_noise / g).astype(f32)},
+              "mask": {"dq": reference.mask.astype(np.uint32)},
+              "saturation": {"data": (reference.saturation / g).astype(f32),
+                             "dq": zeros_dq}}
+    linear = (reference.linearity.tolist() == [0.0, 1.0]
+              and reference.nonlinearity.tolist() == [0.0, 1.0])
+    if not linear:
+        bias_dn = reference.bias / g
+        inverse = np.empty((reference.nonlinearity.size,) + shape)
+        inverse[:] = reference.nonlinearity[:, None, None]
+        inverse[0] += bias_dn
+        arrays["linearity"] = {"coeffs": shift_polynomial(reference.linearity,
+                                                          bias_dn).astype(f32),
+                               "dq": zeros_dq}
+        arrays["inverselinearity"] = {"coeffs": inverse.astype(f32), "dq": zeros_dq}
+    if np.any(reference.dark != 0):
+        arrays["dark"] = {"dark_slope": (reference.dark / g).astype(f32),
+                          "dark_slope_error": np.zeros(shape, dtype=f32),
+                          "dq": zeros_dq}
+    return arrays
 
 
 def write_reference_files(reference, directory, *, overwrite=False):
-    """Write ``roman_<type>.asdf`` for each of :data:`REFERENCE_TYPES` (module
-    notes).
+    """Write ``roman_<type>.asdf`` for each of :data:`REFERENCE_TYPES` the detector
+    needs (module notes); each model is validated before it is written.
+
+    Parameters
+    ----------
+    reference : scenesim.pipelines.reffiles.DetectorReference
+    directory : str or os.PathLike
+        Created if missing.
+    overwrite : bool, keyword-only
+        Replace existing files (default: refuse, before any is written).
 
     Returns
     -------
     dict
-        ``{reftype: path}``.
+        ``{reftype: path}`` of the files written.  A ``roman_<type>.asdf`` this
+        detector does not need (a linearity pair from an earlier nonlinear run) is
+        removed with ``overwrite``, since a pipeline run picks up every file of the
+        directory.
     """
     rdd = _rdm()
+    arrays = _reference_arrays(reference)
     os.makedirs(directory, exist_ok=True)
-    paths = {t: os.path.join(os.fspath(directory), f"roman_{t}.asdf")
+    every = {t: os.path.join(os.fspath(directory), f"roman_{t}.asdf")
              for t in REFERENCE_TYPES}
-    for t, p in paths.items():
+    for t, p in every.items():
         check_writable(f"{t} reference", p, overwrite=overwrite)
-    shape = reference.detector.shape
-    g = reference.gain
-    data = {"gain": np.full(shape, g, dtype=np.float32),
-            "readnoise": (reference.read_noise / g).astype(np.float32),
-            "mask": reference.mask.astype(np.uint32),
-            "saturation": (reference.saturation / g).astype(np.float32)}
-    for t, cls in (("gain", rdd.GainRefModel), ("readnoise", rdd.ReadnoiseRefModel),
-                   ("mask", rdd.MaskRefModel), ("saturation", rdd.SaturationRefModel)):
-        m = cls.create_fake_data(shape=shape)
-        if t == "mask":
-            m.dq = data[t]
-        else:
-            m.data = data[t]
-        if t == "saturation":
-            m.dq = np.zeros(shape, dtype=np.uint32)
+    for t, p in every.items():
+        if t not in arrays and os.path.exists(p):
+            os.remove(p)
+    paths = {t: every[t] for t in arrays}
+    classes = {"gain": rdd.GainRefModel, "readnoise": rdd.ReadnoiseRefModel,
+               "mask": rdd.MaskRefModel, "saturation": rdd.SaturationRefModel,
+               "linearity": rdd.LinearityRefModel,
+               "inverselinearity": rdd.InverselinearityRefModel,
+               "dark": rdd.DarkRefModel}
+    for t, fields in arrays.items():
+        first = next(iter(fields.values()))
+        m = classes[t].create_fake_data(shape=first.shape)
+        for name, value in fields.items():
+            setattr(m, name, value)
         m.meta.description = f"scenesim: {t} of the simulated detector"
         m.meta.author = "scenesim"
         m.meta.pedigree = "DUMMY"
@@ -230,8 +304,29 @@ def write_reference_files(reference, directory, *, overwrite=False):
     return paths
 
 
+def _step(step_class, **kwargs):
+    """A romancal step with every reference it reads overridden: the given paths, and
+    ``'N/A'`` (stpipe's "no reference": the step skips that part) for the types
+    scenesim does not write (the linearity step's ``integralnonlinearity``): a type
+    left to CRDS would make crds end the process with ``sys.exit(-1)`` offline."""
+    refs = {t: kwargs.pop(t) for t in list(kwargs) if t in step_class.reference_file_types}
+    overrides = {f"override_{t}": os.fspath(refs[t]) if t in refs else "N/A"
+                 for t in step_class.reference_file_types}
+    step = step_class(**overrides, **kwargs)
+    step.prefetch_references = False
+    return step
+
+
+def _run_step(step_class, model, **references):
+    return _step(step_class, **references).run(model)
+
+
 def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
-    """Fit the ramps of a Roman L1 file with romancal, offline; write the L2 ASDF.
+    """Calibrate a Roman L1 file with romancal, offline; write the L2 ASDF.
+
+    Runs ``dq_init``, ``saturation``, ``linearity``, ``ramp_fit`` and ``dark_current``
+    in ``ExposurePipeline``'s order, each step whose references are given (module
+    notes).
 
     Parameters
     ----------
@@ -239,8 +334,9 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
         L1 ASDF file (:func:`write_l1`).
     references : dict
         ``{'gain': path, 'readnoise': path, 'mask': path}`` and, optionally,
-        ``'saturation'`` (:func:`write_reference_files`; without it the saturation
-        step is not run).
+        ``'saturation'``, ``'linearity'`` with ``'inverselinearity'``, and ``'dark'``
+        (:func:`write_reference_files`); a step whose references are missing is not
+        run.
     path : str
         Output L2 ``.asdf`` file.
     algorithm : {'likely', 'ols_cas22'}, keyword-only
@@ -253,27 +349,36 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
         ``path``.
     """
     rdd = _rdm()
-    missing = [t for t in ("gain", "readnoise", "mask") if t not in references]
+    missing = [t for t in _REQUIRED if t not in references]
     if missing:
-        raise ParameterError(f"'references' lacks {missing}")
+        raise ParameterError(f"'references' lacks {missing}; write them with "
+                             f"write_reference_files")
+    if ("linearity" in references) != ("inverselinearity" in references):
+        raise ParameterError(f"'references' must give both 'linearity' and "
+                             f"'inverselinearity' (romancal's linearity step reads "
+                             f"both) or neither, got {sorted(references)}")
+    if algorithm not in ("likely", "ols_cas22"):
+        raise ParameterError(f"'algorithm' must be 'likely' or 'ols_cas22', got "
+                             f"{algorithm!r}")
     path = check_writable("L2 path", path, overwrite=overwrite)
     from scenesim.pipelines.jwst import offline_crds
     with offline_crds():
+        from romancal.dark_current import DarkCurrentStep
         from romancal.dq_init import DQInitStep
+        from romancal.linearity import LinearityStep
         from romancal.ramp_fitting import RampFitStep
-        dq_init = DQInitStep(override_mask=os.fspath(references["mask"]))
-        dq_init.prefetch_references = False
-        ramp = dq_init.run(os.fspath(l1))
+        from romancal.saturation import SaturationStep
+        model = _run_step(DQInitStep, os.fspath(l1), mask=references["mask"])
         if "saturation" in references:
-            from romancal.saturation import SaturationStep
-            sat = SaturationStep(override_saturation=os.fspath(references["saturation"]))
-            sat.prefetch_references = False
-            ramp = sat.run(ramp)
-        step = RampFitStep(algorithm=algorithm, include_var_rnoise=True,
-                           override_gain=os.fspath(references["gain"]),
-                           override_readnoise=os.fspath(references["readnoise"]))
-        step.prefetch_references = False
-        result = step.run(ramp)
+            model = _run_step(SaturationStep, model, saturation=references["saturation"])
+        if "linearity" in references:
+            model = _run_step(LinearityStep, model, linearity=references["linearity"],
+                              inverselinearity=references["inverselinearity"])
+        result = _step(RampFitStep, algorithm=algorithm, include_var_rnoise=True,
+                       gain=references["gain"],
+                       readnoise=references["readnoise"]).run(model)
+        if "dark" in references:
+            result = _run_step(DarkCurrentStep, result, dark=references["dark"])
     # an L2 file requires 'wcs' (null allowed) and 'photometry', which romancal's
     # assign_wcs and photom steps (not run: no scenesim references) would add
     meta = result.meta

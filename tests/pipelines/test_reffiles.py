@@ -13,7 +13,8 @@ from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.pipelines.instrument import InstrumentConfig, resolve_instrument
 from scenesim.pipelines.jwst import jwst_frame_time
 from scenesim.pipelines.reffiles import (HOT, detector_reference, ipc_inverse_kernel,
-                                         linearity_coefficients)
+                                         linearity_coefficients,
+                                         nonlinearity_coefficients, shift_polynomial)
 from scenesim.detector.dq import REFERENCE_PIXEL
 from scenesim.run import build_engine
 from scenesim.scene import load_scene, parse_scene
@@ -33,6 +34,45 @@ def test_linearity_polynomial_inverts_the_nonlinearity():
     # the recorded error bound holds (in e-), and it is far below the read noise
     assert np.max(np.abs(q_dn * gain - q)) <= err * 1.01 + 1e-9
     assert err < 0.1                              # e-, vs ~5 e- read noise per read
+
+
+def test_nonlinearity_in_dn_is_the_engine_law():
+    """p(q) / g = sum_i b_i (q / g)**i exactly (a change of variable), and the
+    linearity polynomial inverts it to its recorded error."""
+    nl = Nonlinearity((-8e-7, -2e-12))
+    gain = 2.0
+    b = nonlinearity_coefficients(nl, gain)
+    assert b.tolist()[:2] == [0.0, 1.0] and b.size == 4
+    q = np.linspace(0, 8e4, 1001)
+    m_dn = np.polynomial.polynomial.polyval(q / gain, b)
+    # float64: terms up to 8e4/2 DN, so the round-off is ~1e-16 x 4e4 x 4 terms
+    assert np.allclose(m_dn, nl.apply(q) / gain, rtol=0, atol=1e-9)
+    a, err = linearity_coefficients(nl, 8e4, gain)
+    back = np.polynomial.polynomial.polyval(m_dn, a)
+    assert np.max(np.abs(back - q / gain)) <= err / gain * 1.01 + 1e-9
+    assert nonlinearity_coefficients(None, gain).tolist() == [0.0, 1.0]
+    with pytest.raises(ValueError, match="'gain'"):
+        nonlinearity_coefficients(nl, 0.0)
+
+
+def test_shift_polynomial_recentres_on_each_offset():
+    """shift_polynomial(a, b) evaluated at x equals P(x - b) evaluated directly (the
+    binomial expansion), per offset; a zero offset changes nothing."""
+    rng = np.random.default_rng(11)
+    a = rng.normal(size=5) * 10.0 ** -np.arange(5)          # a decaying polynomial
+    b = rng.uniform(-3, 3, size=(4, 6))
+    shifted = shift_polynomial(a, b)
+    assert shifted.shape == (5, 4, 6)
+    x = rng.uniform(-2, 5, size=(4, 6))
+    direct = np.polynomial.polynomial.polyval(x - b, a)
+    expanded = np.zeros_like(x)
+    for i in range(5):
+        expanded += shifted[i] * x ** i
+    # float64 round-off of terms of size up to |a_k| C(k, i) 8**k, summed: < 1e-10
+    assert np.allclose(expanded, direct, rtol=0, atol=1e-10)
+    assert np.array_equal(shift_polynomial(a, 0.0), a)
+    with pytest.raises(ValueError, match="'coeffs'"):
+        shift_polynomial([], 1.0)
 
 
 def test_linearity_null_limit():
