@@ -170,6 +170,7 @@ class _Resultant:
     dn_sum: np.ndarray = None
     charge_sum: np.ndarray = None
     noise_sum: np.ndarray = None
+    raw_sum: np.ndarray = None
     count: int = 0
 
 
@@ -185,6 +186,11 @@ class Resultant:
         The resultant as read out (the rounded mean of its digitised reads).
     charge, noise : ndarray (ny, nx), float32, e-, or None
         Noise-free charge and noise-only part, when the run was asked for them.
+    raw_ref : ndarray (ny, n), uint16, DN, or None
+        On a detector with interleaved reference samples or a reference output
+        (``Detector.has_raw_samples``): those samples, digitised and averaged as the
+        pixels are, in the order of the raw columns that hold them
+        (``Detector.raw_columns``, ``image_x < 0``); None otherwise.
     """
 
     integration: int
@@ -192,6 +198,7 @@ class Resultant:
     dn: np.ndarray
     charge: np.ndarray | None = None
     noise: np.ndarray | None = None
+    raw_ref: np.ndarray | None = None
 
 
 class EngineRun:
@@ -728,6 +735,13 @@ class ChargeEngine:
         if save_noise and nframe is not None:
             rr.noise_sum[b] += nframe[b]
 
+    def _raw_split(self):
+        """Raw columns of the image pixels (with their image columns) and of the other
+        samples, for a detector with raw samples."""
+        _, _, image_x = self.detector.raw_columns()
+        normal = np.flatnonzero(image_x >= 0)
+        return normal, image_x[normal], np.flatnonzero(image_x < 0)
+
     def _finish(self, run, i, r_index, rr, save_charge, save_noise):
         """The :class:`Resultant` of a complete DN sum: the rounded mean."""
         if rr.dn_sum.dtype == np.uint16:
@@ -737,7 +751,11 @@ class ChargeEngine:
             run.each(lambda b: self.adc.mean_codes(rr.dn_sum[b], rr.count, out=out_dn[b]))
         ch = (rr.charge_sum / rr.count).astype(np.float32) if save_charge else None
         nz = (rr.noise_sum / rr.count).astype(np.float32) if save_noise else None
-        return Resultant(i, r_index, out_dn, ch, nz)
+        raw_ref = None
+        if rr.raw_sum is not None:
+            raw_ref = np.empty(rr.raw_sum.shape, dtype=np.uint16)
+            self.adc.mean_codes(rr.raw_sum, rr.count, out=raw_ref)
+        return Resultant(i, r_index, out_dn, ch, nz, raw_ref)
 
     def _reads(self, run, save_charge, save_noise, progress):
         """Generator behind :class:`EngineRun`: one :class:`Resultant` at a time."""
@@ -745,8 +763,15 @@ class ChargeEngine:
         needed = list(ro.needed_reads)
         read_to_res = {k: r for r, reads in enumerate(ro.resultants) for k in reads}
         noise_iter = None
+        raw = self.detector.has_raw_samples
+        if raw:
+            # the interleaved / reference-output samples: no charge, digitised as
+            # the pixels, averaged into their resultants
+            normal, image_x, extra = self._raw_split()
+            nframe_buf = np.empty(shape, dtype=np.float32)
         if self.noise is not None:
-            noise_iter = self.noise.frames(ro.nreads, needed, nints=ro.nints, reuse=True)
+            noise_iter = self.noise.frames(ro.nreads, needed, nints=ro.nints, reuse=True,
+                                           raw=raw)
         run.finalizers.append(lambda: noise_iter is not None and noise_iter.close())
         q = np.empty(shape, dtype=np.float32) if self._has_charge else None
         done = 0
@@ -762,6 +787,14 @@ class ChargeEngine:
                         charge = q
                 prev = k
                 nframe = next(noise_iter)[2] if noise_iter is not None else None
+                extra_f = None
+                if raw:
+                    if nframe is not None:
+                        extra_f = nframe[:, extra].astype(np.float64)
+                        nframe_buf[:, image_x] = nframe[:, normal]
+                        nframe = nframe_buf
+                    else:
+                        extra_f = np.zeros((shape[0], extra.size))
                 r_index = read_to_res[k]
                 rr = res[r_index]
                 first = rr.count == 0
@@ -774,6 +807,11 @@ class ChargeEngine:
                         rr.charge_sum = np.zeros(shape, dtype=np.float64)
                     if save_noise:
                         rr.noise_sum = np.zeros(shape, dtype=np.float64)
+                    if raw:
+                        rr.raw_sum = np.zeros(extra_f.shape, dtype=np.uint32)
+                if raw:
+                    np.add(rr.raw_sum, self.adc.codes(extra_f), out=rr.raw_sum,
+                           casting="unsafe")
 
                 def rows(b, charge=charge, nframe=nframe, rr=rr, first=first):
                     if charge is q and q is not None and self.ipc_kernel is None:

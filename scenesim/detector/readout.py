@@ -69,6 +69,10 @@ NRSRAPID    1         0          NIRSpec
 NRS         4         0          NIRSpec
 ==========  ========  =========  ==========
 
+NIRSpec's IRS2 patterns: ``NRSIRS2RAPID`` (1 frame per group, no gap) and ``NRSIRS2`` (5
+frames, no gap): group times of 14.589 s and 72.944 s in JWST planning tools, 1 and 5
+IRS2 frames of 14.5889 s; use them with the ``NIRSPEC-IRS2`` detector.
+
 Roman-like tables
 -----------------
 :data:`ROMAN_LIKE_TABLE` and :data:`ROMAN_LIKE_SKIP_TABLE` are **illustrative**
@@ -125,6 +129,8 @@ NAMED_PATTERNS = {
     "DEEP8": (8, 12),
     "NRSRAPID": (1, 0),
     "NRS": (4, 0),
+    "NRSIRS2RAPID": (1, 0),
+    "NRSIRS2": (5, 0),
 }
 
 #: Illustrative Roman-style MA table (not an official Roman table): ``(first_read,

@@ -15,7 +15,12 @@ calibration library's ramp fitting without changing its layout:
   fit can undo it (:func:`scenesim.calib.prepare.header_ipc_kernel`);
 * ``SCI``: uint16 DN, shape (nints, ngroups, ny, nx), streamed resultant by resultant;
 * ``READS``: one row per resultant with its read indices, read times and mean time (the
-  per-resultant read times that uneven patterns need).
+  per-resultant read times that uneven patterns need);
+* ``RAWREF`` (only for a detector with interleaved reference samples or a reference
+  output, ``noise.clock.Detector.has_raw_samples``, e.g. NIRSpec IRS2): uint16 DN,
+  (nints, ngroups, ny, n), those samples in the order of the raw columns that hold
+  them (``Detector.raw_columns()``, ``image_x < 0``), so that ``SCI`` and ``RAWREF``
+  together are every sample read (:func:`raw_resultants`).
 
 Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s of collected charge per pixel,
 the QE flat included, before IPC), ``RATE_IPC`` (after IPC: what a linear fit of the
@@ -70,7 +75,8 @@ from scenesim.io.header import (check_file_kind, exposure_cards, filetype_card,
                                 nextend_card)
 
 __all__ = ["Exposure", "ExposureWriter", "truth_path_for", "derived_path",
-           "read_exposure", "read_exposure_header", "read_truth"]
+           "read_exposure", "read_exposure_header", "read_truth", "read_raw_reference",
+           "raw_resultants"]
 
 #: Output file buffer (bytes): small frames are written 1 MB at a time, not per frame.
 _WRITE_BUFFER = 1 << 20
@@ -92,12 +98,16 @@ class Exposure:
     name : str
         Label recorded in the header of a fit of it (the file path, or
         ``'(in memory)'``).
+    raw_ref : ndarray or None
+        The ``RAWREF`` extension (interleaved reference and reference-output
+        samples, uint16 DN), or None.
     """
 
     sci: np.ndarray
     header: fits.Header
     reads: Table
     name: str = "(in memory)"
+    raw_ref: np.ndarray | None = None
 
     @classmethod
     def read(cls, path):
@@ -119,7 +129,7 @@ class Exposure:
         """
         path = input_path(path, "exposure")
         sci, header, reads = read_exposure(path)
-        return cls(sci, header, reads, path)
+        return cls(sci, header, reads, path, read_raw_reference(path))
 
 
 def truth_path_for(path):
@@ -134,8 +144,9 @@ class _RawCube:
     The temporary file is :func:`noise.fitsio.temp_file`'s, beside ``target`` (the
     truth file) and tagged with the extension ``name``."""
 
-    def __init__(self, target, name):
+    def __init__(self, target, name, dtype=">f4"):
         self.target = target
+        self.dtype = np.dtype(dtype)
         self.path = temp_file(target, tag=name)
         try:
             self.f = open(self.path, "wb")
@@ -146,15 +157,18 @@ class _RawCube:
 
     def write(self, data):
         try:
-            self.f.write(np.asarray(data, dtype=">f4").tobytes())
+            if self.dtype.kind == "u":          # FITS: signed integers + BZERO
+                data = (np.asarray(data, dtype=np.int32) - 32768).astype(">i2")
+            self.f.write(np.asarray(data, dtype=self.dtype if self.dtype.kind != "u"
+                                    else ">i2").tobytes())
         except OSError as exc:
             raise output_error(self.target, exc) from exc
 
     def copy_into(self, stream, shape, name, cards):
         self.f.close()
-        stream.begin_image(shape, np.float32, cards, name=name)
+        stream.begin_image(shape, self.dtype.newbyteorder("="), cards, name=name)
         with open(self.path, "rb") as f:
-            stream.copy_raw(f, int(np.prod(shape)) * 4)
+            stream.copy_raw(f, int(np.prod(shape)) * self.dtype.itemsize)
         stream.end_image()
 
     def discard(self):
@@ -219,6 +233,14 @@ class ExposureWriter:
         self._stream = None
         self._sci = None
         self._raws = {}
+        self._rawref = None
+        self._rawref_mem = None
+        self.rawref_shape = None
+        if det.has_raw_samples:
+            _, _, image_x = det.raw_columns()
+            self.rawref_shape = (ro.nints, ro.ngroups, det.ny, int((image_x < 0).sum()))
+            self.header = [nextend_card(3) if c[0] == "NEXTEND" else c
+                           for c in self.header]
         try:
             if path is not None:
                 fobj = self._stack.enter_context(
@@ -229,8 +251,12 @@ class ExposureWriter:
                     self._stream.end_image()
                     self._stream.begin_image(self.shape, np.uint16,
                                              [("BUNIT", "DN", "raw counts")], name="SCI")
+                if self.rawref_shape is not None:
+                    self._rawref = _RawCube(path, "RAWREF", ">u2")
             else:
                 self._sci = np.empty(self.shape, dtype=np.uint16)
+                if self.rawref_shape is not None:
+                    self._rawref_mem = np.empty(self.rawref_shape, dtype=np.uint16)
             for name, wanted in (("CHARGE", self.save_charge),
                                  ("NOISE", self.save_noise)):
                 if wanted:
@@ -261,6 +287,10 @@ class ExposureWriter:
                 raise output_error(self.path, exc) from exc
         else:
             self._sci[res.integration, res.index] = res.dn
+        if self._rawref is not None:
+            self._rawref.write(res.raw_ref)
+        elif self._rawref_mem is not None:
+            self._rawref_mem[res.integration, res.index] = res.raw_ref
         if "CHARGE" in self._raws:
             self._raws["CHARGE"].write(res.charge)
         if "NOISE" in self._raws:
@@ -284,6 +314,9 @@ class ExposureWriter:
             if self._stream is not None:
                 with self._writing():
                     self._stream.end_image()
+                    if self._rawref is not None:
+                        self._rawref.copy_into(self._stream, self.rawref_shape, "RAWREF",
+                                               [("BUNIT", "DN", "raw counts")])
                     self._stream.append_hdu(fits.BinTableHDU(ro.read_table(t_frame),
                                                              name="READS"))
             if self.truth_path is not None:
@@ -298,7 +331,8 @@ class ExposureWriter:
         if self._sci is not None:
             out["sci"] = self._sci
             out["exposure"] = Exposure(self._sci, _read_back_header(self.header),
-                                       _read_back_table(ro.read_table(t_frame), "READS"))
+                                       _read_back_table(ro.read_table(t_frame), "READS"),
+                                       raw_ref=self._rawref_mem)
         return out
 
     def abort(self):
@@ -309,6 +343,8 @@ class ExposureWriter:
     def _discard_raws(self):
         for raw in self._raws.values():
             raw.discard()
+        if self._rawref is not None:
+            self._rawref.discard()
 
     def __enter__(self):
         return self
@@ -408,6 +444,42 @@ def read_exposure(path):
         header = hdul[0].header.copy()
         reads = Table.read(hdul["READS"])
     return sci, header, reads
+
+
+def read_raw_reference(path):
+    """The ``RAWREF`` extension of an exposure file (uint16 DN, (nints, ngroups, ny,
+    n)), or None if it has none (a detector without raw samples)."""
+    path = input_path(path, "exposure")
+    with open_fits(path, "exposure") as hdul:
+        if "RAWREF" not in [h.name for h in hdul]:
+            return None
+        return np.asarray(hdul["RAWREF"].data)
+
+
+def raw_resultants(exposure, detector):
+    """Every sample read, in the raw layout of ``detector``
+    (:meth:`noise.clock.Detector.raw_columns`): ``SCI`` and ``RAWREF`` of
+    ``exposure`` (an :class:`Exposure`) together, (nints, ngroups, ny, raw_nx) uint16.
+
+    Raises
+    ------
+    noise.errors.FileFormatError
+        The exposure has no ``RAWREF`` or its shape does not fit the detector.
+    """
+    _, _, image_x = detector.raw_columns()
+    extra = np.flatnonzero(image_x < 0)
+    normal = np.flatnonzero(image_x >= 0)
+    rr = exposure.raw_ref
+    if rr is None or rr.shape != exposure.sci.shape[:3] + (extra.size,):
+        raise FileFormatError(
+            f"exposure {exposure.name!r} has no 'RAWREF' of shape "
+            f"{exposure.sci.shape[:3] + (extra.size,)} (the interleaved reference and "
+            f"reference-output samples of {detector.name!r}), got "
+            f"{None if rr is None else rr.shape}")
+    out = np.empty(exposure.sci.shape[:3] + (detector.raw_nx,), dtype=np.uint16)
+    out[..., normal] = exposure.sci[..., image_x[normal]]
+    out[..., extra] = rr
+    return out
 
 
 def read_exposure_header(path):

@@ -38,9 +38,10 @@ INSTRUMENTS = {
 
 #: Readout patterns of the JWST ``READPATT`` enum that scenesim's named patterns use.
 JWST_READPATT = ("RAPID", "BRIGHT1", "BRIGHT2", "SHALLOW2", "SHALLOW4", "MEDIUM2",
-                 "MEDIUM8", "DEEP2", "DEEP8", "NRSRAPID", "NRS")
+                 "MEDIUM8", "DEEP2", "DEEP8", "NRSRAPID", "NRS", "NRSIRS2RAPID",
+                 "NRSIRS2")
 
-_NIRSPEC_PATTERNS = ("NRSRAPID", "NRS")
+_NIRSPEC_PATTERNS = ("NRSRAPID", "NRS", "NRSIRS2RAPID", "NRSIRS2")
 
 
 @dataclass(frozen=True)

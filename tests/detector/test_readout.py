@@ -30,6 +30,9 @@ JDOX = {
     "RAPID": (1, 0), "BRIGHT1": (1, 1), "BRIGHT2": (2, 0), "SHALLOW2": (2, 3),
     "SHALLOW4": (4, 1), "MEDIUM2": (2, 8), "MEDIUM8": (8, 2), "DEEP2": (2, 18),
     "DEEP8": (8, 12), "NRSRAPID": (1, 0), "NRS": (4, 0),
+    # IRS2: group times 14.589 s and 72.944 s in JWST planning tools (1 and 5 frames
+    # of 14.5889 s)
+    "NRSIRS2RAPID": (1, 0), "NRSIRS2": (5, 0),
 }
 
 
