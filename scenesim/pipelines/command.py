@@ -103,6 +103,11 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
             f"--uncal: a JWST uncal needs a detector of at most 2048 x 2048 read through "
             f"1 or 4 outputs; {det.name!r} is {det.naxis2} x {det.naxis1} with "
             f"{det.n_out_active} outputs (use --l1 for a Roman detector)")
+    if (uncal or jwst_refs) and det.interleave is not None:
+        from scenesim.pipelines.instrument import resolve_instrument
+        from scenesim.pipelines.jwst import check_irs2_detector
+        ident = resolve_instrument(scene.instrument, det, ro.name)
+        check_irs2_detector(det, ident["detector"])
     if l1 and ro.nints != 1:
         raise ParameterError(f"--l1: a Roman L1 file holds one integration; the scene "
                              f"has nints = {ro.nints}")

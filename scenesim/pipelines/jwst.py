@@ -36,6 +36,19 @@ models write (the ``ASDF`` extension included) and passes
   scenesim keywords whose name JWST uses for something else are left out (scenesim's
   ``DETECTOR`` is ``SSDETECT``, its pattern name ``SSREADPT``).
 
+IRS2 (NIRSpec's interleaved reference sampling, detector preset ``NIRSPEC-IRS2``,
+patterns ``NRSIRS2RAPID``/``NRSIRS2``): ``SCI`` holds every sample read, the exposure's
+``SCI`` and ``RAWREF`` together in the raw layout of the jwst pipeline's IRS2 code
+(:meth:`noise.clock.Detector.raw_columns`: the reference output's 640 columns, then
+the four outputs' 512 normal and 128 interleaved columns each), turned into the DMS
+orientation that code expects (``jwst.refpix.irs2_subtract_reference.correct_model``
+swaps the axes back for ``NRS1``; for ``NRS2`` it also flips both): shape (nints,
+ngroups, 3200, 2048) with ``FASTAXIS = 2``, ``SLOWAXIS = 1`` (NRS1; NRS2: ``-2``,
+``-1``), ``SUBSIZE1 = 2048``, ``SUBSIZE2 = 3200``, ``NRS_NORM``/``NRS_REF`` from the
+detector's interleave; ``PIXELDQ``/``GROUPDQ`` of that shape.  Only the full frame
+(jwst's IRS2 code and NIRSpec read IRS2 only in full frame).  Such an uncal is not a
+scenesim exposure: keep the exposure file for scenesim's own fits.
+
 JWST describes only detectors it has: ``NOUTPUTS`` must be 1 or 4 and the array at
 most 2048 x 2048, so an H4RG exposure (Roman) has no JWST uncal
 (:mod:`scenesim.pipelines.roman` writes its Level 1 file).
@@ -95,7 +108,9 @@ from scenesim.io.exposure import Exposure
 from scenesim.io.header import header_instrument, readout_from_table
 from scenesim.pipelines.instrument import resolve_instrument
 
-__all__ = ["write_uncal", "uncal_model", "write_reference_files", "run_detector1",
+__all__ = ["write_uncal", "uncal_model", "irs2_to_dms", "irs2_filter",
+           "check_irs2_detector",
+           "write_irs2_reference", "irs2_refpix_exposure", "write_reference_files", "run_detector1",
            "detector1_products", "jwst_frame_time", "check_subarray_name",
            "offline_crds", "REFERENCE_TYPES", "DEFAULT_DATE_OBS", "SKIPPED_STEPS",
            "OFFLINE_CONTEXT"]
@@ -103,7 +118,8 @@ __all__ = ["write_uncal", "uncal_model", "write_reference_files", "run_detector1
 #: Observation start written when the scene gives none (ISO, UTC).
 DEFAULT_DATE_OBS = "2026-01-01T00:00:00"
 
-#: Reference types written by :func:`write_reference_files` (``ipc`` only with IPC).
+#: Reference types written by :func:`write_reference_files` (``ipc`` only with IPC);
+#: an IRS2 detector also gets ``refpix`` (:func:`write_irs2_reference`).
 REFERENCE_TYPES = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark",
                    "mask", "ipc")
 
@@ -119,7 +135,7 @@ _JWST_OWNED = frozenset((
     "ORIGIN", "FILETYPE", "NEXTEND", "DETECTOR", "SUBARRAY", "SUBSTRT1", "SUBSTRT2",
     "SUBSIZE1", "SUBSIZE2", "READPATT", "NINTS", "NGROUPS", "NFRAMES", "GROUPGAP",
     "TFRAME", "TGROUP", "NOUTPUTS", "EFFINTTM", "INSTRUME", "EXP_TYPE", "DATE-OBS",
-    "TIME-OBS"))
+    "TIME-OBS", "NRS_NORM", "NRS_REF"))
 
 
 def _datamodels():
@@ -172,6 +188,36 @@ def _check_jwst_detector(det):
             f"scenesim.pipelines.roman)")
 
 
+def check_irs2_detector(det, detector_name):
+    """Raise unless ``det`` can be written in jwst's IRS2 layout (module notes)."""
+    if det.interleave is None:
+        return
+    if not det.ref_output or det.subarray is not None or det.shape != (2048, 2048) \
+            or det.n_out_active != 4 or det.raw_shape != (2048, 3200):
+        raise ParameterError(
+            f"a JWST IRS2 uncal needs the full 2048 x 2048 frame read through 4 outputs "
+            f"with the reference output (raw 3200 x 2048, as preset 'NIRSPEC-IRS2'); "
+            f"detector {det.name!r} reads {det.subarray_name} {det.ny} x {det.nx}, raw "
+            f"{det.raw_shape[1]} x {det.raw_shape[0]}, reference output "
+            f"{det.ref_output} (jwst's IRS2 code and NIRSpec read IRS2 only in full "
+            f"frame)")
+    if detector_name not in ("NRS1", "NRS2"):
+        raise ParameterError(
+            f"an IRS2 exposure is a NIRSpec one: [instrument] detector must be 'NRS1' "
+            f"or 'NRS2', got {detector_name!r}")
+
+
+def irs2_to_dms(raw, detector_name):
+    """Raw IRS2 resultants (..., 2048, 3200) in scenesim's detector orientation to the
+    DMS orientation of a NIRSpec uncal (..., 3200, 2048): the inverse of what
+    ``jwst.refpix.irs2_subtract_reference.correct_model`` does (``NRS1``: transpose;
+    ``NRS2``: transpose, then both axes reversed)."""
+    dms = np.swapaxes(raw, -1, -2)
+    if detector_name == "NRS2":
+        dms = dms[..., ::-1, ::-1]
+    return np.ascontiguousarray(dms)
+
+
 def _as_exposure(exposure):
     if isinstance(exposure, Exposure):
         return exposure
@@ -203,12 +249,22 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     t_frame = float(hdr["TFRAME"])
     ident = resolve_instrument(header_instrument(hdr), det, ro.name)
     check_subarray_name(ident["subarray"])
+    irs2 = det.interleave is not None
+    check_irs2_detector(det, ident["detector"])
+    if irs2 and zero_frame is not None:
+        raise ParameterError("'zero_frame': an IRS2 uncal has no ZEROFRAME (NIRSpec "
+                             "patterns); pass None")
     start = Time(date_obs or DEFAULT_DATE_OBS, format="isot", scale="utc")
     day = 86400.0
     nints = ro.nints
     int_start = np.array([frame_slot(i, -1, ro.nreads) for i in range(nints)]) * t_frame
     int_end = int_start + (ro.nreads + 1) * t_frame
-    m = dm.Level1bModel(data=np.ascontiguousarray(exp.sci, dtype=np.uint16))
+    if irs2:
+        from scenesim.io.exposure import raw_resultants
+        data = irs2_to_dms(raw_resultants(exp, det), ident["detector"])
+    else:
+        data = np.ascontiguousarray(exp.sci, dtype=np.uint16)
+    m = dm.Level1bModel(data=data)
     meta = m.meta
     meta.telescope = "JWST"
     meta.filetype = "uncalibrated"
@@ -250,6 +306,11 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     sub.xstart, sub.ystart = det.x0 + 1, det.y0 + 1
     sub.xsize, sub.ysize = det.nx, det.ny
     sub.fastaxis, sub.slowaxis = 1, 2
+    if irs2:
+        ex.nrs_normal = det.interleave.normal
+        ex.nrs_reference = det.interleave.reference
+        sub.xsize, sub.ysize = data.shape[-1], data.shape[-2]
+        sub.fastaxis, sub.slowaxis = (2, 1) if ident["detector"] == "NRS1" else (-2, -1)
     mjd0 = start.mjd
     cols = [f"int_{when}_{scale}" for scale in ("MJD_UTC", "BJD_TDB")
             for when in ("start", "mid", "end")]
@@ -268,11 +329,11 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     reads = Table(exp.reads)
     reads_cards = [[str(k)[:8].upper(), v, ""] for k, v in reads.meta.items()
                    if isinstance(v, (bool, int, float, str))]
-    ny, nx = det.shape
+    ny, nx = data.shape[-2:]
     m.extra_fits = {
         "PRIMARY": {"header": cards},
         "PIXELDQ": {"data": np.zeros((ny, nx), dtype=np.uint32)},
-        "GROUPDQ": {"data": np.zeros(exp.sci.shape, dtype=np.uint8)},
+        "GROUPDQ": {"data": np.zeros(data.shape, dtype=np.uint8)},
         "READS": {"data": reads.as_array(), "header": reads_cards},
     }
     return m
@@ -367,6 +428,8 @@ def write_reference_files(reference, readout, t_frame, directory, *, instrument=
             f"readout {readout.name!r} is not one")
     ident = resolve_instrument(instrument, det, readout.name)
     types = [t for t in REFERENCE_TYPES if t != "ipc" or reference.has_ipc]
+    if det.interleave is not None:
+        types.append("refpix")
     paths = {t: os.path.join(os.fspath(directory), f"jwst_{t}.fits") for t in types}
     os.makedirs(directory, exist_ok=True)
     for t, path in paths.items():
@@ -400,9 +463,70 @@ def write_reference_files(reference, readout, t_frame, directory, *, instrument=
                         "IPC correction: inverse kernel, convolved"),
     }
     for t in types:
+        if t == "refpix":
+            write_irs2_reference(det, paths[t], instrument=instrument,
+                                 readout_name=readout.name, overwrite=overwrite)
+            continue
         model, description = makers[t]()
         _save_ref(model, t, ident, det, description, paths[t], overwrite)
     return paths
+
+
+def irs2_filter(detector):
+    """The IRS2 reference file's ``beta`` (one complex value per frequency of a frame's
+    time line, ``ny * row_samples`` samples; the same for the four outputs): a
+    low-pass that turns the reference samples jwst's IRS2 code places on the time line
+    (``2 * reference`` slots around each excursion, zero elsewhere) into their local
+    mean at every normal pixel.  Unit in-band gain for that placement: ``row_samples /
+    (2 * reference * n_excursions)`` (712 / 256 for NIRSpec) times a response of 1 up
+    to half the cut-off, a cosine taper to 0 at ``1 / (2 period)`` cycles per sample
+    (the first alias of the excursion comb, ``period = normal + reference + 2 jump``).
+    No fitted weights: not the optimal coefficients of Rauscher et al. (2017)."""
+    il = detector.interleave
+    n = detector.ny * detector.row_samples
+    f = np.abs(np.fft.fftfreq(n))                   # cycles per sample
+    f2 = 1.0 / (2 * il.period)
+    f1 = f2 / 2
+    h = np.where(f <= f1, 1.0, np.where(f >= f2, 0.0,
+                                        0.5 * (1 + np.cos(np.pi * (f - f1) / (f2 - f1)))))
+    gain = detector.row_samples / (2 * il.reference * detector.n_excursions)
+    return (gain * h).astype(np.complex64)
+
+
+def write_irs2_reference(detector, path, *, instrument=None, readout_name="NRSIRS2RAPID",
+                         overwrite=False):
+    """Write the ``refpix`` reference file jwst's IRS2 step needs (``IRS2Model``), for
+    a simulated detector: ``beta`` = :func:`irs2_filter` for every output, ``alpha`` =
+    0 (the reference output is not used), and a ``DQ`` table of 8 rows (outputs 1-4,
+    odd/even) flagging no interleaved reference pixel as bad.  Only jwst's IRS2
+    geometry (preset ``NIRSPEC-IRS2``: 712 x 2048 samples per frame) is accepted,
+    since the jwst code requires ``2 * 712 * 2048`` rows."""
+    dm = _datamodels()
+    det = detector
+    ident = resolve_instrument(instrument, det, readout_name)
+    check_irs2_detector(det, ident["detector"])
+    if det.interleave is None or det.row_samples * det.ny != 712 * 2048:
+        raise ParameterError(
+            f"an IRS2 reference file is for the jwst IRS2 geometry (712 x 2048 samples "
+            f"per frame, preset 'NIRSPEC-IRS2'); detector {det.name!r} has "
+            f"interleave {det.interleave} and {det.row_samples} x {det.ny}")
+    path = check_writable("refpix reference", path, overwrite=overwrite)
+    beta = irs2_filter(det)
+    as_float = np.empty(2 * beta.size, dtype=np.float32)
+    as_float[0::2], as_float[1::2] = beta.real, beta.imag
+    zeros = np.zeros_like(as_float)
+    table = np.zeros(as_float.size, dtype=[(f"{w}_{k}", ">f4") for w in ("alpha", "beta")
+                                           for k in range(4)])
+    for k in range(4):
+        table[f"alpha_{k}"] = zeros
+        table[f"beta_{k}"] = as_float
+    dq = np.zeros(8, dtype=[("OUTPUT", ">u2"), ("ODD_EVEN", ">u2"), ("MASK", ">u4")])
+    dq["OUTPUT"] = np.repeat(np.arange(1, 5), 2)
+    dq["ODD_EVEN"] = np.tile([1, 2], 4)
+    model = dm.IRS2Model(irs2_table=table, dq_table=dq)
+    _save_ref(model, "refpix", ident, det, "IRS2: low-pass of the interleaved "
+              "reference samples, no reference output", path, overwrite)
+    return path
 
 
 def _ipc_convolve(image, kernel, refmask):
@@ -491,6 +615,66 @@ def offline_crds():
                     os.environ[k] = v
 
 
+def irs2_refpix_exposure(uncal, refpix_reference, exposure, **step_pars):
+    """jwst's ``refpix`` step (its IRS2 algorithm) run offline on an IRS2 uncal, as a
+    scenesim :class:`~scenesim.io.exposure.Exposure` that scenesim's fitters take
+    (``scenesim.calib.prepare.fit_exposure_file(..., options=PrepareOptions(refpix=
+    'none'))``) and ``scenesim compare`` grades.
+
+    Only this step of Detector1 runs: the steps before it need NIRSpec's IRS2-format
+    (3200 x 2048) mask and superbias, which scenesim does not write
+    (:func:`run_detector1` refuses an IRS2 uncal); after it the data are a 2048 x 2048
+    ramp.  ``PIXELDQ``/``GROUPDQ`` start at 0 (scenesim's fit flags saturation from
+    the data).
+
+    Parameters
+    ----------
+    uncal : str
+        An IRS2 uncal (:func:`write_uncal` of an IRS2 exposure).
+    refpix_reference : str
+        The step's ``refpix`` reference (:func:`write_irs2_reference`).
+    exposure : str or Exposure
+        The scenesim exposure the uncal was written from (header, ``READS``).
+    **step_pars
+        ``RefPixStep`` parameters (e.g. ``ovr_corr_mitigation_ftr``).
+
+    Returns
+    -------
+    Exposure
+        ``sci``: the corrected ramp, float32 DN, (nints, ngroups, ny, nx), back in
+        scenesim's detector orientation; ``name``: ``'<uncal> (jwst refpix IRS2)'``.
+    """
+    dm = _datamodels()
+    exp = _as_exposure(exposure)
+    det = detector_from_header(exp.header)
+    with dm.open(os.fspath(uncal)) as m:
+        name = m.meta.instrument.detector
+        if det.interleave is None or m.meta.exposure.nrs_normal is None:
+            raise ParameterError(
+                f"'uncal' {os.fspath(uncal)!r} is not an IRS2 uncal (no NRS_NORM), or "
+                f"exposure {exp.name!r} is not an IRS2 exposure")
+    with offline_crds():
+        from jwst.refpix import RefPixStep
+        result = RefPixStep.call(os.fspath(uncal), override_refpix=os.fspath(
+            refpix_reference), **step_pars)
+        try:
+            if result.meta.cal_step.refpix != "COMPLETE":
+                raise FileFormatError(
+                    f"jwst's refpix step did not complete on {os.fspath(uncal)!r} "
+                    f"({result.meta.cal_step.refpix})")
+            data = np.asarray(result.data, dtype=np.float32)
+        finally:
+            result.close()
+    # back from DMS: the inverse of irs2_to_dms on the 2048 x 2048 image
+    if name == "NRS2":
+        data = data[..., ::-1, ::-1]
+    sci = np.ascontiguousarray(np.swapaxes(data, -1, -2))
+    if sci.shape != exp.sci.shape:
+        raise FileFormatError(f"jwst's refpix step returned shape {sci.shape}, not the "
+                              f"exposure's {exp.sci.shape}")
+    return Exposure(sci, exp.header, exp.reads, f"{os.fspath(uncal)} (jwst refpix IRS2)")
+
+
 def detector1_products(uncal, output_dir):
     """``{'rate': path, 'rateints': path}`` that Detector1 writes for ``uncal`` in
     ``output_dir`` (the stem without ``_uncal``)."""
@@ -529,6 +713,13 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
     dict
         ``rate`` and ``rateints`` paths (``rateints`` None when not written).
     """
+    from astropy.io import fits
+    if "NRS_NORM" in fits.getheader(os.fspath(uncal)):
+        raise ParameterError(
+            f"'uncal' {os.fspath(uncal)!r} is an IRS2 uncal: Detector1's steps before "
+            f"refpix need NIRSpec's IRS2-format (3200 x 2048) mask and superbias, which "
+            f"scenesim does not write; run jwst's refpix step alone "
+            f"(scenesim.pipelines.jwst.irs2_refpix_exposure) and fit its output")
     products = detector1_products(uncal, output_dir)
     if os.path.isdir(output_dir):
         for path in products.values():
@@ -549,6 +740,8 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
             cfg[step] = {f"override_{t}": os.fspath(references[t]) for t in reftypes}
         else:
             cfg[step] = {"skip": True}
+    if "refpix" in references:            # IRS2: the step's reference file
+        cfg["refpix"] = {"override_refpix": os.fspath(references["refpix"])}
     for name, pars in (steps or {}).items():
         cfg.setdefault(name, {}).update(pars)
     os.makedirs(output_dir, exist_ok=True)

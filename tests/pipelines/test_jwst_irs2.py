@@ -1,0 +1,113 @@
+"""The IRS2 uncal: the layout jwst's refpix step (IRS2 algorithm) reads, its reference
+file, and jwst's step run offline on a simulated IRS2 exposure (needs the ``jwst``
+extra; skipped without it).  IRS2 is full-frame only, so these use the full
+NIRSPEC-IRS2 frame with few groups; the pipeline run itself is marked slow."""
+
+import os
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stdatamodels")
+pytest.importorskip("jwst")
+
+from stdatamodels.jwst import datamodels as dm  # noqa: E402
+from jwst.lib import pipe_utils  # noqa: E402
+from jwst.refpix import irs2_subtract_reference as jirs2  # noqa: E402
+
+import noise  # noqa: E402
+from noise.clock import preset  # noqa: E402
+from noise.errors import ParameterError  # noqa: E402
+from scenesim.calib.prepare import PrepareOptions, fit_exposure_file  # noqa: E402
+from scenesim.calib.refpix import correct_irs2  # noqa: E402
+from scenesim.detector.readout import Readout  # noqa: E402
+from scenesim.engine import ChargeEngine  # noqa: E402
+from scenesim.io.exposure import Exposure, raw_resultants  # noqa: E402
+from scenesim.pipelines import jwst  # noqa: E402
+from scenesim.run import write_exposure  # noqa: E402
+
+DET = preset("NIRSPEC-IRS2")
+
+
+@pytest.fixture(scope="module")
+def irs2_exposure(tmp_path_factory):
+    d = tmp_path_factory.mktemp("irs2")
+    eng = ChargeEngine(DET, Readout.named("NRSIRS2RAPID", ngroups=2),
+                       noise_params=noise.NoiseParams(), rate=0.0, gain=1.0, rng=17)
+    path = os.fspath(d / "x.fits")
+    write_exposure(eng, path)
+    uncal = jwst.write_uncal(path, os.fspath(d / "x_uncal.fits"))
+    return d, path, uncal
+
+
+def test_uncal_layout_is_jwsts(irs2_exposure):
+    d, path, uncal = irs2_exposure
+    exp = Exposure.read(path)
+    raw = raw_resultants(exp, DET)
+    with dm.RampModel(uncal, strict_validation=True) as m:
+        assert m.data.shape == (1, 2, 3200, 2048)                   # DMS orientation
+        assert pipe_utils.is_irs2(m)
+        assert (m.meta.exposure.nrs_normal, m.meta.exposure.nrs_reference) == (16, 4)
+        assert m.meta.exposure.readpatt == "NRSIRS2RAPID"
+        assert m.meta.instrument.detector == "NRS1"
+        assert (m.meta.subarray.fastaxis, m.meta.subarray.slowaxis) == (2, 1)
+        # jwst's correct_model swaps NRS1 data back to detector orientation: ours
+        det_orient = np.swapaxes(m.data, 2, 3)
+        np.testing.assert_array_equal(det_orient, raw)
+        # the normal/reference columns jwst's IRS2 mask expects
+        mask = jirs2.make_irs2_mask(3200, 2048, 16, 4)
+        _, _, image_x = DET.raw_columns()
+        np.testing.assert_array_equal(mask, image_x >= 0)
+        np.testing.assert_array_equal(det_orient[..., mask], exp.sci[..., image_x[mask]])
+
+
+def test_nrs2_orientation():
+    raw = np.arange(2 * 3 * 4).reshape(1, 2, 3, 4)
+    dms = jwst.irs2_to_dms(raw, "NRS2")
+    # jwst: NRS2 data -> np.swapaxes(data, 2, 3)[:, :, ::-1, ::-1]
+    np.testing.assert_array_equal(np.swapaxes(dms, 2, 3)[:, :, ::-1, ::-1], raw)
+
+
+def test_irs2_filter_passes_low_and_blocks_the_comb():
+    beta = jwst.irs2_filter(DET)
+    f = np.abs(np.fft.fftfreq(beta.size))
+    gain = 712 / 256
+    assert beta.size == 712 * 2048
+    assert np.allclose(beta[f < 1 / 88], gain) and np.all(beta[f >= 1 / 44] == 0)
+
+
+def test_bad_irs2_requests(irs2_exposure, tmp_path):
+    d, path, uncal = irs2_exposure
+    with pytest.raises(ParameterError, match="IRS2 uncal: Detector1"):
+        jwst.run_detector1(uncal, {}, os.fspath(tmp_path))
+    with pytest.raises(ParameterError, match="full 2048 x 2048 frame"):
+        jwst.write_irs2_reference(DET.stripe(0, 64), os.fspath(tmp_path / "r.fits"))
+    small = preset("NIRSPEC-IRS2", naxis1=256, naxis2=64)
+    eng = ChargeEngine(small, Readout.named("NRSIRS2RAPID", ngroups=2), rng=1)
+    out = write_exposure(eng, None)
+    with pytest.raises(ParameterError, match="full 2048 x 2048 frame"):
+        jwst.uncal_model(out["exposure"])
+
+
+@pytest.mark.slow
+def test_jwst_irs2_refpix_runs_offline_and_removes_correlated_noise(irs2_exposure):
+    """jwst's refpix step (IRS2) with scenesim's reference file: it completes offline,
+    and lowers the CDS noise of the regular pixels below the uncorrected one (by
+    more than 5 sigma of the estimate), as scenesim's own 'irs2' does."""
+    d, path, uncal = irs2_exposure
+    ref = jwst.write_irs2_reference(DET, os.fspath(d / "jwst_refpix.fits"))
+    exp = jwst.irs2_refpix_exposure(uncal, ref, path)
+    raw = raw_resultants(Exposure.read(path), DET).astype(np.float64)[0]
+    plain = Exposure.read(path).sci[0].astype(np.float64)
+    reg = ~DET.reference_mask()
+    v = {name: np.var((c[1] - c[0])[reg]) for name, c in (
+        ("none", plain), ("jwst", exp.sci[0].astype(np.float64)),
+        ("ours", correct_irs2(raw, DET, window=9)))}
+    # relative standard error of a variance over n pixels: sqrt(2 / n) (neighbouring
+    # pixels share their 1/f noise, so n is counted as one per 16 pixels: generous)
+    tol = 5 * np.sqrt(2 / (reg.sum() / 16))
+    assert v["jwst"] < v["none"] * (1 - tol)
+    assert v["ours"] < v["none"] * (1 - tol)
+    fit = fit_exposure_file(exp, os.fspath(d / "jw_gls.fits"), fitter="gls",
+                            options=PrepareOptions(refpix="none"))
+    assert fit is not None and os.path.exists(d / "jw_gls.fits")
