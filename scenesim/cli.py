@@ -5,7 +5,7 @@ Subcommands::
     scenesim noise --preset H2RG --frames 5 -o dark.fits     empty ramp (noise only)
     scenesim run SCENE.toml [-o OUT] [--seed N]              simulate a scene (+fit, compare)
         [--uncal] [--l1] [--reffiles]                        + JWST uncal, Roman L1, references
-    scenesim fit EXPOSURE.fits [-o OUT] [--refpix none|median|jwst] [--fitter cds|ols|gls]
+    scenesim fit EXPOSURE.fits [-o OUT] [--refpix none|median|jwst|irs2] [--fitter cds|ols|gls]
     scenesim compare FIT.fits TRUTH.fits [--plots DIR]       fit vs. injected truth
     scenesim bench [WORKLOAD ...] [--quick] [--peers [--ng PATH]] [--scaling]
         [--fit-sizes N,... --fit-resultants N,...]           the fit's scaling grid
@@ -66,7 +66,7 @@ def _parser():
     r.add_argument("-o", "--output", default=None, help="exposure file")
     r.add_argument("--seed", type=int, default=None)
     r.add_argument("--fit", choices=("cds", "ols", "gls"), default=None)
-    r.add_argument("--refpix", choices=("none", "median", "jwst"), default=None)
+    r.add_argument("--refpix", choices=("none", "median", "jwst", "irs2"), default=None)
     r.add_argument("--compare", action="store_true", help="compare the fit with truth")
     r.add_argument("--plots", default=None, help="directory for comparison PNGs")
     r.add_argument("--gauss-above", type=float, default=None,
@@ -92,7 +92,7 @@ def _parser():
     f = sub.add_parser("fit", help="fit up-the-ramp slopes of an exposure")
     f.add_argument("exposure")
     f.add_argument("-o", "--output", default=None)
-    f.add_argument("--refpix", choices=("none", "median", "jwst"), default="jwst")
+    f.add_argument("--refpix", choices=("none", "median", "jwst", "irs2"), default="jwst")
     f.add_argument("--fitter", default="gls",
                    help="cds, ols or gls; or stcal-ols_c / stcal-likely to run the JWST "
                         "calibration library's fitter (needs the [stcal] extra)")

@@ -89,12 +89,13 @@ from noise.errors import ParameterError
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
 from scenesim.calib.noise_model import common_mode, measure_read_noise
-from scenesim.calib.refpix import SCHEMES, correct_reference
+from scenesim.calib.refpix import (SCHEMES, check_correction_options, correct_irs2,
+                                   correct_reference)
 from scenesim.calib.saturation import SaturationOptions, saturation_flags
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
-from scenesim.io.exposure import Exposure
+from scenesim.io.exposure import Exposure, raw_resultants
 from scenesim.io.fitfile import write_fit
 from scenesim.io.header import (exposure_read_noise, exposure_readout,
                                 exposure_settings, header_ipc_kernel, header_nonlinearity,
@@ -125,8 +126,10 @@ class PrepareOptions:
 
     Parameters
     ----------
-    refpix : {'jwst', 'median', 'none'}
-        Reference-pixel correction (:func:`scenesim.calib.refpix.correct_reference`).
+    refpix : {'jwst', 'median', 'none', 'irs2'}
+        Reference-pixel correction (:func:`scenesim.calib.refpix.correct_reference`;
+        ``'irs2'``: :func:`scenesim.calib.refpix.correct_irs2` on the exposure's
+        ``SCI`` and ``RAWREF``, for an IRS2 detector).
     read_noise : float or None
         Model white read noise, e- per read (not CDS), >= 0; None: the header's
         ``RDNOISE``.
@@ -302,6 +305,8 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
             f"fit (a one-group exposure only gives a zero point)")
     hdr = exp.header
     det = detector_from_header(hdr)
+    if options.refpix == "irs2":              # needs interleaved reference samples
+        check_correction_options(det, "irs2", 11, 3.0)
     cfg = exposure_settings(hdr)
     gain, t_frame = cfg["gain"], cfg["t_frame"]
     rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
@@ -314,7 +319,14 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
                                                  kernel, decon, rdn, refmask,
                                                  options.threads)
     rdn_model = rdn * rn_gain
-    if options.refpix != "none" and refmask.any():
+    if options.refpix == "irs2":
+        # every sample read (RAWREF too), the image pixels as prepared so far
+        raw = raw_resultants(exp, det).astype(np.float32) * np.float32(gain)
+        _, _, image_x = det.raw_columns()
+        raw[..., image_x >= 0] = e[..., image_x[image_x >= 0]]
+        e = np.asarray(correct_irs2(raw, det), dtype=np.float32)
+        del raw
+    elif options.refpix != "none" and refmask.any():
         e = np.asarray(correct_reference(e, det, scheme=options.refpix),
                        dtype=np.float32)
     nl = header_nonlinearity(hdr) if options.linearize else None

@@ -35,7 +35,8 @@ Top level
 
 * ``preset``: ``"H1RG"``, ``"H2RG"``, ``"H4RG-10"``, ``"H4RG-15"``, or an
   instrument's clock: ``"NIRCAM"``, ``"NIRSPEC"`` (JWST; a one-output window matches
-  JWST's frame time with ``nfoh = 2``) or ``"WFI"`` (Roman, 3.04 s frames)
+  JWST's frame time with ``nfoh = 2``), ``"NIRSPEC-IRS2"`` (NIRSpec's IRS2 readout,
+  14.589 s frames) or ``"WFI"`` (Roman, 3.04 s frames)
   (case-insensitive); default ``"H2RG"``.  ``noise.clock.PRESETS`` cites the source
   of every value.  Every key below defaults to the preset's
   value (``noise.clock.PRESETS``; H2RG values in brackets).
@@ -49,6 +50,11 @@ Top level
 * ``ref_border``: width of the reference-pixel border, pixels [4].
 * ``reverse_scan``: reverse every output's fast-scan direction [false].
 * ``pixel_pitch``: micrometres, for cosmic-ray rates per cm^2 [18].
+* ``interleave``: interleaved reference samples (IRS2) in every output row, a table
+  ``{normal = 16, reference = 4, jump = 1}`` or a list ``[16, 4, 1]``
+  (``noise.clock.Interleave``) [none; ``NIRSPEC-IRS2``: 16, 4, 1].
+* ``ref_output``: a reference output read in step with the science outputs [false;
+  ``NIRSPEC-IRS2``: true].
 
 ``[detector.subarray]`` -- a readout window (absent: full frame)
 
@@ -179,8 +185,9 @@ Every key is optional and inferred when absent:
 * ``ramp``: write the ramp file; default true (false keeps only the slopes and needs
   ``fit``).
 * ``fit``: ``""`` (none, default), ``"cds"``, ``"ols"`` or ``"gls"``.
-* ``refpix``: reference-pixel correction before the fit, ``"none"``, ``"median"`` or
-  ``"jwst"`` (default).
+* ``refpix``: reference-pixel correction before the fit, ``"none"``, ``"median"``,
+  ``"jwst"`` (default) or ``"irs2"`` (interleaved reference samples; an IRS2
+  detector).
 * ``compare``: compare the fitted slopes with the truth (needs ``fit``); default false.
 
 Validation rules

@@ -823,8 +823,9 @@ class OutputConfig:
         needs ``fit``.
     fit : {'', 'cds', 'ols', 'gls'}
         Ramp fit to run after the simulation; ``''`` = none.
-    refpix : {'none', 'median', 'jwst'}
-        Reference-pixel correction applied before the fit.
+    refpix : {'none', 'median', 'jwst', 'irs2'}
+        Reference-pixel correction applied before the fit (``'irs2'``: interleaved
+        reference samples, an IRS2 detector such as preset ``'NIRSPEC-IRS2'``).
     compare : bool
         Compare the fitted slopes with the injected truth (needs ``fit``).
     """
@@ -846,7 +847,7 @@ class OutputConfig:
         for key in ("truth", "save_charge", "save_noise", "ramp", "compare"):
             object.__setattr__(self, key, check_bool(key, getattr(self, key)))
         check_choice("fit", self.fit, ("", "cds", "ols", "gls"))
-        check_choice("refpix", self.refpix, ("none", "median", "jwst"))
+        check_choice("refpix", self.refpix, ("none", "median", "jwst", "irs2"))
         if not self.ramp and not self.fit:
             raise ParameterError("'ramp = false' writes slopes only, so it needs 'fit' "
                                  "('cds', 'ols' or 'gls')")
@@ -924,6 +925,11 @@ class Scene:
             self.noise.check_adc(eff.gain, eff.adc_bits)
         except ParameterError as exc:
             raise type(exc)(f"[noise] {exc}") from exc
+        if self.output.refpix == "irs2" and self.detector.interleave is None:
+            raise ParameterError(
+                f"[output] 'refpix' = 'irs2' needs interleaved reference samples, but "
+                f"[detector] {self.detector.name!r} has no 'interleave' (use preset "
+                f"'NIRSPEC-IRS2', or refpix 'jwst'/'median'/'none')")
         self._check_charge()
 
     def _check_charge(self):
