@@ -604,7 +604,7 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
         raise ParameterTypeError(f"'extra_cards' must be a sequence of (key, value[, "
                                  f"comment]) tuples, got {describe(extra_cards)}")
     if unit == "DN":
-        # an amplitude beyond 100 x the 16-bit range clips every pixel (0 or 65535)
+        # no noise clipped at the 16-bit ADC (noise.params module notes)
         try:
             generator.params.check_adc(gain, 16)
         except ParameterError as exc:

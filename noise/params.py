@@ -44,17 +44,19 @@ that is known:
 * :meth:`NoiseParams.check_detector` (the noise generator, a scene): ``f_min`` must be
   below the Nyquist frequency of every 1/f series it shapes (``1 / (2 dt)`` for the
   pink series, ``1 / (4 dt)`` for ACN, ``1 / (2 row time)`` for picture-frame noise);
-* :meth:`NoiseParams.check_adc` (a scene, which knows the gain and the ADC bits): no
-  amplitude that reaches every pixel (all but ``rtn_amp``) may exceed
-  :data:`ADC_CLIP_FACTOR` = 100 times the ADC range in electrons, ``gain * (2**bits -
-  1)``.  Above it at most ``0.4 / 100`` = 0.4 % of a Gaussian component's values
-  (density at most ``1 / (sqrt(2 pi) sigma)``) fall inside the range.  The constant
-  ``bias_offset`` (the mean reset level) has a tighter bound: with ``s`` the rms
-  spread of the other components around it (the root sum of squares of the
-  amplitudes, the reference pixels' white noise included), ``bias_offset - 5 s`` above
-  the range puts every pixel above the top code (charge only adds), and
-  ``bias_offset + 5 s`` below 0 puts every pixel without charge at code 0
-  (:data:`BIAS_SPREAD_SIGMA`).
+* :meth:`NoiseParams.check_adc` (a scene, a DN noise file: where the gain and the ADC
+  bits are known): the reset level of a pixel without charge is ``bias_offset`` plus
+  the other components, whose rms spread ``s`` is the root sum of squares of every
+  amplitude that reaches every pixel (all but ``rtn_amp``; the white noise at the
+  larger of the regular and reference-pixel levels, :meth:`NoiseParams.spread`).  The
+  ADC clips below code 0 and above its top code, ``gain * (2**bits - 1)`` e-, so
+  ``bias_offset`` must lie :data:`BIAS_SPREAD_SIGMA` = 5 spreads inside that range,
+  in ``[5 s, range - 5 s]``: then at most 2.9e-7 of a Gaussian component's values
+  clip on each side.  Outside it the ADC silently flattens the noise a user asked
+  for: e.g. ``preset = "none"`` (``bias_offset = 0``) with ``rd_noise = 5`` put half
+  of every dark pixel's reads at code 0.  When ``10 s`` exceeds the range no bias
+  fits, and the error names the largest amplitude instead.  Charge, which only adds,
+  is not counted: reaching the top code is saturation.
 
 The 1/f synthesis bounds two options: ``f_min >= 1e-20`` Hz (:data:`MIN_F_MIN`; a
 flat PSD below a period of 3e12 years; lower values need hundreds of filter bands and
@@ -74,16 +76,13 @@ from noise.validate import check_float, describe, is_real, is_sequence
 from noise.errors import ParameterError, ParameterTypeError
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE", "MAX_AMPLITUDE",
-           "ADC_CLIP_FACTOR", "BIAS_SPREAD_SIGMA", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
+           "BIAS_SPREAD_SIGMA", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
 
 #: Largest amplitude (and ``|bias_offset|``, ``rd_noise * ref_ratio``), e-: float32
 #: frames stay finite (module notes).
 MAX_AMPLITUDE = 1e30
-#: Amplitudes above this multiple of the ADC range (e-) clip every pixel at the ADC
-#: (module notes, :meth:`NoiseParams.check_adc`).
-ADC_CLIP_FACTOR = 100.0
-#: ``bias_offset`` more than this many rms spreads of the other components beyond
-#: the ADC range (above its top or below 0) clips every (dark) pixel (module notes).
+#: ``bias_offset`` must lie this many rms spreads of the other components inside
+#: the ADC range (module notes, :meth:`NoiseParams.check_adc`).
 BIAS_SPREAD_SIGMA = 5.0
 #: Smallest ``f_min``, Hz (module notes).
 MIN_F_MIN = 1e-20
@@ -273,50 +272,64 @@ class NoiseParams:
                     f"'dt' = {detector.dt!r} s and 'nroh' = {detector.nroh}")
 
     def check_adc(self, gain, adc_bits):
-        """Raise :class:`~noise.errors.ParameterError` naming the first amplitude that
-        would clip every pixel at an ADC of ``gain`` e-/DN and ``adc_bits`` bits: above
-        :data:`ADC_CLIP_FACTOR` times its range ``gain * (2**adc_bits - 1)`` e-
-        (module notes).  ``rtn_amp`` is not checked: it reaches only RTN pixels."""
-        adc_range = float(gain) * (2.0 ** int(adc_bits) - 1.0)
-        limit = ADC_CLIP_FACTOR * adc_range
-        for f in dataclasses.fields(self):
-            if f.name in _OPTIONS or f.name == "rtn_amp":
-                continue
-            value = max(abs(v) for v in self._values(f.name))
-            if value > limit:
-                raise ParameterError(
-                    f"{f.name!r} = {getattr(self, f.name)!r} e- would clip every pixel "
-                    f"at the ADC: its size must be <= {ADC_CLIP_FACTOR:g} x the ADC range "
-                    f"('gain' {float(gain):g} e-/DN x {2 ** int(adc_bits) - 1} DN of "
-                    f"'adc_bits' {int(adc_bits)} = {adc_range:g} e-), i.e. <= {limit:g} e-")
+        """Raise :class:`~noise.errors.ParameterError` if an ADC of ``gain`` e-/DN and
+        ``adc_bits`` bits would clip the noise of a pixel without charge (module
+        notes): ``bias_offset`` must lie in ``[5 s, range - 5 s]`` e-, ``s`` the
+        components' rms spread (:meth:`spread`), ``range = gain * (2**adc_bits - 1)``.
+        The error names ``bias_offset``, or the largest amplitude when ``10 s``
+        exceeds the range (no bias fits)."""
+        top = 2 ** int(adc_bits) - 1
+        adc_range = float(gain) * top
+        adc = (f"the ADC range [0, {adc_range:.6g}] e- ('gain' {float(gain):g} e-/DN x "
+               f"{top} DN of 'adc_bits' {int(adc_bits)})")
         spread = self.spread()
-        lo = self.bias_offset - BIAS_SPREAD_SIGMA * spread
-        hi = self.bias_offset + BIAS_SPREAD_SIGMA * spread
-        if lo > adc_range or hi < 0:
-            where = "above the ADC's top code" if lo > adc_range else "below code 0"
+        k = BIAS_SPREAD_SIGMA
+        if 2 * k * spread > adc_range:
+            name, value = self._largest_amplitude()
+            who = f"{name!r} = {getattr(self, name)!r} e-"
+            if name == "rd_noise" and self.ref_ratio > 1:
+                who = (f"'ref_ratio' x 'rd_noise' = {self.ref_ratio!r} x "
+                       f"{getattr(self, name)!r} e- (the reference pixels' white noise)")
             raise ParameterError(
-                f"'bias_offset' = {self.bias_offset!r} e- would put every pixel {where}: "
-                f"with the other components' rms spread of {spread:.4g} e- it must lie "
-                f"within {BIAS_SPREAD_SIGMA:g} x that spread of the ADC range [0, "
-                f"{adc_range:g}] e- ('gain' {float(gain):g} e-/DN x "
-                f"{2 ** int(adc_bits) - 1} DN of 'adc_bits' {int(adc_bits)}), i.e. in "
-                f"[{-BIAS_SPREAD_SIGMA * spread:.6g}, "
-                f"{adc_range + BIAS_SPREAD_SIGMA * spread:.6g}] e-")
+                f"{who} is too large for the ADC: the "
+                f"noise's rms spread s = {spread:.6g} e- (root sum of squares of the "
+                f"amplitudes, {name!r} the largest at {value:.6g} e-) must fit "
+                f"{2 * k:g} times in {adc}, i.e. s <= "
+                f"{adc_range / (2 * k):.6g} e-, or the ADC clips it")
+        lo, hi = k * spread, adc_range - k * spread
+        if not lo <= self.bias_offset <= hi:
+            below = self.bias_offset < lo
+            z = ((self.bias_offset if below else adc_range - self.bias_offset)
+                 / spread) if spread > 0 else -math.inf
+            frac = 0.5 * math.erfc(z / math.sqrt(2.0))
+            where = "below code 0" if below else "above the ADC's top code"
+            raise ParameterError(
+                f"'bias_offset' = {self.bias_offset!r} e- puts {100 * frac:.3g} % of the reads "
+                f"of a pixel without charge {where}, where the ADC clips them: with "
+                f"the noise's rms spread s = {spread:.6g} e- it must lie {k:g} s inside "
+                f"{adc}, i.e. in [{lo:.6g}, {hi:.6g}] e-")
 
-    def spread(self):
-        """Rms spread (e-) of the components around the mean reset level
-        ``bias_offset``: the root sum of squares of every amplitude that reaches
-        every pixel (the largest per-output value; the white noise at the larger of
-        the regular and reference-pixel levels), ``rtn_amp`` left out."""
-        total = 0.0
+    def _largest_amplitude(self):
+        """(name, e-) of the largest term of :meth:`spread`."""
+        terms = {name: value for name, value in self._spread_terms()}
+        name = max(terms, key=terms.get)
+        return name, terms[name]
+
+    def _spread_terms(self):
         for f in dataclasses.fields(self):
             if f.name in _OPTIONS or f.name in ("rtn_amp", "bias_offset"):
                 continue
             value = max(abs(v) for v in self._values(f.name))
             if f.name == "rd_noise":
                 value *= max(1.0, float(self.ref_ratio))
-            total += float(value) ** 2
-        return math.sqrt(total)
+            yield f.name, float(value)
+
+    def spread(self):
+        """Rms spread (e-) of the components around the mean reset level
+        ``bias_offset``: the root sum of squares of every amplitude that reaches
+        every pixel (the largest per-output value; the white noise at the larger of
+        the regular and reference-pixel levels), ``rtn_amp`` left out."""
+        return math.sqrt(sum(v * v for _, v in self._spread_terms()))
 
     def per_output(self, name, n_out):
         """Amplitude ``name`` as an array of ``n_out`` values (e-)."""

@@ -36,8 +36,10 @@ def noise_command(args):
         changes["n_out"] = args.n_out
     if changes:
         det = dataclasses.replace(det, **changes)
-    params = noise.NoiseParams() if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
-        rd_noise=5.2)
+    # white: the paper's read noise on its bias, which keeps the DN file off code 0
+    nominal = noise.NoiseParams()
+    params = nominal if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
+        rd_noise=nominal.rd_noise, bias_offset=nominal.bias_offset)
     check_outputs({"output": args.output}, overwrite=args.overwrite)
     budget = check_noise_budget(det, params, args.frames, nints=args.nints,
                                 unit=args.unit, path=args.output, force=args.force)

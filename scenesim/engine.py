@@ -321,6 +321,9 @@ class ChargeEngine:
         # resultants are stored as uint16: at most 16 bits
         self.adc_bits = check_int("adc_bits", adc_bits, minimum=1, maximum=16)
         self.adc = ADC(self.gain, self.adc_bits)
+        if noise_params is not None:
+            # no noise clipped at the ADC (noise.params module notes)
+            noise_params.check_adc(self.gain, self.adc_bits)
         self.full_well = None if full_well is None else FullWell(full_well, shape)
         self.nonlinearity = nonlinearity if (nonlinearity is not None
                                              and not nonlinearity.is_linear) else None

@@ -172,10 +172,11 @@ def ktc_levels(ktc, n=128, nints=8):
     """Noise-only resultants (RAPID x 2, ``nints``) with only kTC on, via the engine."""
     det = small_detector(n)
     ro = scenesim.Readout.named("RAPID", 2, nints=nints)
-    params = noise.ZERO_NOISE.replace(ktc=ktc)
+    # the bias (a constant) 10 kTC sigmas above the ADC's code 0: nothing clips
+    params = noise.ZERO_NOISE.replace(ktc=ktc, bias_offset=10 * ktc)
     _, _, nz, _ = run(engine(det, ro, noise_params=params), save_charge=False,
                       save_noise=True)
-    return det, nz
+    return det, nz - 10 * ktc
 
 
 def ktc_statistics(ktc):
@@ -231,7 +232,9 @@ def white_pair_differences(rd_noise, ref_ratio, n=256, nreads=20):
     flattened values."""
     det = small_detector(n)
     ro = scenesim.Readout.named("RAPID", nreads)
-    params = noise.ZERO_NOISE.replace(rd_noise=rd_noise, ref_ratio=ref_ratio)
+    # the bias 10 sigmas above the ADC's code 0 (differences cancel it)
+    params = noise.ZERO_NOISE.replace(rd_noise=rd_noise, ref_ratio=ref_ratio,
+                                      bias_offset=10 * rd_noise * max(1.0, ref_ratio))
     _, _, nz, _ = run(engine(det, ro, noise_params=params), save_charge=False,
                       save_noise=True)
     d = nz[0, 1::2] - nz[0, 0::2]                    # (nreads/2, ny, nx), independent

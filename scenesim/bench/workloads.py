@@ -387,6 +387,10 @@ def _options_scene(size):
     return det, ro, rate, params
 
 
+#: White read noise on a bias 1000 e- (~190 sigma) above the ADC's code 0
+WHITE = noise.ZERO_NOISE.replace(rd_noise=5.2, bias_offset=1000.0)
+
+
 def bench_options(case, threads):
     """One approximation against the exact path: run time and the slope errors.
 
@@ -479,7 +483,7 @@ def bench_skips(case, threads):
     rate = np.zeros(det.shape)
     keep = None
     if what == "zero_amplitude":
-        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        params = WHITE
         if defeated:
             params = params.replace(c_pink=1e-12, u_pink=1e-12, acn=1e-12, pca0=1e-12,
                                     pedestal=1e-12)
@@ -489,13 +493,13 @@ def bench_skips(case, threads):
         if defeated:
             rate = rate + 1e-12
     elif what == "unused_frames":
-        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        params = WHITE
         rate = np.full(det.shape, 1.0)
         ro = Readout.named("DEEP8", 2)
         if defeated:
             ro = Readout.from_reads([list(range(g * 20, g * 20 + 20)) for g in range(2)])
     elif what == "no_ramp_file":
-        params = noise.ZERO_NOISE.replace(rd_noise=5.2)
+        params = WHITE
         rate = np.full(det.shape, 1.0)
         if not defeated:
             keep = lambda res: None  # noqa: E731  (in-memory resultants, no file)

@@ -919,8 +919,8 @@ class Scene:
             check_str("path", self.path)
         eff = self.effects
         try:
-            # per-output values, f_min below every Nyquist frequency, no amplitude
-            # that clips every pixel at the ADC (noise.params module notes)
+            # per-output values, f_min below every Nyquist frequency, no noise
+            # clipped at the ADC (noise.params module notes)
             self.noise.check_detector(self.detector, where="[detector]")
             self.noise.check_adc(eff.gain, eff.adc_bits)
         except ParameterError as exc:

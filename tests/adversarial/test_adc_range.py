@@ -1,23 +1,24 @@
-"""Noise amplitudes that clip every pixel at the ADC, refused by every way in.
+"""Noise that the ADC would clip, refused by every way in.
 
-A noise amplitude above 100 times the ADC range in electrons (``gain * (2**bits -
-1)``) puts every pixel at code 0 or the top code (a constant ``bias_offset``), or
-leaves at most 0.4 % of a Gaussian component's values inside the range
+The ADC clips below code 0 and above its top code, ``gain * (2**bits - 1)`` e-.  The
+reset level of a pixel without charge is ``bias_offset`` plus the other components,
+of rms spread ``s`` (root sum of squares of the amplitudes that reach every pixel), so
+``bias_offset`` must lie 5 spreads inside the range, and ``10 s`` must fit in it
 (:meth:`noise.NoiseParams.check_adc`).  Before issue 12 ``c_pink = 1e300`` was
-accepted with only an overflow RuntimeWarning, and ``c_pink = 1e7`` (or ``scenesim
-noise --unit DN --gain 1e-5``, whose 5000 e- bias is 5e8 DN) wrote a ramp of clipped
-pixels without a word.
+accepted with only an overflow RuntimeWarning, ``c_pink = 1e7`` (or ``scenesim noise
+--unit DN --gain 1e-5``, whose 5000 e- bias is 5e8 DN) wrote a ramp of clipped pixels
+without a word, and so did ``preset = "none"`` with ``rd_noise = 5`` (bias 0: half of
+every dark pixel's reads at code 0).
 
 Every amplitude of :class:`noise.NoiseParams` (its dataclass fields, less the options
 of ``noise.params._OPTIONS`` and ``rtn_amp``, which reaches only the RTN pixels) is
-set just above the limit, and (class ``float32``) far beyond the float32 frames, and
+set just above its limit, and (class ``float32``) far beyond the float32 frames, and
 given to each way in: a scene mapping (:func:`parse_scene`), a scene file
 (:func:`load_scene`), ``Scene.replace`` in the library, :func:`noise.write_noise_fits`
 with ``unit='DN'``, and the commands ``scenesim run`` and ``scenesim noise``.  Each
 must refuse it before any work in one line naming the key (and its table, for a
-scene), and accept the value at the limit.  The constant ``bias_offset`` has the
-tighter bound of the mean level (5 rms spreads of the other components beyond the
-range, :data:`noise.params.BIAS_SPREAD_SIGMA`), tested on both sides.
+scene), and accept the value just inside the limit.  The limits are derived here from
+the preset's amplitudes, not from the code under test.
 """
 
 import dataclasses
@@ -37,22 +38,50 @@ from scenesim.scene import load_scene, parse_scene
 AMPLITUDES = [f.name for f in dataclasses.fields(noise.NoiseParams)
               if f.name not in _OPTIONS and f.name != "rtn_amp"]
 GAIN, BITS = 2.0, 12
-LIMIT = 100 * GAIN * (2 ** BITS - 1)            # 819000 e-
-#: value classes: just above the ADC limit, and beyond the float32 frames (1e30)
-VALUES = {"adc": 1.01 * LIMIT, "float32": 1e300}
+ADC_RANGE = GAIN * (2 ** BITS - 1)              # 8190 e-
+MID = ADC_RANGE / 2                             # a bias with room on both sides
+#: value classes: far above any ADC limit, and beyond the float32 frames (1e30)
+VALUES = {"adc": 1e6, "float32": 1e300}
+
+
+def _terms(p):
+    """The spread's terms (e-) of NoiseParams ``p``: every amplitude that reaches every
+    pixel (largest per-output value), the white noise at the larger of the regular and
+    reference-pixel levels; the bias itself and RTN left out."""
+    out = {}
+    for name in AMPLITUDES:
+        if name == "bias_offset":
+            continue
+        v = getattr(p, name)
+        v = max(v) if isinstance(v, tuple) else v
+        out[name] = v * max(1.0, p.ref_ratio) if name == "rd_noise" else v
+    return out
+
+
+def _spread(p):
+    return sum(v * v for v in _terms(p).values()) ** 0.5
+
+
+def _limit(key, adc_range=ADC_RANGE):
+    """Largest value of amplitude ``key`` (the nirspec preset otherwise): the spread s
+    must fit 10 times in the range, s <= range / 10."""
+    rest = {k: v for k, v in _terms(noise.NIRSPEC_DEFAULTS).items() if k != key}
+    return ((adc_range / 10) ** 2 - sum(v * v for v in rest.values())) ** 0.5
 
 
 def _mapping(key, value):
+    table = {"preset": "nirspec", "bias_offset": MID, key: value}
     return {"seed": 1, "detector": {"naxis1": 16, "naxis2": 16, "ref_border": 2},
-            "noise": {"preset": "nirspec", key: value},
+            "noise": table,
             "readout": {"pattern": "RAPID", "ngroups": 2},
             "effects": {"gain": GAIN, "adc_bits": BITS},
             "output": {"path": "out.fits"}}
 
 
 def _toml(key, value):
+    bias = "" if key == "bias_offset" else f"bias_offset = {MID!r}\n"
     return (f'seed = 1\n[detector]\nnaxis1 = 16\nnaxis2 = 16\nref_border = 2\n'
-            f'[noise]\npreset = "nirspec"\n{key} = {value!r}\n'
+            f'[noise]\npreset = "nirspec"\n{bias}{key} = {value!r}\n'
             f'[readout]\npattern = "RAPID"\nngroups = 2\n'
             f'[effects]\ngain = {GAIN!r}\nadc_bits = {BITS}\n[output]\npath = "out.fits"\n')
 
@@ -75,7 +104,6 @@ def test_scene_mapping_and_file_refuse_it(key, cls, tmp_path):
     _check(str(info.value), key)
     assert str(info.value).startswith("[noise] ")
     if cls == "adc":
-        assert "would clip every pixel" in str(info.value)
         assert "'gain' 2 e-/DN" in str(info.value) and "'adc_bits' 12" in str(info.value)
     (tmp_path / "s.toml").write_text(_toml(key, VALUES[cls]))
     with pytest.raises(ParameterError) as info:
@@ -85,56 +113,81 @@ def test_scene_mapping_and_file_refuse_it(key, cls, tmp_path):
 
 
 @pytest.mark.parametrize("key", [k for k in AMPLITUDES if k != "bias_offset"])
-def test_the_limit_itself_is_accepted(key):
-    scene = parse_scene(_mapping(key, LIMIT))
-    assert getattr(scene.noise, key) == LIMIT
+def test_each_amplitude_is_refused_just_above_its_limit_and_accepted_below(key):
+    # s <= range / 10 with the bias at mid-range: 1e-6 relative on either side
+    lim = _limit(key)
+    inside, outside = lim * (1 - 1e-6), lim * (1 + 1e-6)
+    assert getattr(parse_scene(_mapping(key, inside)).noise, key) == inside
+    with pytest.raises(ParameterError) as info:
+        parse_scene(_mapping(key, outside))
+    _check(str(info.value), key)
+    assert "too large for the ADC" in str(info.value)
 
 
-def _nirspec_spread():
-    """Rms spread (e-) of the nirspec preset's components around the bias, from the
-    preset's amplitudes (root sum of squares; white noise at the larger of the
-    regular and reference-pixel levels)."""
-    p = noise.NIRSPEC_DEFAULTS
-    amps = [max(p.rd_noise if isinstance(p.rd_noise, tuple) else (p.rd_noise,))
-            * max(1.0, p.ref_ratio)]
-    for name in ("c_pink", "u_pink", "acn", "pca0", "pedestal", "ktc", "bias_amp"):
-        v = getattr(p, name)
-        amps.append(max(v) if isinstance(v, tuple) else v)
-    return sum(a * a for a in amps) ** 0.5
-
-
+@pytest.mark.parametrize("preset, amps", [("nirspec", {}),
+                                          ("none", {"rd_noise": 5.0}),
+                                          ("none", {"c_pink": 30.0, "ktc": 40.0})])
 @pytest.mark.parametrize("side", ["top", "bottom"])
-def test_a_bias_that_puts_every_pixel_outside_the_adc_is_refused(side):
-    # The constant reset level clips every pixel once it lies more than 5 rms spreads
-    # s of the other components beyond the ADC range [0, gain (2**bits - 1)] e-:
-    # above the top code (charge only adds), or below 0 for every pixel without
-    # charge.  Before, only 100 x the range was refused (`scenesim noise --unit DN
-    # --gain 0.001` wrote every pixel at 65535).  Just inside is accepted, just
-    # outside refused, in one line naming the key.
-    s = _nirspec_spread()
-    adc_range = GAIN * (2 ** BITS - 1)
-    edge = adc_range + 5 * s if side == "top" else -5 * s
-    step = 1e-6 * max(abs(edge), 1.0)
+def test_a_bias_within_5_spreads_of_either_end_is_refused(side, preset, amps):
+    # The ADC clips a dark pixel's reads once the bias lies less than 5 rms spreads s
+    # inside the range [0, gain (2**bits - 1)] e- (2.9e-7 of a Gaussian beyond 5 s).
+    # Before, only a bias 5 s *beyond* the range was refused: `preset = "none"` with
+    # `rd_noise = 5` (bias 0) put half of every dark pixel's reads at code 0
+    # silently.  Just inside is accepted, just outside refused, in one line naming
+    # the key and the fraction clipped.
+    p = (noise.NIRSPEC_DEFAULTS if preset == "nirspec" else noise.ZERO_NOISE).replace(
+        **amps)
+    s = _spread(p)
+    edge = ADC_RANGE - 5 * s if side == "top" else 5 * s
+    step = 1e-5 * s                  # z = 5 - 1e-5: Q(z) still rounds to 2.87e-7
     inside = edge - step if side == "top" else edge + step
     outside = edge + step if side == "top" else edge - step
-    assert parse_scene(_mapping("bias_offset", inside)).noise.bias_offset == inside
+
+    def mapping(bias):
+        m = _mapping("bias_offset", bias)
+        m["noise"] = {"preset": preset, "bias_offset": bias, **amps}
+        return m
+
+    assert parse_scene(mapping(inside)).noise.bias_offset == inside
     with pytest.raises(ParameterError) as info:
-        parse_scene(_mapping("bias_offset", outside))
+        parse_scene(mapping(outside))
     _check(str(info.value), "bias_offset")
     assert ("above the ADC's top code" if side == "top" else "below code 0") in \
         str(info.value)
+    # 5 s inside: a fraction Q(5) = 2.87e-7 of the reads clip
+    assert "2.87e-05 %" in str(info.value)
+
+
+def test_bias_zero_with_noise_is_refused_naming_half_the_reads():
+    m = _mapping("bias_offset", 0.0)
+    m["noise"] = {"preset": "none", "rd_noise": 5.0}
+    with pytest.raises(ParameterError) as info:
+        parse_scene(m)
+    _check(str(info.value), "bias_offset")
+    assert "50 % of the reads" in str(info.value)
+    assert "in [25, 8165] e-" in str(info.value)       # 5 x 5 e- inside [0, 8190]
+    # without noise the bias may sit anywhere in the range, ends included
+    for bias in (0.0, ADC_RANGE):
+        m["noise"] = {"preset": "none", "bias_offset": bias}
+        assert parse_scene(m).noise.bias_offset == bias
 
 
 @pytest.mark.parametrize("key", AMPLITUDES)
 def test_library_scene_replace_refuses_it(key):
-    scene = parse_scene(_mapping(key, 1.0))
+    scene = parse_scene(_mapping(key, MID if key == "bias_offset" else 1.0))
     with pytest.raises(ParameterError) as info:
         scene.replace(noise=scene.noise.replace(**{key: VALUES["adc"]}))
     _check(str(info.value), key)
-    # a smaller ADC range under the same amplitudes: the gain named too (the bias
-    # at the top code: 8190 e- - 5 x ~500 e- of spread is above half the range)
-    start = GAIN * (2 ** BITS - 1) if key == "bias_offset" else LIMIT
-    scene = parse_scene(_mapping(key, start))
+    # a smaller ADC range under the same amplitudes: the gain named too (the bias at
+    # the old mid-range is the new top code; an amplitude at its old limit is about
+    # twice the new one)
+    # (for the bias, 10 e- of bias structure: the preset's 500 e- alone would no
+    # longer fit 10 times in the halved range, and that is what would be named)
+    start = MID if key == "bias_offset" else _limit(key) * (1 - 1e-6)
+    m = _mapping(key, start)
+    if key == "bias_offset":
+        m["noise"]["bias_amp"] = 10.0
+    scene = parse_scene(m)
     with pytest.raises(ParameterError) as info:
         scene.replace(effects=dataclasses.replace(scene.effects, gain=GAIN / 2))
     _check(str(info.value), key)
@@ -144,19 +197,21 @@ def test_library_scene_replace_refuses_it(key):
 @pytest.mark.parametrize("key", AMPLITUDES)
 def test_write_noise_fits_in_dn_refuses_it(key, tmp_path):
     det = noise.preset("H2RG", naxis1=16, naxis2=16)
-    limit16 = 100 * GAIN * 65535                     # the file's ADC: 16 bits
-    params = noise.ZERO_NOISE.replace(**{key: 1.01 * limit16})
+    range16 = GAIN * 65535                           # the file's ADC: 16 bits
+    params = noise.ZERO_NOISE.replace(**{key: 1.01 * range16})
     gen = noise.NoiseGenerator(det, params, rng=1, threads=1)
     with pytest.raises(ParameterError) as info:
         noise.write_noise_fits(tmp_path / "n.fits", gen, 2, unit="DN", gain=GAIN)
     _check(str(info.value), key)
     assert "unit='DN'" in str(info.value)
     assert os.listdir(tmp_path) == []
-    # in electrons (float32) nothing clips; at the limit the DN file is written
+    # in electrons (float32) nothing clips; inside the limit the DN file is written:
+    # the bias alone at the top code, an amplitude with s = range / 10 at mid-range
     noise.write_noise_fits(tmp_path / "e.fits", gen, 2, unit="e")
-    # (the bias alone, with nothing around it, may reach the top code itself)
-    at = GAIN * 65535 if key == "bias_offset" else limit16
-    at_limit = noise.NoiseGenerator(det, noise.ZERO_NOISE.replace(**{key: at}),
+    inside = ({"bias_offset": range16} if key == "bias_offset" else
+              {key: range16 / 10 * (1 - 1e-6),
+               "bias_offset": range16 / 2})
+    at_limit = noise.NoiseGenerator(det, noise.ZERO_NOISE.replace(**inside),
                                     rng=1, threads=1)
     noise.write_noise_fits(tmp_path / "dn.fits", at_limit, 2, unit="DN", gain=GAIN)
     assert sorted(os.listdir(tmp_path)) == ["dn.fits", "e.fits"]
@@ -192,10 +247,11 @@ def test_run_command_refuses_it_in_one_line(key, cls, tmp_path):
 
 
 def test_noise_command_refuses_a_gain_that_clips_every_pixel(tmp_path):
-    # the paper's 5000 e- bias at 1e-5 e-/DN is 5e8 DN, beyond 100 x the 16-bit range
-    # (65.5 e- at this gain): every pixel at 65535
+    # the 16-bit range at 1e-5 e-/DN is 0.655 e-: the paper's 500 e- of bias
+    # structure (the largest amplitude) alone is 760 times it
     res = _cli(["noise", "--naxis", "64", "--frames", "2", "--unit", "DN", "--gain",
                 "1e-5", "-q", "-o", "n.fits"], tmp_path)
     assert res.returncode == 2, res.stderr
-    _one_line(res.stderr, "'bias_offset'", "'gain' 1e-05", "unit='DN'")
+    _one_line(res.stderr, "'bias_amp'", "too large for the ADC", "'gain' 1e-05",
+              "unit='DN'")
     assert os.listdir(tmp_path) == []

@@ -73,7 +73,7 @@ CURVE = scenesim.LightCurve.step(1.0, after=2.0)
 SCENE_MAP = {
     "seed": 3,
     "detector": {"naxis1": 16, "naxis2": 16, "ref_border": 2},
-    "noise": {"preset": "none", "rd_noise": 5.0},
+    "noise": {"preset": "none", "rd_noise": 5.0, "bias_offset": 100.0},
     "readout": {"pattern": "RAPID", "ngroups": 3},
     "sources": {"background": 1.0},
     "output": {"path": "out.fits"},

@@ -402,19 +402,26 @@ def test_noise_that_clips_every_pixel_is_refused():
     with pytest.raises(ParameterError, match=r"^\[noise\] 'c_pink' = 1e\+300 e- .*"
                                              r"<= 1e\+30 e-"):
         parse_scene(_small(noise={"c_pink": 1e300}))
-    # 100 x the ADC range: gain 1 e-/DN x 65535 DN
-    with pytest.raises(ParameterError, match=r"\[noise\] 'c_pink' = 10000000.0 e- would clip "
-                                             r"every pixel .*<= 6\.5535e\+06 e-"):
+    # the noise's rms spread s must fit 10 times in the ADC range (gain 1 e-/DN x
+    # 65535 DN): s <= 6553.5 e-
+    with pytest.raises(ParameterError, match=r"\[noise\] 'c_pink' = 10000000.0 e- is too "
+                                             r"large for the ADC.*s <= 6553\.5 e-"):
         parse_scene(_small(noise={"c_pink": 1e7}))
-    parse_scene(_small(noise={"c_pink": 6.5535e6}))
-    # a 4-bit ADC (15 DN x 2 e-/DN = 30 e-) cannot hold the paper's bias of 5000 e-
-    with pytest.raises(ParameterError, match=r"'bias_offset' = 5000\.0 e- .*'adc_bits' "
-                                             r"4 .*<= 3000 e-"):
+    # s = sqrt(6000^2 + ~500^2) = 6021 e-: fits, with the bias at mid-range (>= 5 s)
+    parse_scene(_small(noise={"c_pink": 6000.0, "bias_offset": 32767.5}))
+    # a 4-bit ADC (15 DN x 2 e-/DN = 30 e-) cannot hold the paper's 500 e- of bias
+    # structure (its largest amplitude)
+    with pytest.raises(ParameterError, match=r"'bias_amp' = 500\.0 e- is too large .*"
+                                             r"'adc_bits' 4.*s <= 3 e-"):
         parse_scene(_small(effects={"gain": 2.0, "adc_bits": 4}))
     # only RTN pixels see rtn_amp: not every pixel clips
     parse_scene(_small(noise={"rtn_amp": 1e20, "rtn_fraction": 0.01}))
-    with pytest.raises(ParameterError, match=r"'bias_offset' = -100000000\.0 e- .*size must be <="):
+    with pytest.raises(ParameterError, match=r"'bias_offset' = -100000000\.0 e- puts 100 % "
+                                             r"of the reads .* below code 0"):
         parse_scene(_small(noise={"bias_offset": -1e8}))
+    # the reference pixels' white noise names both keys
+    with pytest.raises(ParameterError, match=r"'ref_ratio' x 'rd_noise' = .* too large"):
+        parse_scene(_small(noise={"ref_ratio": 1e6}))
 
 
 def test_f_min_beyond_nyquist_is_refused():

@@ -39,7 +39,7 @@ def test_exposure_header_round_trip(tmp_path, readout):
     det = noise.preset("H2RG").window(100, 200, 32, 48, name="WIN")
     kernel = np.array([[0.0, 0.01, 0.0], [0.02, 0.93, 0.02], [0.0, 0.01, 0.01]])
     nl = Nonlinearity((-1e-6, 2e-12))
-    params = noise.ZERO_NOISE.replace(rd_noise=(6.5,))
+    params = noise.ZERO_NOISE.replace(rd_noise=(6.5,), bias_offset=100.0)
     eng = ChargeEngine(det, readout, noise_params=params, rate=3.0, full_well=9e4,
                        nonlinearity=nl, ipc_kernel=kernel, gain=1.5, adc_bits=14, rng=3)
     cards = hd.psf_cards(_psf_config({"kind": "airy", "radius": 1.7}))

@@ -52,11 +52,16 @@ def test_float32_electrons_round_trip(tmp_path):
     assert _files(tmp_path) == ["ramp.fits"]               # no temporary file left
 
 
-@pytest.mark.parametrize("offset", [0.0, 2 * 65535.0])
-def test_uint16_dn_round_trip_with_clipping(tmp_path, offset):
-    """Offsets at the ends of the range make about half the pixels clip."""
-    gain = 2.0
-    params = ZERO_NOISE.replace(rd_noise=20.0, bias_offset=offset)
+@pytest.mark.parametrize("side", ["bottom", "top"])
+def test_uint16_dn_round_trip_at_the_edges_of_the_adc(tmp_path, side):
+    """A bias 5 rms spreads inside either end of the 16-bit range is written exactly
+    (rint(e / gain), nothing clipped); just outside it is refused before any file
+    (issue 12: a bias at code 0 used to clip half of every pixel's reads without a
+    word).  The ADC's clipping itself: tests/noise/test_adc.py."""
+    gain, rd = 2.0, 20.0
+    adc_range = gain * 65535
+    inside = 5 * rd + 1 if side == "bottom" else adc_range - 5 * rd - 1
+    params = ZERO_NOISE.replace(rd_noise=rd, bias_offset=inside)
     path = tmp_path / "dn.fits"
     write_noise_fits(path, _gen(params), 2, unit="DN", gain=gain)
     electrons = _gen(params).cube(2)[0].astype(np.float64)
@@ -66,9 +71,11 @@ def test_uint16_dn_round_trip_with_clipping(tmp_path, offset):
         assert data.dtype == np.uint16 and data.shape == (2, 64, 64)
         np.testing.assert_array_equal(data, expected)
         assert hdul[0].header["BUNIT"] == "DN" and hdul[0].header["GAIN"] == gain
-    edge = 0 if offset == 0 else 65535
-    # about half the pixels clip: make sure the clipping branch was exercised
-    assert 0.3 < np.mean(data == edge) < 0.7
+    outside = 5 * rd - 1 if side == "bottom" else adc_range - 5 * rd + 1
+    with pytest.raises(ParameterError, match="unit='DN'.*'bias_offset'"):
+        write_noise_fits(tmp_path / "out.fits", _gen(params.replace(bias_offset=outside)),
+                         2, unit="DN", gain=gain)
+    assert _files(tmp_path) == ["dn.fits"]
 
 
 def test_four_dimensional_for_several_integrations(tmp_path):

@@ -66,6 +66,7 @@ preset = "none"
 rd_noise = [6.0]
 c_pink = 1.5
 ktc = 20.0
+bias_offset = 200.0      # >= 5 rms spreads (~21 e-) above code 0
 pink_spectrum = [[1.0, 1.0], [100.0, 0.01]]
 pca0_file = "data/full.fits"
 
