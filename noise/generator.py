@@ -486,12 +486,13 @@ class NoiseGenerator:
             per_output.append((o, pos, slot[extra[pos]]))
         return extra, normal, image_x[normal], per_output
 
-    def _frame_line(self, series_list, slot):
+    def _frame_line(self, series_list, slot, start=None):
         """The sum of the time lines of ``series_list`` over frame slot ``slot``,
-        (ny + nfoh, row_samples) float32 (an ACN pair interleaved even/odd)."""
+        (ny + nfoh, row_samples) float32 (an ACN pair interleaved even/odd), added in
+        turn to a copy of ``start`` (a flat line of the slot) or to zeros."""
         det = self.detector
         L = self._L
-        line = np.zeros(L, dtype=np.float32)
+        line = np.zeros(L, dtype=np.float32) if start is None else start.copy()
         for series in series_list:
             if series is None:
                 continue
@@ -539,14 +540,16 @@ class NoiseGenerator:
         scalar = np.float32(self.pedestal(slot) + p.bias_offset)
         if scalar:
             out += scalar
+        # the correlated line is shared by every output: made once, then each
+        # output's lines are added to it in the order the image's pixels get them
+        common = self._frame_line([self._common], slot).reshape(-1) \
+            if self._common is not None else None
         for o, pos, slots in per_output:
-            if o < 0:
-                series = [self._common, self._ref_u, self._ref_acn]
-            else:
-                series = [self._common, self._u_pink[o], self._acn[o]]
-            if all(s is None for s in series):
+            series = [self._ref_u, self._ref_acn] if o < 0 else [self._u_pink[o],
+                                                                 self._acn[o]]
+            if common is None and all(s is None for s in series):
                 continue
-            line = self._frame_line(series, slot)
+            line = self._frame_line(series, slot, start=common)
             out[:, pos] += line[:ny][:, slots]
         return out
 
@@ -557,8 +560,6 @@ class NoiseGenerator:
         :meth:`frame` of that slot; made if None) and :meth:`extra_samples`."""
         det = self.detector
         if image is None:
-            if self._level_map and self._reset_int != integration:
-                self._reset_int = None
             image = self.frame(slot, integration)
         extra, normal, image_x, _ = self._raw_layout
         raw = np.empty(det.raw_shape, dtype=np.float32)
