@@ -111,3 +111,25 @@ def test_jwst_irs2_refpix_runs_offline_and_removes_correlated_noise(irs2_exposur
     fit = fit_exposure_file(exp, os.fspath(d / "jw_gls.fits"), fitter="gls",
                             options=PrepareOptions(refpix="none"))
     assert fit is not None and os.path.exists(d / "jw_gls.fits")
+
+
+@pytest.mark.slow
+def test_example_scene_end_to_end(tmp_path):
+    """scenes/nirspec_irs2.toml through the command line: run (irs2 correction, GLS,
+    compare), --uncal (jwst's layout, strict validation) and --reffiles (with the IRS2
+    'refpix' reference file)."""
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    res = subprocess.run(
+        [sys.executable, "-m", "scenesim.cli", "run",
+         os.path.join(root, "scenes", "nirspec_irs2.toml"), "-o", "irs2.fits",
+         "--uncal", "--reffiles"], cwd=tmp_path, capture_output=True, text=True,
+        env={**os.environ, "PYTHONPATH": root})
+    assert res.returncode == 0, res.stderr
+    assert "Slopes vs truth" in res.stdout
+    with dm.RampModel(os.fspath(tmp_path / "irs2_uncal.fits"),
+                      strict_validation=True) as m:
+        assert m.data.shape == (1, 4, 3200, 2048) and pipe_utils.is_irs2(m)
+    with dm.IRS2Model(os.fspath(tmp_path / "irs2_refs" / "jwst_refpix.fits")) as r:
+        assert len(r.irs2_table) == 2 * 712 * 2048
