@@ -199,11 +199,11 @@ def nonlinearity_coefficients(nonlinearity, gain):
     return np.concatenate([[0.0, 1.0], c * float(gain) ** np.arange(1, c.size + 1)])
 
 
-def shift_polynomial(coeffs, offset):
+def shift_polynomial(coeffs, offset, *, dtype=np.float64):
     """Coefficients of ``x -> P(x - offset)``, for each offset.
 
     ``P(x - b) = sum_k a_k (x - b)**k = sum_i x**i sum_{k >= i} a_k C(k, i) (-b)**(k-i)``
-    (binomial expansion), in float64.
+    (binomial expansion), computed in float64 one coefficient at a time.
 
     Parameters
     ----------
@@ -211,10 +211,13 @@ def shift_polynomial(coeffs, offset):
         ``a_k`` of ``P``, lowest order first.
     offset : array_like, any shape
         ``b`` (the same unit as ``x``; e.g. a per-pixel bias in DN).
+    dtype : numpy dtype, keyword-only
+        Of the result (float32 for a reference file: the float64 cube of a full
+        4096 x 4096 array is never held).
 
     Returns
     -------
-    ndarray, shape (n,) + offset.shape, float64
+    ndarray, shape (n,) + offset.shape, ``dtype``
         Lowest order first.
     """
     a = np.asarray(coeffs, dtype=np.float64)
@@ -223,7 +226,7 @@ def shift_polynomial(coeffs, offset):
                              f"got {coeffs!r}")
     b = np.asarray(offset, dtype=np.float64)
     n = a.size
-    out = np.zeros((n,) + b.shape)
+    out = np.empty((n,) + b.shape, dtype=dtype)
     minus_b = -b
     for i in range(n):
         # sum over k >= i of a_k C(k, i) (-b)^(k - i), by Horner in (-b)

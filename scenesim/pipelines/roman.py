@@ -241,13 +241,13 @@ def _reference_arrays(reference):
               and reference.nonlinearity.tolist() == [0.0, 1.0])
     if not linear:
         bias_dn = reference.bias / g
-        inverse = np.empty((reference.nonlinearity.size,) + shape)
+        inverse = np.empty((reference.nonlinearity.size,) + shape, dtype=f32)
         inverse[:] = reference.nonlinearity[:, None, None]
-        inverse[0] += bias_dn
-        arrays["linearity"] = {"coeffs": shift_polynomial(reference.linearity,
-                                                          bias_dn).astype(f32),
+        inverse[0] = reference.nonlinearity[0] + bias_dn
+        arrays["linearity"] = {"coeffs": shift_polynomial(reference.linearity, bias_dn,
+                                                          dtype=f32),
                                "dq": zeros_dq}
-        arrays["inverselinearity"] = {"coeffs": inverse.astype(f32), "dq": zeros_dq}
+        arrays["inverselinearity"] = {"coeffs": inverse, "dq": zeros_dq}
     if np.any(reference.dark != 0):
         arrays["dark"] = {"dark_slope": (reference.dark / g).astype(f32),
                           "dark_slope_error": np.zeros(shape, dtype=f32),

@@ -71,6 +71,9 @@ def test_shift_polynomial_recentres_on_each_offset():
     # float64 round-off of terms of size up to |a_k| C(k, i) 8**k, summed: < 1e-10
     assert np.allclose(expanded, direct, rtol=0, atol=1e-10)
     assert np.array_equal(shift_polynomial(a, 0.0), a)
+    # a float32 result is the float64 one rounded once (computed in float64)
+    assert np.array_equal(shift_polynomial(a, b, dtype=np.float32),
+                          shifted.astype(np.float32))
     with pytest.raises(ValueError, match="'coeffs'"):
         shift_polynomial([], 1.0)
 
