@@ -50,9 +50,10 @@ Schemes
     excursions (truncated at the frame's ends) and interpolated linearly in time to
     every normal pixel of the same slot parity, which is subtracted.  So pedestal,
     correlated and uncorrelated 1/f and ACN are removed up to about ``1 / (2 window
-    period dt)`` (1 kHz for NIRSpec with ``window = 5``), per output, at the price of
-    the white noise of the estimate, about ``(ref_ratio rd)^2 / (reference / 2) /
-    window``.  Each reference sample's mean over the groups of its integration, less
+    period dt)`` (150 Hz for NIRSpec with the default ``window = 15``, the best of 1,
+    3, 5, 9, 15, 25 and 41 on NIRSpec's default noise: ``docs/REFPIX.md``), per
+    output, at the price of the white noise of the estimate, about ``(ref_ratio
+    rd)^2 / (reference / 2) / window``.  Each reference sample's mean over the groups of its integration, less
     the mean of those means over the output's samples of the same slot parity, is
     subtracted first (its reset level; a constant per pixel, which cancels in every
     difference of reads).  The reference output is not used: it sees the correlated
@@ -278,7 +279,7 @@ def _irs2_plan(detector):
     return plan
 
 
-def correct_irs2(raw, detector, *, window=5):
+def correct_irs2(raw, detector, *, window=15):
     """The ``'irs2'`` scheme (module notes): raw frames in, corrected image out.
 
     Parameters
@@ -290,7 +291,8 @@ def correct_irs2(raw, detector, *, window=5):
     detector : noise.clock.Detector
         With ``interleave``.
     window : int
-        Excursions in the running mean of each parity's reference series (odd, >= 1).
+        Excursions in the running mean of each parity's reference series (odd, >= 1;
+        default 15, the measured optimum for NIRSpec's default noise).
 
     Returns
     -------
