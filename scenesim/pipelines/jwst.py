@@ -170,8 +170,14 @@ def check_subarray_name(name):
 def jwst_frame_time(detector):
     """JWST's frame time (s) for ``detector``'s read-out size and outputs (JDox,
     "NIRCam Detector Subarrays"): ``((nx/4 + 12)(ny + 1) + 1) x 10 us`` with 4
-    outputs, ``(nx + 12)(ny + 2) x 10 us`` with 1."""
+    outputs, ``(nx + 12)(ny + 2) x 10 us`` with 1; NIRSpec IRS2: ``(712 (ny + 1) + 1)
+    x 10 us`` = 14.58889 s (JWST planning tools' IRS2 frame; the clock of whole rows is
+    one pixel time shorter)."""
     nx, ny, nout = detector.nx, detector.ny, detector.n_out_active
+    if detector.interleave is not None and nout == 4:
+        # IRS2: the same form with IRS2's row, (16 + 4 + 2) x 32 + 8 = 712 pixel
+        # times: 14.58889 s in JWST planning tools (ours: 14.58888 s)
+        return (detector.row_samples * (ny + 1) + 1) * 1e-5
     if nout == 4:
         return ((nx // 4 + 12) * (ny + 1) + 1) * 1e-5
     if nout == 1:

@@ -61,6 +61,14 @@ def test_uncal_layout_is_jwsts(irs2_exposure):
         np.testing.assert_array_equal(det_orient[..., mask], exp.sci[..., image_x[mask]])
 
 
+def test_irs2_frame_time():
+    # JWST planning tools: IRS2 frames of 14.58889 s (NRSIRS2RAPID group 14.589 s,
+    # NRSIRS2 72.944 s = 5 frames); the clock of whole rows is one pixel time shorter
+    assert jwst.jwst_frame_time(DET) == pytest.approx(14.58889, abs=1e-8)
+    assert DET.frame_time == pytest.approx(jwst.jwst_frame_time(DET) - 1e-5, abs=1e-9)
+    assert 5 * jwst.jwst_frame_time(DET) == pytest.approx(72.944, abs=1e-3)
+
+
 def test_nrs2_orientation():
     raw = np.arange(2 * 3 * 4).reshape(1, 2, 3, 4)
     dms = jwst.irs2_to_dms(raw, "NRS2")
