@@ -55,9 +55,10 @@ Schemes
     output, at the price of the white noise of the estimate, about ``(ref_ratio
     rd)^2 / (reference / 2) / window``.  Each reference sample's mean over the
     groups of its integration, less the mean of those means over the output's samples
-    of the same slot parity, is subtracted first (its reset level; a constant per pixel, which cancels in every
-    difference of reads).  The reference output is not used: it sees the correlated
-    1/f only, which the interleaved samples of each output already carry.
+    of the same slot parity, is subtracted first (its reset level; a constant per
+    pixel, which cancels in every difference of reads).  The reference output is not
+    used: it sees the correlated 1/f only, which the interleaved samples of each
+    output already carry.
     Unlike the jwst pipeline's IRS2 step (Rauscher et al. 2017), which weighs the
     reference samples with frequency-domain coefficients fitted to darks (its
     ``refpix`` reference file), this is the time-domain interpolation only: no
@@ -83,8 +84,8 @@ from noise.errors import ParameterError
 from noise.validate import check_choice, check_float, check_instance, check_int
 
 __all__ = ["SCHEMES", "correct_reference", "correct_irs2", "irs2_noise_study",
-           "reference_layout", "reference_edges", "check_correction_options", "running_mean", "window_bounds",
-           "clipped_mean_variance_factor"]
+           "reference_layout", "reference_edges", "check_correction_options",
+           "running_mean", "window_bounds", "clipped_mean_variance_factor"]
 
 #: Reference-correction schemes accepted by :func:`correct_reference`.
 SCHEMES = ("none", "median", "jwst", "irs2")
