@@ -173,3 +173,18 @@ def test_raw_refused_without_raw_samples():
     gen = noise.NoiseGenerator(preset("H2RG", naxis1=64, naxis2=64), rng=1)
     with pytest.raises(noise.errors.ParameterError, match="'raw'=True.*'interleave'"):
         gen.frames(2, raw=True)
+
+
+def test_reference_output_without_interleave():
+    """A reference output alone (Roman's amp 33 style, no interleave): its block comes
+    first, mirrored with respect to output 0, and with c_pink alone each of its samples
+    is the correlated line at its slot, as output 0's pixel at that slot is."""
+    det = preset("H2RG", naxis1=64, naxis2=16, ref_output=True)
+    assert det.raw_shape == (16, 80) and det.row_samples == 16 + 12
+    gen, raw = _raw(_params(c_pink=5.0), 2, 6, det=det)
+    output, slot, image_x = det.raw_columns()
+    assert np.array_equal(slot[:16], np.arange(16)[::-1])
+    for k in range(2):
+        ref = raw[k][:, :16]
+        out0 = raw[k][:, 16:32]                      # output 0, left to right
+        np.testing.assert_allclose(ref[:, ::-1], out0, rtol=0, atol=1e-5)
