@@ -29,6 +29,13 @@ sit in the 2 MB per-core L2 cache (measured: 512^2 x 200, one thread, 1.31 s at
 16384 pixels against 1.77 s at 4096 and 1.69 s at 65536).  numpy releases the GIL
 in its loops, so chunks run in parallel on a thread pool.  No pixel's result
 depends on the chunking.
+
+What bounds the solves: the number of numpy passes per difference (27 forward, 2 more
+with the back substitution), each over one (pixels,) vector in cache, not reading
+the data.  :func:`ldl_pass` writes every step into preallocated buffers (``out=``):
+the same operations in the same order as with numpy's temporaries, so the same bits,
+without allocating ~20 vectors per difference (measured 7-13 % less CPU for a whole
+fit, 512 x 512 x 20 and x 200, one thread).
 """
 
 import numpy as np
@@ -104,49 +111,74 @@ def ldl_pass(d, valid, mf, mc, fref, s2, f, A, B, *, want_x):
     """
     nd, npix = d.shape
     ar, ap = A
-    S11 = np.zeros(npix, _F32)
-    S1y = np.zeros(npix, _F32)
-    Syy = np.zeros(npix, _F32)
+    f32 = _F32
+    S11 = np.zeros(npix, f32)
+    S1y = np.zeros(npix, f32)
+    Syy = np.zeros(npix, f32)
     if want_x:
-        Lo = np.zeros((nd, npix), _F32)
-        Z = np.empty((nd, npix), _F32)
+        Lo = np.zeros((nd, npix), f32)
+        Z = np.empty((nd, npix), f32)
+    # every step writes into these buffers (out=): the same operations in the same
+    # order as with numpy's temporaries, to the last bit, without their allocation
+    a, b, t, y, Dbuf, ubuf, vbuf, invd, ellbuf, udbuf = (np.empty(npix, f32)
+                                                         for _ in range(10))
+    masked = ~valid
+    scalar_s2 = np.isscalar(s2)
     u = v = Dprev = None
-    one = _F32(1)
+    one = f32(1)
     for i in range(nd):
-        a = s2 * ar[i]
-        if ap is not None:
-            a = a + f * ap[i]
-        a = np.where(valid[i], a, one)
-        y = d[i] - fref
-        y *= mf[i]
-        if i == 0 or B is None:
-            D = a
-            u = mf[i]
-            v = y
+        if scalar_s2:
+            base = s2 * ar[i]
         else:
-            b = s2 * B[0][i - 1]
+            base = np.multiply(s2, ar[i], out=a)
+        if ap is not None:
+            np.multiply(f, ap[i], out=t)
+            np.add(base, t, out=a)
+        elif scalar_s2:
+            a.fill(base)
+        np.copyto(a, one, where=masked[i])
+        np.subtract(d[i], fref, out=y)
+        np.multiply(y, mf[i], out=y)
+        if i == 0 or B is None:
+            np.copyto(Dbuf, a)
+            u = mf[i]
+            np.copyto(vbuf, y)
+        else:
+            bb = s2 * B[0][i - 1] if scalar_s2 else np.multiply(s2, B[0][i - 1], out=b)
             if B[1] is not None:
-                b = b + f * B[1][i - 1]
-            b = b * mc[i - 1]
-            ell = b / Dprev
-            D = a - ell * b
-            u = mf[i] - ell * u
-            v = y - ell * v
-            if want_x:
-                Lo[i] = ell
-        invd = one / D
-        ud = u * invd
-        S11 += u * ud
-        S1y += v * ud
-        Syy += v * v * invd
-        if want_x:
-            Z[i] = ud
+                np.multiply(f, B[1][i - 1], out=t)
+                np.add(bb, t, out=b)
+                np.multiply(b, mc[i - 1], out=b)
+            else:
+                np.multiply(bb, mc[i - 1], out=b)
+            ell = Lo[i] if want_x else ellbuf
+            np.divide(b, Dprev, out=ell)
+            np.multiply(ell, b, out=t)
+            np.subtract(a, t, out=Dbuf)
+            np.multiply(ell, u, out=t)
+            np.subtract(mf[i], t, out=ubuf)
+            u = ubuf
+            np.multiply(ell, vbuf, out=t)
+            np.subtract(y, t, out=vbuf)
+        D = Dbuf
+        v = vbuf
+        np.divide(one, D, out=invd)
+        ud = Z[i] if want_x else udbuf
+        np.multiply(u, invd, out=ud)
+        np.multiply(u, ud, out=t)
+        S11 += t
+        np.multiply(v, ud, out=t)
+        S1y += t
+        np.multiply(v, v, out=t)
+        np.multiply(t, invd, out=t)
+        Syy += t
         Dprev = D
     if not want_x:
         return S11, S1y, Syy, None
     x = Z
     for i in range(nd - 2, -1, -1):
-        x[i] -= Lo[i + 1] * x[i + 1]
+        np.multiply(Lo[i + 1], x[i + 1], out=t)
+        x[i] -= t
     return S11, S1y, Syy, x
 
 
