@@ -5,7 +5,8 @@ Modules, in the order a newcomer reads them:
 * :mod:`~scenesim.rampfit.covariance`: the covariance model of the rate estimates
   (Brandt 2024), :class:`RampCovariance`;
 * :mod:`~scenesim.rampfit.fitter`: :func:`fit_ramps`, the fitters as one weighted
-  mean, saturation and short ramps;
+  mean, saturation and short ramps, by row blocks of an array or of a file
+  (:mod:`scenesim.io.cuberows`);
 * :mod:`~scenesim.rampfit.solver`: the tridiagonal ``L D L^T`` solves vectorised
   over pixels, and the row chunks they run on;
 * :mod:`~scenesim.rampfit.jumps`: jump detection (GLS score statistics);
