@@ -227,3 +227,23 @@ def test_bad_row_sources_and_block_rows_are_refused_before_work(tmp_path):
     path.write_bytes(path.read_bytes()[:-8])
     with pytest.raises(FileFormatError, match="truncated"):
         npy_rows(path)
+
+
+def test_exposure_rows_refuses_what_it_cannot_read_by_blocks(tmp_path):
+    dn = np.full((1, 3, 4, 5), 7, np.uint16)
+    path = str(tmp_path / "exp.fits")
+    write_exposure_file(path, dn, 2.0)
+    src = exposure_rows(path)
+    # the header's GAIN, and an explicit one
+    assert np.all(src.rows(0, 4) == 14.0) and src.dtype == np.float32
+    assert np.all(exposure_rows(path, gain=0.5).rows(1, 2) == 3.5)
+    with pytest.raises(ParameterError, match="nres"):
+        exposure_rows(path, nres=4)
+    gz = tmp_path / "exp.fits.gz"
+    gz.write_bytes(b"")
+    with pytest.raises(FileFormatError, match="uncompressed"):
+        exposure_rows(gz)
+    truncated = tmp_path / "short.fits"
+    truncated.write_bytes((tmp_path / "exp.fits").read_bytes()[:2880 * 3])
+    with pytest.raises(FileFormatError):
+        exposure_rows(truncated)
