@@ -261,15 +261,23 @@ class NoiseParams:
                 raise ParameterError(
                     f"{name!r} has {len(value)} per-output values but the detector "
                     f"reads through {n_out} outputs")
+        il = getattr(detector, "interleave", None)
+        extra, values = "", f"'nroh' = {detector.nroh}"
+        if il is not None:
+            # interleaved reference samples take pixel times in every row
+            extra = (" + ('interleave.reference' + 2 'interleave.jump') per "
+                     "'interleave.normal' columns")
+            values += (f", 'interleave.normal' = {il.normal}, 'interleave.reference' = "
+                       f"{il.reference}, 'interleave.jump' = {il.jump}")
         how = {"pink": "1 / (2 'dt')", "acn": "1 / (4 'dt')",
-               "pca0": "1 / (2 row time), row time = (columns per output + 'nroh') x "
-                       "'dt'"}
+               "pca0": f"1 / (2 row time), row time = (columns per output{extra} + "
+                       f"'nroh') x 'dt'"}
         for comp, nyq in self.nyquist_limits(detector).items():
             if self.f_min >= nyq:
                 raise ParameterError(
                     f"'f_min' = {self.f_min!r} Hz must be below the Nyquist frequency "
                     f"of the {comp} series, {how[comp]} = {nyq:.6g} Hz with {where} "
-                    f"'dt' = {detector.dt!r} s and 'nroh' = {detector.nroh}")
+                    f"'dt' = {detector.dt!r} s and {values}")
 
     def check_adc(self, gain, adc_bits):
         """Raise :class:`~noise.errors.ParameterError` if an ADC of ``gain`` e-/DN and

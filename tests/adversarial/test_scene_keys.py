@@ -45,7 +45,7 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
-from noise.clock import Detector, Subarray
+from noise.clock import Detector, Interleave, Subarray
 from noise.errors import FileFormatError, ParameterError, ScenesimError
 from noise.params import NoiseParams
 from scenesim.budget import check_budget
@@ -83,6 +83,7 @@ TABLES = [
     (Scene, ()),
     (Detector, ("detector",)),
     (Subarray, ("detector", "subarray")),
+    (Interleave, ("detector", "interleave")),
     (NoiseParams, ("noise",)),
     (ReadoutConfig, ("readout",)),
     (SourcesConfig, ("sources",)),
@@ -99,7 +100,7 @@ STRING_KEYS = {"name", "description", "path", "kind", "pattern", "reset", "file"
 #: ([instrument] holds string keys only, checked against JWST's lists in
 #: tests/pipelines/test_reffiles.py::test_instrument_defaults_and_checks.)
 NOT_KEYS = {"detector", "noise", "readout", "sources", "effects", "output", "subarray",
-            "psf", "stars", "light_curves", "path", "instrument"}
+            "psf", "stars", "light_curves", "path", "instrument", "interleave"}
 
 
 def _type(field):
@@ -155,6 +156,11 @@ def _base(context=""):
         m["sources"]["psf"] = {"kind": kind, **{
             "gaussian": {"fwhm": 2.0}, "airy": {"radius": 2.0},
             "image": {"file": "psf.fits", "oversample": 1, "normalize": True}}[kind]}
+    elif form == "interleave":
+        # IRS2-style interleaved reference samples: 8 columns per output, 2 excursions
+        m["detector"] = {"naxis1": 32, "naxis2": 32, "ref_border": 2,
+                         "interleave": {"normal": 4, "reference": 2, "jump": 1}}
+        m["noise"]["rd_noise"] = [5.0] * 4               # 4 outputs, no window
     elif form == "ipc_kernel":
         del m["effects"]["ipc_alpha"], m["effects"]["ipc_alpha_diag"]
         m["effects"]["ipc_kernel"] = [[0.0, 0.01, 0.0], [0.01, 0.96, 0.01],
@@ -174,6 +180,8 @@ def _context(table, key):
         return f"psf:{kind}"
     if key == "ipc_kernel":
         return "ipc_kernel"
+    if table == ("detector", "interleave"):
+        return "interleave"
     return ""
 
 
@@ -240,6 +248,8 @@ def _where(table):
         return ""
     if table[:2] == ("sources", "stars"):
         return "[[sources.stars]]"
+    if table == ("detector", "interleave"):
+        return "[detector]"                  # [detector] 'interleave.normal' ...
     return "[" + ".".join(table) + "]"
 
 
