@@ -211,11 +211,17 @@ class EngineRun:
         First saturated read index (-1: never); complete when the run is exhausted.
     cr_seen : ndarray of bool
         Per cosmic-ray deposit, True if any read saw it; complete at the end.
+    zero_frame : ndarray (nints, ny, nx), uint16, or None
+        With ``simulate(zero_frame=True)``: the DN of the first read of each
+        integration's first resultant, digitised on its own (JWST's ``ZEROFRAME``);
+        complete at the end.
     """
 
-    def __init__(self, engine, *, save_charge, save_noise, progress):
+    def __init__(self, engine, *, save_charge, save_noise, progress, zero_frame=False):
         shape = engine.detector.shape
         self.sat_read = np.full((engine.readout.nints,) + shape, -1, dtype=np.int16)
+        self.zero_frame = (np.zeros((engine.readout.nints,) + shape, dtype=np.uint16)
+                           if zero_frame else None)
         self.cr_seen = np.zeros(engine.cosmic_rays.time.size, dtype=bool)
         self.pool = ThreadPoolExecutor(engine.threads) if engine.threads > 1 else None
         self.blocks = engine._blocks()
@@ -654,7 +660,8 @@ class ChargeEngine:
         return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
     # ------------------------------------------------------------------- run
-    def simulate(self, *, save_charge=False, save_noise=False, progress=None):
+    def simulate(self, *, save_charge=False, save_noise=False, progress=None,
+                 zero_frame=False):
         """Start a run: the resultants of every integration, in time order.
 
         Parameters
@@ -664,6 +671,10 @@ class ChargeEngine:
             resultant (float32 e-).
         progress : callable, optional
             Called with the number of reads done after each read.
+        zero_frame : bool
+            Keep the DN of the first read of each integration's first resultant
+            (``EngineRun.zero_frame``, one uint16 frame per integration): JWST's
+            zero frame, which a group of several reads does not hold otherwise.
 
         Returns
         -------
@@ -682,11 +693,12 @@ class ChargeEngine:
         """
         save_charge = check_bool("save_charge", save_charge)
         save_noise = check_bool("save_noise", save_noise)
+        zero_frame = check_bool("zero_frame", zero_frame)
         if progress is not None and not callable(progress):
             raise ParameterTypeError(
                 f"'progress' must be a callable or None, got {describe(progress)}")
         return EngineRun(self, save_charge=save_charge, save_noise=save_noise,
-                         progress=progress)
+                         progress=progress, zero_frame=zero_frame)
 
     def _start_integration(self, i, needed, pool):
         """Per-integration state: the charge ``acc`` and the Poisson streams."""
@@ -822,6 +834,9 @@ class ChargeEngine:
                     self._digitise(b, rr, first, charge, nframe, save_charge, save_noise)
 
                 run.each(rows)
+                if first and r_index == 0 and run.zero_frame is not None:
+                    # the first read's codes, copied before the next read adds to them
+                    np.copyto(run.zero_frame[i], rr.dn_sum, casting="unsafe")
                 rr.count += 1
                 if rr.count == len(rr.reads):
                     res[r_index] = None

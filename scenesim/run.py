@@ -63,6 +63,9 @@ class RunResult:
     seconds: float
     engine: ChargeEngine
     cleaned: str | None = None
+    #: JWST's zero frame of each integration (uint16 DN), kept when the run's
+    #: products need it (a NIRCam uncal with NFRAMES > 1), else None
+    zero_frame: np.ndarray | None = None
 
 
 def progress_bar(total, unit, desc):
@@ -84,7 +87,8 @@ def progress_bar(total, unit, desc):
 
 
 def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
-                   save_noise=False, sources=None, progress=None, overwrite=False):
+                   save_noise=False, sources=None, progress=None, overwrite=False,
+                   zero_frame=False):
     """Run ``engine`` and write what it makes: the exposure and the truth file.
 
     The loop of every simulation: resultants are pulled from the engine's run
@@ -110,20 +114,26 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
         Called with the number of reads done.
     overwrite : bool
         Replace existing files (default: refuse them).
+    zero_frame : bool
+        Keep the first read of each integration (``simulate(zero_frame=True)``).
 
     Returns
     -------
     dict
-        See :meth:`scenesim.io.exposure.ExposureWriter.finish`.
+        See :meth:`scenesim.io.exposure.ExposureWriter.finish`; with ``zero_frame``,
+        also ``zero_frame`` (nints, ny, nx) uint16 DN.
     """
     with ExposureWriter(engine, path, cards=cards, truth_path=truth_path,
                         save_charge=save_charge, save_noise=save_noise, sources=sources,
                         overwrite=overwrite) as writer:
         with engine.simulate(save_charge=writer.save_charge, save_noise=writer.save_noise,
-                             progress=progress) as run:
+                             progress=progress, zero_frame=zero_frame) as run:
             for resultant in run:
                 writer.add(resultant)
-        return writer.finish(run)
+        out = writer.finish(run)
+        if zero_frame:
+            out["zero_frame"] = run.zero_frame
+        return out
 
 
 def build_engine(scene, *, options=EngineOptions()):
@@ -255,11 +265,13 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf) + \
         instrument_cards(scene.instrument)
     ro = engine.readout
+    zero = "uncal" in products and _needs_zero_frame(scene, engine)
     with _progress(ro.nints * len(ro.needed_reads), progress) as cb:
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
                                  save_charge=out_cfg.save_charge,
                                  save_noise=out_cfg.save_noise, sources=rendered,
-                                 progress=cb, overwrite=overwrite)
+                                 progress=cb, overwrite=overwrite, zero_frame=zero)
+    zero = written.get("zero_frame")
     report = None
     if out_cfg.fit:
         # slopes only (ramp = false): the resultants were kept in memory
@@ -273,5 +285,14 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
                 os.makedirs(plots, exist_ok=True)
             report = compare_files(fit_path, truth_path, plots=plots, exposure=exp_path)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,
-                     engine, cleaned)
+                     engine, cleaned, zero)
+
+
+def _needs_zero_frame(scene, engine):
+    """True when the JWST uncal of this run carries a zero frame (a NIRCam
+    MULTIACCUM pattern with ``NFRAMES > 1``, :mod:`scenesim.pipelines.zeroframe`)."""
+    from scenesim.pipelines.instrument import resolve_instrument
+    from scenesim.pipelines.zeroframe import has_zero_frame
+    ident = resolve_instrument(scene.instrument, engine.detector, engine.readout.name)
+    return has_zero_frame(engine.readout, ident["name"])
 

@@ -144,8 +144,10 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
     result : scenesim.run.RunResult
     uncal, l1, reffiles : bool, keyword-only
     options : scenesim.engine.EngineOptions or None, keyword-only
-        The run's engine options: a NIRCam uncal with ``NFRAMES > 1`` gets its zero
-        frame from a re-run with them (:mod:`scenesim.pipelines.zeroframe`).
+        The run's engine options: a NIRCam uncal with ``NFRAMES > 1`` takes its zero
+        frame from the run (``result.zero_frame``, kept when ``run_scene`` was told
+        ``products=('uncal',)``), or else from a re-run with these options
+        (:mod:`scenesim.pipelines.zeroframe`).
     overwrite : bool, keyword-only
 
     Returns
@@ -174,7 +176,11 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
         zero = None
         ident = resolve_instrument(scene.instrument, det, engine.readout.name)
         if has_zero_frame(engine.readout, ident["name"]):
-            zero = zero_frames(scene, exposure.sci, options=options)
+            # kept by the run itself (run_scene(products=('uncal',))); a result
+            # from a run without it is re-run with the first group split
+            zero = result.zero_frame
+            if zero is None:
+                zero = zero_frames(scene, exposure.sci, options=options)
         written.append(write_uncal(exposure, paths["uncal"], zero_frame=zero,
                                    overwrite=overwrite))
         del exposure, zero

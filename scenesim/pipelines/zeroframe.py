@@ -8,15 +8,18 @@ reset (``ZEROFRAME``, ``ZEROFRAM = T``).  When a group averages several frames
 group 1 (stcal ``ols_fit``; jwst documentation, "calwebb_detector1", Frame 0).  With
 ``NFRAMES = 1`` the zero frame *is* group 1 and is not written.
 
-The engine yields resultants, not reads, so :func:`zero_frames` runs the scene a
+The run keeps it: ``ChargeEngine.simulate(zero_frame=True)`` copies the codes of
+each integration's first read before the group's other reads are added to them
+(``run_scene(products=('uncal',))`` asks for it when the uncal needs one).  For a
+finished exposure whose run did not keep it, :func:`zero_frames` runs the scene a
 second time with the first group split into one-read resultants (every other group
-unchanged).  The reads simulated, and so every random draw (Poisson arrivals per
+unchanged); the tests check the two against each other.  The reads simulated, and so every random draw (Poisson arrivals per
 needed read, the noise frames, the cosmic rays), are the same as in the exposure's
 own run; only the averaging of group 1 is deferred.  Group 1 is then rebuilt from the
 split reads with the ADC's own on-board mean (:meth:`noise.adc.ADC.mean_codes`) and
 checked against the exposure, every group bit for bit: the zero frame provably
-belongs to that realisation, or :func:`zero_frames` refuses it.  Cost: a second run
-of the scene (only for ``--uncal`` of a NIRCam exposure with ``NFRAMES > 1``).
+belongs to that realisation, or :func:`zero_frames` refuses it.  Its cost is a second
+run of the scene; ``scenesim run --uncal`` does not pay it.
 """
 
 import numpy as np

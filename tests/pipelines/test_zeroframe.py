@@ -83,3 +83,19 @@ def test_noisy_run_is_the_same_realisation_and_a_foreign_one_is_refused():
     _, other = _exposure(scene.replace(seed=22))
     with pytest.raises(FileFormatError, match="not this scene's realisation"):
         zero_frames(scene, other)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_run_keeps_the_zero_frame_the_re_run_rebuilds(threads):
+    """The zero frame kept by the run itself (simulate(zero_frame=True)) is the one
+    the independent re-run with the first group split rebuilds (which checks every
+    group of the exposure bit for bit), with noise and shot noise, for any threads;
+    a run not asked for it keeps none."""
+    scene = _scene(noise="nirspec", rate=50.0, seed=23)
+    options = EngineOptions(threads=threads)
+    engine, _ = build_engine(scene, options=options)
+    out = write_exposure(engine, None, zero_frame=True)
+    assert np.array_equal(out["zero_frame"],
+                          zero_frames(scene, out["exposure"].sci, options=options))
+    engine, _ = build_engine(scene, options=options)
+    assert "zero_frame" not in write_exposure(engine, None)
