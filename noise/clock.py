@@ -653,7 +653,9 @@ def detector_from_header(header):
 #: in ``nfoh = 260`` rows at the end of the frame and takes ``dt = 3.04 s / (4356 x
 #: 142)`` = 4.914704 us (114 ppm shorter), so the frame is exactly 3.04 s.  Pixel read
 #: times within a frame differ from romancal's by up to the guide-window time
-#: (~0.18 s); resultant times, which use only the frame time, agree exactly.
+#: (~0.18 s); resultant times, which use only the frame time, agree exactly.  The
+#: WFI's 33rd output (amp33) is ``ref_output = True``, left off the preset because a
+#: one-output ``window`` cannot have it; ``scenes/roman_wfi.toml`` sets it.
 #: ``NIRSPEC-IRS2``: NIRSpec's H2RG in IRS2 mode as the jwst 3.0 pipeline lays it out
 #: (``jwst.refpix.irs2_subtract_reference``): 16 normal pixels between excursions of 4
 #: reference samples with one pixel time of jump each way, 8 pixel times of new-row

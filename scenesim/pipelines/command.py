@@ -111,6 +111,9 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
     if l1 and ro.nints != 1:
         raise ParameterError(f"--l1: a Roman L1 file holds one integration; the scene "
                              f"has nints = {ro.nints}")
+    if l1:
+        from scenesim.pipelines.roman import check_amp33_detector
+        check_amp33_detector(det)
     check_outputs({"JWST uncal": paths["uncal"] if uncal else None,
                    "Roman L1": paths["l1"] if l1 else None},
                   inputs=[], overwrite=overwrite)

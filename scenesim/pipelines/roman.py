@@ -25,14 +25,42 @@ outputs of 128 columns each plus a 33rd output that reads no pixel, clocked in s
 with the others, so it records the electronics' noise without any charge (romancal's
 ``refpix`` step uses it, with the reference pixels, against correlated read noise;
 the ``rad`` schema ``wfi_science_raw`` gives ``amp33`` the shape of one output,
-(n_resultants, 4096, 128)).  scenesim models only what follows from that: no charge,
-the bias offset (``BIASOFF``), the per-frame pedestal (``PEDESTAL``, common to every
-output) and white noise at the reference-pixel level (``RDNOISE * REFRATIO``), each
-read drawn independently (from the exposure seed's stream ``(33,)``), averaged over
-the resultant's reads and digitised like the pixels.  The correlated 1/f time line
-the real channel shares with the science outputs is **not** in it (the exposure's
-noise realisation is not kept), so romancal's ``refpix`` must not be run on these
-files: amp33 gives the file its complete layout, not a usable correction.
+(n_resultants, 4096, 128)).  What its columns mean is romancal's ``refpix`` code's
+(``romancal.refpix._data``): amp33 is stacked to the right of the 32 science channels
+as a 33rd channel of 128 columns; the odd channels are flipped to bring them into
+reading order and the even ones (0, 2, ..., and amp33, number 32) are not, so amp33's
+column ``c`` is the ``c``-th sample of its row in time, read at the instant output
+0's column ``c`` is (scenesim's even outputs scan left to right too,
+:meth:`noise.clock.Detector.output_reversed`), and rows follow in time as the image's.
+
+scenesim's detector model has such an output: ``ref_output = true``
+(:class:`noise.clock.Detector`; ``scenes/roman_wfi.toml`` sets it on the WFI preset,
+which leaves it off because a one-output ``window``, which the loop tests use, cannot
+have one).  Its samples are the exposure's ``RAWREF`` extension, averaged into the
+resultants and digitised as the pixels are; on a detector without interleave every
+``RAWREF`` column is the reference output's, mirrored with respect to output 0
+(:meth:`noise.clock.Detector.raw_columns`), so amp33 is ``RAWREF`` with its columns
+put in time order (slot ``c`` in column ``c``).  Each sample carries what the
+generator gives the reference output (:mod:`noise.generator`): the correlated 1/f at
+its instant (the one series every output shares), the frame's pedestal, the bias
+offset, white noise of ``mean(rd_noise) * ref_ratio``, and its own uncorrelated 1/f
+and ACN; no charge, no kTC.  So amp33 minus a science output's pixels read at the same
+instants holds no correlated 1/f and no pedestal, only white noise of variance
+``rd^2 (1 + ref_ratio^2)`` per read, plus what no output shares: each output's own
+1/f and ACN, and the pixels' kTC and fixed bias pattern, constant through the ramp
+(``tests/pipelines/test_roman_amp33.py`` checks that variance under a correlated 1/f
+that alone makes the pixels 9-14 times noisier than white).  A reference output that
+does not fit amp33 (not 128 samples per row, or interleaved samples: an IRS2
+detector) is refused, by ``scenesim run --l1`` before the run.
+
+Without a reference output (``ref_output`` false: the WFI and H4RG presets as they
+stand, e.g. the loop tests' windows), amp33 is a fallback that only gives the
+file its complete layout: no charge, the bias offset (``BIASOFF``), the per-frame
+pedestal (``PEDESTAL``, drawn anew, not the one the pixels saw) and white noise at
+the reference-pixel level (``RDNOISE * REFRATIO``), each read drawn independently
+(from the exposure seed's stream ``(33,)``), averaged over the resultant's reads and
+digitised like the pixels.  It holds none of the correlated 1/f, so romancal's
+``refpix`` must not be run on such files.
 
 References (:func:`write_reference_files`)
 ------------------------------------------
@@ -79,7 +107,9 @@ when the dark step ran, the truth loses the dark the L2 names in
 ``meta.ref_file.dark``).
 
 Not run, for want of a scenesim reference or of a signal to correct: ``refpix``
-(amp33 carries no correlated noise, above), ``dark_decay`` and ``wfi18_transient``
+(scenesim writes no ``refpix`` reference, the frequency-domain weights romancal
+applies to the border columns and amp33; and amp33 carries the correlated noise only
+with a reference output, above), ``dark_decay`` and ``wfi18_transient``
 (scenesim simulates neither effect), ``assign_wcs``, ``flatfield``, ``photom`` and what
 follows (no optics).  So read an L2 of a scene with bias drifts, 1/f or pedestal noise
 as "without reference-pixel correction": romancal cannot remove the noise common to a
@@ -92,7 +122,7 @@ import tempfile
 import numpy as np
 
 from noise.clock import detector_from_header
-from noise.errors import ParameterError
+from noise.errors import FileFormatError, ParameterError
 from noise.validate import check_writable
 
 from scenesim.io.exposure import Exposure
@@ -100,7 +130,7 @@ from scenesim.io.header import readout_from_table
 from scenesim.pipelines.reffiles import shift_polynomial
 
 __all__ = ["write_l1", "l1_model", "write_reference_files", "run_ramp_fit",
-           "read_pattern", "AMP33_COLUMNS", "REFERENCE_TYPES"]
+           "read_pattern", "check_amp33_detector", "AMP33_COLUMNS", "REFERENCE_TYPES"]
 
 #: Columns of the amp33 reference output (one science output's width on the WFI).
 AMP33_COLUMNS = 128
@@ -121,8 +151,39 @@ def read_pattern(readout):
     return [[int(k) + 1 for k in res] for res in readout.resultants]
 
 
+def check_amp33_detector(det):
+    """Refuse a detector whose reference output cannot be amp33 (module notes); a
+    detector without one is accepted (the fallback amp33)."""
+    if det.ref_output and (det.interleave is not None
+                           or det.raw_ncols_out != AMP33_COLUMNS):
+        raise ParameterError(
+            f"amp33 is one reference output of {AMP33_COLUMNS} samples per row without "
+            f"interleaved samples; detector {det.name!r} has a reference output of "
+            f"{det.raw_ncols_out} samples per row"
+            + ("" if det.interleave is None else " with 'interleave'")
+            + f" (use 'n_out' = 'naxis1' / {AMP33_COLUMNS} and no 'interleave')")
+
+
+def _amp33_reference_output(exp, det):
+    """amp33 from the exposure's reference output (``RAWREF``; module notes): uint16 DN,
+    (nresultants, ny, 128), column ``c`` the sample read at slot ``c`` of its row."""
+    check_amp33_detector(det)
+    _, slot, image_x = det.raw_columns()
+    extra = np.flatnonzero(image_x < 0)
+    rr = exp.raw_ref
+    want = exp.sci.shape[:3] + (extra.size,)
+    if rr is None or rr.shape != want:
+        raise FileFormatError(
+            f"exposure {exp.name!r} has a reference output (REFOUT) but no 'RAWREF' of "
+            f"shape {want}, got {None if rr is None else rr.shape}")
+    # without interleave every RAWREF column is the reference output's: time order
+    order = np.argsort(slot[extra], kind="stable")
+    return np.ascontiguousarray(np.asarray(rr[0], dtype=np.uint16)[..., order])
+
+
 def _amp33(header, readout, t_frame, det, shape, gain, adc_top, rng):
-    """The amp33 samples (module notes), uint16 DN, (nresultants, ny, 128)."""
+    """The fallback amp33 samples without a reference output (module notes), uint16
+    DN, (nresultants, ny, 128)."""
     from noise.params import NoiseParams
     ny = shape[0]
     rd = 0.0
@@ -156,7 +217,16 @@ def l1_model(exposure, *, rng=None):
     ----------
     exposure : str, os.PathLike or scenesim.io.exposure.Exposure
     rng : numpy.random.Generator, int, SeedSequence or None, keyword-only
-        Draws of the amp33 channel's white noise; default the exposure's seed.
+        Draws of the fallback amp33 (a detector without a reference output: module
+        notes); default the exposure's seed.  Unused with a reference output, whose
+        samples (``RAWREF``) are amp33.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        More than one integration, or a reference output that does not fit amp33.
+    noise.errors.FileFormatError
+        A reference output without its ``RAWREF`` samples.
     """
     rdd = _rdm()
     exp = exposure if isinstance(exposure, Exposure) else Exposure.read(exposure)
@@ -166,6 +236,7 @@ def l1_model(exposure, *, rng=None):
     if ro.nints != 1:
         raise ParameterError(f"a Roman L1 file holds one integration; the exposure has "
                              f"nints = {ro.nints}")
+    amp33 = _amp33_reference_output(exp, det) if det.ref_output else None
     t_frame = float(hdr["TFRAME"])
     gain = float(hdr["GAIN"])
     sci = np.asarray(exp.sci[0], dtype=np.uint16)
@@ -175,8 +246,11 @@ def l1_model(exposure, *, rng=None):
     rng = np.random.default_rng(rng)
     m = rdd.ScienceRawModel.create_fake_data(shape=(nres, ny, nx))
     m.data = sci
-    m.amp33 = _amp33(hdr, ro, t_frame, det, (ny, nx), gain,
-                     int(2 ** int(hdr.get("ADCBITS", 16)) - 1), rng)
+    if amp33 is not None:
+        m.amp33 = amp33
+    else:
+        m.amp33 = _amp33(hdr, ro, t_frame, det, (ny, nx), gain,
+                         int(2 ** int(hdr.get("ADCBITS", 16)) - 1), rng)
     ex = m.meta.exposure
     ex.type = "WFI_IMAGE"
     ex.read_pattern = read_pattern(ro)
