@@ -6,7 +6,9 @@ file is read), estimates
 
 * the **peak memory** of the run: the simulation (the charge engine's frames, the
   noise generator, the cosmic rays), then the fit and the comparison when the scene
-  asks for them (their peaks do not overlap: the engine's frames are freed first);
+  asks for them, then the pipeline products (``--uncal``, ``--reffiles``) when the
+  command writes them (their peaks do not overlap: the engine's frames are freed
+  first; the engine's maps and noise generator stay);
 * the **output**: the exposure, the truth file (with the temporary raw cubes of
   ``save_charge`` / ``save_noise``, which sit beside it while it is written) and the
   fit file, uncompressed (a ``.fits.gz`` output is smaller; the estimate is an upper
@@ -35,7 +37,13 @@ started; both are now refused in milliseconds.
 
 The model
 ---------
-``P = ny * nx`` pixels read out, ``N = nints * ngroups * P`` resultant values, ``E``
+``P = ny * nx`` pixels read out, ``N = nints * ngroups * P`` resultant values; a
+detector with interleaved reference samples or a reference output (IRS2:
+``Detector.interleave``, ``ref_output``) reads ``X = ny * raw_nx`` samples a frame
+(:meth:`~noise.clock.Detector.raw_columns`), ``R = X - P`` of them not pixels
+(NIRSpec IRS2: ``X = 3200 x 2048 = 1.5625 P``), ``N_R = nints * ngroups * R`` and
+``N_raw = nints * ngroups * X`` over the exposure (otherwise ``R = N_R = 0``, ``X =
+P``, ``N_raw = N``); ``E``
 the expected cosmic-ray hits, ``rate * A * T``: ``rate`` (/cm^2/s) times the read-out
 area ``A = P * (pixel_pitch * 1e-4)**2`` cm^2 times the exposure time ``T =
 nints * (1 + nreads) * t_frame``.  Bytes (each part is listed in
@@ -60,6 +68,13 @@ saturation                     ``6 nints P``: first saturated read and resultant
                                and a temporary
 saved cubes                    ``28 P`` per ``save_charge`` / ``save_noise``: the float64
                                sum, its mean, the float32 and big-endian copies written
+raw samples                    (IRS2, reference output) ``36 R``: their noise and its
+                               kTC level (float32), the level's draw, the samples in
+                               float64 and their codes, the DN sum of the open
+                               resultant and its mean, the gather; with noise ``+ 4 X``
+                               (the raw frame, float32) ``+ 4 P`` (the image frame
+                               taken out of it) ``+ 8 (ny + nfoh) row_samples`` (two
+                               time lines of a frame)
 hot pixels                     ``24 hot_pixel_fraction P``
 variable stars                 ``266 kB`` per inline star with a light curve (its stamp,
                                at most 129 x 129 pixels of index and weight)
@@ -74,17 +89,43 @@ noise generator                frames: ``4 P`` for the noise frame, ``+ 4 P`` fo
                                with ``acn``); the 1/f synthesis: 36 MB once, 12 MB per
                                distinct sample rate (pixel rate, half of it for ACN, row
                                rate for ``pca0``) and 3 MB per series (ACN: 2 per
-                               output); the bias template (``pca0`` or ``bias_amp``):
+                               output; a reference output has its own ``u_pink`` and
+                               ACN pair); the bias template (``pca0`` or ``bias_amp``):
                                ``48 (naxis1 + naxis2)`` for the synthetic one (its row
                                and column profiles), ``8 naxis1 naxis2 + 24 P`` for a
                                ``pca0_file``
-slopes only                    ``2 N`` with ``ramp = false``: the resultants are kept in
-                               memory for the fit
+slopes only                    ``2 (N + N_R)`` with ``ramp = false``: the resultants
+                               (and ``RAWREF``) are kept in memory for the fit
 fit                            ``44 MB + 72 P + 8 N + 4 nints P`` (``+ 4 N`` with IPC,
                                undone first): the prepared resultants (float32) and
                                flags, the fitter's row chunks and its maps; on top of
                                the engine's rate maps and noise generator, which the
                                run keeps
+IRS2 correction                ``2 N_R + 4 N_raw + 12 N_raw / n_out`` with ``refpix =
+                               'irs2'``: the exposure's ``RAWREF``, the raw resultants
+                               (float32), one output's samples (float32 and float64); its
+                               float64 cube (``8 N``) is gone before the fitter's arrays
+                               are made
+products                       after the run, on top of the engine's maps and noise
+                               generator: 32 MB (the data models' schemas) and the
+                               larger of the uncal, ``2 (N + N_R)`` (the exposure read
+                               back) ``+ 2 N_raw`` (IRS2: the raw cube assembled) ``+ 6
+                               N_u`` (``SCI`` and ``GROUPDQ`` and their big-endian copies
+                               as written; ``N_u = N_raw`` for IRS2, else ``N``), and the
+                               references: ``36 P`` (the ``DetectorReference``: read
+                               noise, bias, saturation, dark float64, mask uint32) plus
+                               the larger family peak.  JWST writes one model at a time,
+                               the largest the dark, ``20 G P + 4 P`` (``G = ngroups``:
+                               its float64 cube, float32 data and err, their big-endian
+                               copies, dq), or the linearity ``(8 nc + 4) P`` (``nc =
+                               7`` planes and their copy), or IRS2's refpix table
+                               ``136 ny row_samples``.  Roman holds every array at once:
+                               ``28 P`` (gain, readnoise, mask, saturation, one zero dq,
+                               dark and its error, float32), nonlinear ``+ (4 n_nl + 4 nc
+                               + 32) P``: the inverse (``n_nl = 2 +`` the scene's
+                               nonlinearity terms) and linearity cubes (float32), built
+                               from the float64 bias in DN by Horner steps (``-b``, the
+                               running sum and its next value)
 =============================  ===========================================================
 
 The coefficients were fitted to the peak RSS (``VmHWM`` after the imports; MB =
@@ -96,19 +137,42 @@ the paper's noise 162 MB (193 MB).  512 x 512 with noise 115 MB (136 MB), with n
 and a GLS fit 192 MB (213 MB); noise alone on a 4096 x 4096, 32-output array 574 MB
 (596 MB); 10**6 cosmic-ray hits on a 256 x 256 array 1623 MB (1631 MB); a 64 x 64
 window with noise, 200 integrations, 59 MB (89 MB: the 1/f costs, fitted on full
-frames, are smaller for short time lines).  ``tests/test_budget.py`` checks the
-formula against hand-computed values and (``slow``) against a measured run.
+frames, are smaller for short time lines).  IRS2 (preset ``NIRSPEC-IRS2`` on 512 x
+512, 4 groups, 2 integrations, the paper's noise): the simulation 141 MB (157 MB), an
+OLS fit with ``refpix = 'irs2'`` 197 MB (244 MB), with ``refpix = 'none'`` 178 MB
+(221 MB).  The products, nonlinear with dark current and hot pixels, the whole run's
+peak: Roman references of a 4096 x 4096 WFI frame (no noise) 1897 MB (2800 MB), of
+2048 x 2048 with noise 743 MB (905 MB), of 1024 x 1024 281 MB (341 MB), of 512 x 512
+(no noise) 51 MB (75 MB); JWST references of 1024 x 1024 RAPID x 10 375 MB (441 MB),
+of 512 x 512 72 MB (100 MB); the uncal of 1024 x 1024 RAPID x 10 246 MB (281 MB).
+Pages of zeros that are never written (zero dq and error arrays, a zero bias or read
+noise without noise) and the allocator's reuse of freed memory on small arrays make
+the products' measured peaks 1.2 to 1.5 times below the estimate.
+``tests/test_budget.py`` checks the formula against hand-computed values and against
+measured runs.
 
-Outputs (bytes): exposure ``2 N`` (none with ``ramp = false``); truth ``8 P + 4 nints
+Outputs (bytes): exposure ``2 N + 4 N_R`` (``SCI``; ``RAWREF`` and its temporary
+raw copy, which sits beside it until the file is complete; none with ``ramp =
+false``); truth ``8 P + 4 nints
 P + 33 * 9 E`` (``RATE`` and ``RATE_IPC`` float32, ``SATREAD`` and ``SATGROUP`` int16,
 the ``CRS`` table) ``+ 8 N`` per saved cube (the cube in the file and its temporary
 raw copy); fit file ``32 P + 8 nints P`` (eight maps and two per-integration cubes);
 plus 64 kB of headers and tables per file.  The pipeline products of ``scenesim run``
 (:data:`PRODUCTS`): the JWST uncal ``3 N + 4 P + 2 nints P`` (uint16 ``SCI``, uint8
-``GROUPDQ``, uint32 ``PIXELDQ``, uint16 ``ZEROFRAME``); the Roman L1 ``2 N`` plus the
-amp33 channel, ``2 x 128 ny`` per resultant; the reference files ``4 P (8 + 7)`` (the
-2-D maps and 7 linearity planes, float32) ``+ 4 ngroups P`` (the dark cube), plus
-their headers.  A ``ZEROFRAME`` re-run happens after the run and needs no more memory.
+``GROUPDQ``, uint32 ``PIXELDQ``, uint16 ``ZEROFRAME``), for IRS2 ``3 N_raw + 4 X``
+(every raw sample, no ``ZEROFRAME``); the Roman L1 ``2 N`` plus the amp33 channel,
+``2 x 128 ny`` per resultant; the reference files (float32 or uint32 planes of ``4
+P``, uncompressed): JWST 16 planes (gain, readnoise, mask; saturation and dq;
+superbias, err and dq; 7 linearity planes and dq) ``+ (8 G + 4) P`` (the dark's data
+and err cubes, dq) ``+ 64 ny row_samples`` for IRS2 (the refpix table: ``2 ny
+row_samples`` rows of 8 float32 columns); Roman 8 planes (gain, readnoise, mask;
+saturation and dq; dark, error and dq) and, nonlinear, ``nc + 1 + n_nl + 1`` more (the
+linearity and inverse cubes with their dq); the families ``--reffiles`` writes
+(:func:`scenesim.pipelines.command.reference_families`: JWST for a JWST-sized
+MULTIACCUM readout, Roman with ``--l1`` or else), plus their headers.  A ``ZEROFRAME``
+re-run happens after the run and needs no more memory.  The L1's memory is not
+estimated (1024 x 1024, 3 resultants: 174 MB over the whole run, 163 MB without it;
+not measured with many resultants).
 """
 
 import contextlib
@@ -151,6 +215,7 @@ _PINK_FIXED = 36 * _MB            # 1/f synthesis: once
 _PINK_RATE = 12 * _MB             # ... per distinct sample rate
 _PINK_SERIES = 3 * _MB            # ... per series
 _FIT_FIXED = 44 * _MB
+_PRODUCT_FIXED = 32 * _MB         # the data models' schemas and validation
 
 
 class BudgetWarning(UserWarning):
@@ -256,6 +321,9 @@ class Budget:
         directory (:func:`free_disk`); None when unknown (then not checked).
     output_dir : str
         The output directory.
+    peak : str
+        When the memory peaks (``'simulating'``, ``'fitting (gls)'`` or ``'writing the
+        pipeline products (reffiles)'``), named in the messages; empty if not known.
     """
 
     memory: float
@@ -266,10 +334,15 @@ class Budget:
     available_memory: float | None
     free_disk: float | None
     output_dir: str
+    peak: str = ""
 
     def _largest(self, parts):
         label, size = max(parts, key=lambda p: p[1])
         return f"largest part: {_size(size)} for {label}"
+
+    def _memory_where(self):
+        where = self._largest(self.memory_parts)
+        return f"peak while {self.peak}; {where}" if self.peak else where
 
     def problems(self):
         """One-line descriptions of the limits this run exceeds (empty if none)."""
@@ -278,7 +351,7 @@ class Budget:
                 not self.memory <= MEMORY_FRACTION * self.available_memory:
             out.append(
                 f"the run needs about {_size(self.memory)} of memory "
-                f"({self._largest(self.memory_parts)}), more than the limit of "
+                f"({self._memory_where()}), more than the limit of "
                 f"{MEMORY_FRACTION:.0%} of the {_size(self.available_memory)} available "
                 f"({_size(MEMORY_FRACTION * self.available_memory)})")
         if self.free_disk is not None and not self.output <= self.free_disk:
@@ -345,6 +418,9 @@ def _noise_parts(det, p):
     acn_on = int(np.count_nonzero(p.per_output("acn", nout))) if p.enabled("acn") else 0
     merged = nout == 1 and p.c_pink > 0 and u_on > 0
     series = (p.c_pink > 0) + (0 if merged else u_on) + 2 * acn_on + (p.pca0 > 0)
+    if det.ref_output:
+        # the reference output's own series: one u_pink, an ACN pair
+        series += (u_on > 0) + 2 * (acn_on > 0)
     jobs = (p.c_pink > 0) + (0 if merged else u_on) + acn_on
     rates = (p.c_pink > 0 or u_on > 0) + (acn_on > 0) + (p.pca0 > 0)
     lines = 2.0 * jobs * min(512, det.ny) * det.row_samples * 4
@@ -369,22 +445,107 @@ PRODUCTS = ("uncal", "l1", "reffiles")
 _LINEARITY_PLANES = 7
 
 
-def _product_outputs(path, products, P, N, ny, ngroups, nints):
-    """The pipeline products' outputs (label, bytes), module notes."""
+def _raw_memory(det, p, P, R, X):
+    """Memory of a detector's raw samples during the run (module notes): with noise,
+    the raw frame (float32) 4 X, the image frame taken out of it 4 P and two time
+    lines of a frame (float32, the correlated one and an output's) 8 (ny + nfoh)
+    row_samples; always 36 R: the noise of the samples and its kTC level (float32)
+    8 R, the level's draw 2 R, the samples in float64 and their codes 16 R, the DN sum
+    of the open resultant (uint32) 4 R and its mean (uint16) 2 R, the gather 4 R."""
+    if R == 0:
+        return 0.0
+    frames = 0.0 if p.is_silent() else \
+        4 * X + 4 * P + 8.0 * (det.ny + det.nfoh) * det.row_samples
+    return frames + 36 * R
+
+
+def _raw_sizes(det, nints, ngroups):
+    """``(R, N_R, X, N_raw)`` of a detector's raw samples (module notes): the samples
+    per frame that are not image pixels, ``ny (raw_nx - nx)`` (0 without interleave or
+    reference output), their values over the exposure, the samples per raw frame
+    ``ny raw_nx`` and the raw values over the exposure."""
+    X = float(det.ny) * det.raw_nx
+    R = X - float(det.ny) * det.nx
+    return R, nints * ngroups * R, X, nints * ngroups * X
+
+
+def _reference_sizes(scene, det, ro, products):
+    """``(jwst, roman, output, memory)`` of the reference files (``--reffiles``;
+    module notes): which families are written, their bytes on disk (uncompressed)
+    and the peak memory of writing them (on top of what the run keeps)."""
+    from scenesim.pipelines.command import reference_families
+    P = float(det.ny) * det.nx
+    G = ro.ngroups
+    jwst, roman = reference_families(det, ro, l1="l1" in products)
+    nonlinear = len(scene.effects.nonlinearity) > 0
+    nc = _LINEARITY_PLANES
+    n_nl = len(scene.effects.nonlinearity) + 2      # [0, 1, c2 g, c3 g^2, ...]
+    irs2 = jwst and det.interleave is not None
+    n_line = float(det.ny) * det.row_samples        # samples of a frame's time line
+    output, peaks = 0.0, []
+    if jwst:
+        # gain, readnoise, mask 4 P each; saturation data + dq 8 P; superbias data,
+        # err, dq 12 P; linearity nc planes + dq; dark G planes of data and err + dq;
+        # IRS2: the refpix table of 2 n_line rows of 8 float32 columns
+        output += (4 + 4 + 4 + 8 + 12) * P + 4 * (nc + 1) * P + (8 * G + 4) * P
+        output += 64 * n_line if irs2 else 0.0
+        # one model at a time; the largest is the dark: its float64 cube 8 G P, the
+        # float32 data and err 8 G P, dq 4 P, and a big-endian copy of data and err
+        # as it is written 4 G P; the linearity: nc planes, dq and its copy
+        # (8 nc + 4) P; IRS2: the filter (float64 frequencies, response, complex64
+        # and its float32 pairs, ~40 n_line), the table 32 n_line, its copy written
+        # and read back 64 n_line
+        peaks += [20 * G * P + 4 * P, (8 * nc + 4) * P]
+        if irs2:
+            peaks.append(136 * n_line)
+    if roman:
+        # gain, readnoise, mask 4 P each, saturation and dark as JWST's (8 + 12 P);
+        # nonlinear: the linearity (nc planes) and inverse (n_nl planes) with dq each
+        output += (4 + 4 + 4 + 8 + 12) * P
+        output += 4 * (nc + 1 + n_nl + 1) * P if nonlinear else 0.0
+        # every array at once (float32): gain, readnoise, mask, saturation, a shared
+        # zero dq 20 P, dark and its error 8 P; nonlinear: the inverse 4 n_nl P and
+        # the linearity 4 nc P, built from the float64 bias in DN (8 P) by Horner
+        # steps (-b, the running sum and its next value: 24 P)
+        peaks.append(28 * P + ((4 * n_nl + 4 * nc + 32) * P if nonlinear else 0.0))
+    # the DetectorReference both families are written from: read noise, bias,
+    # saturation and dark (float64) and the mask (uint32), 36 P; the data models'
+    # schemas and validation, fixed
+    memory = _PRODUCT_FIXED + 36 * P + max(peaks, default=0.0)
+    return jwst, roman, output, memory
+
+
+def _product_outputs(scene, path, products, P, N, det, ro):
+    """The pipeline products: their outputs (label, bytes) and the peak memory of
+    writing them, on top of what the run keeps (module notes)."""
     stem = path[:-len(".fits.gz")] if path.endswith(".fits.gz") else \
         os.path.splitext(path)[0]
-    out = []
+    nints, ngroups, ny = ro.nints, ro.ngroups, det.ny
+    _, NR, X, Nraw = _raw_sizes(det, nints, ngroups)
+    out, memory = [], [0.0]
     if "uncal" in products:
+        if det.interleave is not None:
+            # IRS2: every raw sample, in the raw frame layout (uint16 SCI and uint8
+            # GROUPDQ of the raw cube, uint32 PIXELDQ of the raw frame); no ZEROFRAME
+            Nu, size = Nraw, 3 * Nraw + 4 * X
+        else:
+            Nu, size = N, 3 * N + 4 * P + 2 * nints * P
         out.append((f"the JWST uncal {stem + '_uncal.fits'!r} (--uncal)",
-                    3 * N + 4 * P + 2 * nints * P + _HEADERS))
+                    size + _HEADERS))
+        # the exposure read back (SCI and RAWREF), IRS2: the raw cube assembled
+        # (uint16), then the uncal's SCI and GROUPDQ and their big-endian copies
+        # as they are written
+        memory.append(_PRODUCT_FIXED + 2 * (N + NR)
+                      + (2 * Nraw if det.interleave is not None else 0.0) + 6 * Nu)
     if "l1" in products:
         out.append((f"the Roman L1 {stem + '_l1.asdf'!r} (--l1)",
                     2 * N + 2 * 128 * ny * ngroups * nints + _HEADERS))
     if "reffiles" in products:
+        _, _, size, mem = _reference_sizes(scene, det, ro, products)
         out.append((f"the reference files in {stem + '_refs'!r} (--reffiles)",
-                    4 * P * (8 + _LINEARITY_PLANES) + 4 * ngroups * P
-                    + 10 * _HEADERS))
-    return out
+                    size + 10 * _HEADERS))
+        memory.append(mem)
+    return out, max(memory)
 
 
 def estimate_budget(scene, *, options=None, products=()):
@@ -411,6 +572,7 @@ def estimate_budget(scene, *, options=None, products=()):
     P = float(det.ny) * det.nx
     nints, ngroups = ro.nints, ro.ngroups
     N = nints * ngroups * P
+    R, NR, X, Nraw = _raw_sizes(det, nints, ngroups)
     t_total = exposure_slots(nints, ro.nreads) * det.frame_time
     cm = det.pixel_pitch * 1e-4
     events = eff.cosmic_ray_rate * (P * cm * cm) * t_total if eff.cosmic_ray_rate else 0.0
@@ -432,12 +594,14 @@ def estimate_budget(scene, *, options=None, products=()):
         ("the variable stars ([[sources.stars]] light_curve)", float(_STAMP * variable)),
         (f"{events:.3g} cosmic-ray hits ([effects] cosmic_ray_rate = "
          f"{eff.cosmic_ray_rate:g} /cm^2/s)", _CR_BYTES * events),
+        (f"the raw samples ({R:.3g} per frame besides the pixels, [detector] "
+         f"interleave, ref_output)", _raw_memory(det, scene.noise, P, R, X)),
     ]
     # what stays from the simulation through the fit: the engine (its maps and its
     # noise generator, with the 1/f filters) and the resultants of a slopes-only run
     noise = _noise_parts(det, scene.noise)
     kept = [sim[0], ("the resultants kept for the fit ([output] ramp = false)",
-                     2 * N if not out.ramp else 0.0)] + noise
+                     2 * (N + NR) if not out.ramp else 0.0)] + noise
     fit = []
     if out.fit:
         ipc_copy = 4 * N if eff.ipc() is not None else 0.0      # undo_ipc's output
@@ -445,16 +609,33 @@ def estimate_budget(scene, *, options=None, products=()):
                        f"[detector] naxis1 x naxis2, [readout] ngroups x nints, [output] "
                        f"fit)",
                        _FIT_FIXED + 72 * P + 8 * N + 4 * nints * P + ipc_copy)]
-    sim = sim + kept[1:]
-    sim_total = math.fsum(b for _, b in sim)
-    fit_total = math.fsum(b for _, b in fit)
-    parts = sim if sim_total >= fit_total else fit
-    memory = max(sim_total, fit_total)
-
+        if out.refpix == "irs2":
+            # the exposure's RAWREF 2 N_R, the raw resultants in float32 4 N_raw, one
+            # output's samples in float32 and float64 12 N_raw / n_out (the corrected
+            # cube, float64 8 N, is made before the fitter's arrays, which the fit's
+            # part counts, and is gone when they are made)
+            fit.append(("the IRS2 correction ([output] refpix = 'irs2')",
+                        2 * NR + 4 * Nraw + 12 * Nraw / det.n_out_active))
     path = out.path
+    prod_outputs, prod_memory = _product_outputs(scene, path, products, P, N, det, ro)
+    prods = []
+    if products:
+        # written after the run, which keeps its engine (maps and noise generator)
+        prods = kept + [(f"writing the pipeline products ({', '.join(products)})",
+                         prod_memory)]
+    sim = sim + kept[1:]
+    phases = [sim, fit, prods]
+    totals = [math.fsum(b for _, b in ph) for ph in phases]
+    memory = max(totals)
+    peak = totals.index(memory)
+    parts = phases[peak]
+    peak = ("simulating", f"fitting ({out.fit})",
+            f"writing the pipeline products ({', '.join(products)})")[peak]
+
     outputs = []
     if out.ramp:
-        outputs.append((f"the exposure {path!r}", 2 * N + _HEADERS))
+        # SCI 2 N; RAWREF 2 N_R and its temporary raw copy beside it, 2 N_R
+        outputs.append((f"the exposure {path!r}", 2 * N + 4 * NR + _HEADERS))
     if out.truth:
         saved = out.save_charge + out.save_noise
         outputs.append((f"the truth file {derived_path(path, '_truth')!r}",
@@ -463,13 +644,13 @@ def estimate_budget(scene, *, options=None, products=()):
     if out.fit:
         outputs.append((f"the fit file {derived_path(path, '_' + out.fit)!r}",
                         32 * P + 8 * nints * P + _HEADERS))
-    outputs += _product_outputs(path, products, P, N, det.ny, ngroups, nints)
+    outputs += prod_outputs
     output = math.fsum(b for _, b in outputs)
     return Budget(memory=memory, output=output,
                   memory_parts=tuple((k, float(v)) for k, v in parts if v),
                   output_parts=tuple(outputs), cosmic_ray_events=events,
                   available_memory=available_memory(), free_disk=free_disk(path),
-                  output_dir=os.path.dirname(os.path.abspath(path)))
+                  output_dir=os.path.dirname(os.path.abspath(path)), peak=peak)
 
 
 def check_budget(scene, *, force=False, options=None, products=()):

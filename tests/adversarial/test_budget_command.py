@@ -165,3 +165,34 @@ def test_no_warning_for_a_small_run(command, tmp_path):
     res = _driver(tmp_path, "", TINY[command])
     assert res.returncode == 0, res.stderr
     assert res.stderr == ""
+
+
+def test_reference_files_beyond_the_machine_are_refused_before_any_work(tmp_path):
+    # Issue 12: writing the reference files (--reffiles) peaked at 3.1 GB on the full
+    # Roman frame, which the size check did not count: a run that fits but whose
+    # references do not was started and died at the end.  With the available memory
+    # set between the run's estimate and its estimate with the references (over the
+    # 80 % limit), the command refuses in one line naming the products and writes
+    # nothing; without --reffiles the same run goes through.
+    pytest.importorskip("jwst")
+    from scenesim.budget import MEMORY_FRACTION, estimate_budget
+    from scenesim.scene import load_scene
+    (tmp_path / "scene.toml").write_text(SCENE.format(naxis=64, rate=0.0))
+    scene = load_scene(str(tmp_path / "scene.toml"))
+    run_only = estimate_budget(scene).memory
+    with_refs = estimate_budget(scene, products=("reffiles",)).memory
+    assert with_refs > run_only
+    avail = (run_only + with_refs) / 2 / MEMORY_FRACTION
+    patch = f"available_memory = lambda: {avail!r}"
+    if not run_only <= MEMORY_FRACTION * avail < with_refs:
+        pytest.skip("the run and its references are too close to separate")
+    before = _snapshot(tmp_path)
+    refused = _driver(tmp_path, patch, ["run", "scene.toml", "-q", "--reffiles"])
+    assert refused.returncode == 2, refused.stderr
+    _one_line(refused.stderr, "memory", "peak while writing the pipeline products "
+              "(reffiles)",
+              "--force")
+    assert set(_snapshot(tmp_path)) == set(before) | {"driver.py"}
+    ok = _driver(tmp_path, patch, ["run", "scene.toml", "-q"])
+    assert ok.returncode == 0, ok.stderr
+    assert os.path.exists(tmp_path / "out.fits")
