@@ -18,6 +18,7 @@ import os
 import subprocess
 import sys
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from astropy.io import fits
@@ -55,9 +56,18 @@ def _run(args, cwd):
     return res.stdout
 
 
-def scene_hashes(names, workdir):
-    result = {}
-    for name in names:
+def _map(fn, items, jobs):
+    """``{item: fn(item)}``, ``jobs`` subprocess-driving threads at a time (each run
+    is its own process, so the results do not depend on ``jobs``)."""
+    items = list(items)
+    if jobs <= 1:
+        return {k: fn(k) for k in items}
+    with ThreadPoolExecutor(jobs) as pool:
+        return dict(zip(items, pool.map(fn, items)))
+
+
+def scene_hashes(names, workdir, jobs=1):
+    def one(name):
         scene = os.path.join(ROOT, "scenes", f"{name}.toml")
         out = os.path.join(workdir, f"{name}.fits")
         _run(["run", scene, "-o", out, "--fit", "gls", "-q"], workdir)
@@ -69,28 +79,27 @@ def scene_hashes(names, workdir):
         if os.path.exists(truth):
             text = _run(["compare", fit, truth], workdir)
             entry["compare"] = hashlib.sha256(text.encode()).hexdigest()[:16]
-        result[name] = entry
-    return result
+        return entry
+    return _map(one, names, jobs)
 
 
-def fitter_hashes(workdir):
+def fitter_hashes(workdir, jobs=1):
     """The quick scene fitted every other way."""
     exp = os.path.join(workdir, "quick.fits")
     truth = os.path.join(workdir, "quick_truth.fits")
-    result = {}
-    for fitter in ("cds", "ols", "gls"):
-        for refpix in ("none", "median", "jwst"):
-            out = os.path.join(workdir, f"fit_{fitter}_{refpix}.fits")
-            _run(["fit", exp, "-o", out, "--fitter", fitter, "--refpix", refpix],
-                 workdir)
-            text = _run(["compare", out, truth, "--exposure", exp], workdir)
-            result[f"{fitter}/{refpix}"] = dict(
-                hdu_hashes(out), compare=hashlib.sha256(text.encode()).hexdigest()[:16])
-    return result
+
+    def one(key):
+        fitter, refpix = key.split("/")
+        out = os.path.join(workdir, f"fit_{fitter}_{refpix}.fits")
+        _run(["fit", exp, "-o", out, "--fitter", fitter, "--refpix", refpix],
+             workdir)
+        text = _run(["compare", out, truth, "--exposure", exp], workdir)
+        return dict(hdu_hashes(out), compare=hashlib.sha256(text.encode()).hexdigest()[:16])
+    return _map(one, [f"{f}/{r}" for f in ("cds", "ols", "gls")
+                      for r in ("none", "median", "jwst")], jobs)
 
 
-def noise_hashes(workdir):
-    result = {}
+def noise_hashes(workdir, jobs=1):
     runs = {
         "e": ["--naxis", "128", "--frames", "3"],
         "dn_gain1.5": ["--naxis", "128", "--frames", "3", "--unit", "DN", "--gain", "1.5"],
@@ -99,11 +108,12 @@ def noise_hashes(workdir):
         "h1rg_1out": ["--preset", "H1RG", "--naxis", "64", "--n-out", "1", "--frames",
                       "4"],
     }
-    for key, extra in runs.items():
+
+    def one(key):
         out = os.path.join(workdir, f"noise_{key}.fits")
-        _run(["noise", *extra, "--seed", "7", "-o", out, "-q"], workdir)
-        result[key] = hdu_hashes(out)
-    return result
+        _run(["noise", *runs[key], "--seed", "7", "-o", out, "-q"], workdir)
+        return hdu_hashes(out)
+    return _map(one, runs, jobs)
 
 
 def main(argv=None):
@@ -111,13 +121,14 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="JSON file for the hashes")
     p.add_argument("--small", action="store_true", help="only the small scenes")
     p.add_argument("--diff", default=None, help="a previous JSON to compare with")
+    p.add_argument("--jobs", type=int, default=1, help="commands run at once")
     a = p.parse_args(argv)
     names = SMALL if a.small else tuple(
         sorted(os.path.basename(f)[:-5] for f in glob.glob(os.path.join(ROOT, "scenes",
                                                                          "*.toml"))))
     with tempfile.TemporaryDirectory() as d:
-        result = {"scenes": scene_hashes(names, d), "fitters": fitter_hashes(d),
-                  "noise": noise_hashes(d)}
+        result = {"scenes": scene_hashes(names, d, a.jobs),
+                  "fitters": fitter_hashes(d, a.jobs), "noise": noise_hashes(d, a.jobs)}
     with open(a.out, "w") as f:
         json.dump(result, f, indent=1, sort_keys=True)
     if a.diff:
