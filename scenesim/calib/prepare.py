@@ -86,19 +86,16 @@ from astropy.io import fits
 
 from noise.clock import Detector, detector_from_header
 from noise.errors import ParameterError
-from noise.fitsio import input_path, temp_file
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
 from scenesim.calib.noise_model import common_mode, measure_read_noise
 from scenesim.calib.refpix import (SCHEMES, check_correction_options, correct_irs2,
                                    correct_reference)
-from scenesim.calib.saturation import (SaturationOptions, saturation_flags,
-                                       zero_level_bound)
+from scenesim.calib.saturation import SaturationOptions, saturation_flags
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
-from scenesim.io.cuberows import NpyCube, exposure_rows
-from scenesim.io.exposure import Exposure, raw_resultants, read_exposure_header
+from scenesim.io.exposure import Exposure, raw_resultants
 from scenesim.io.fitfile import write_fit
 from scenesim.io.header import (exposure_read_noise, exposure_readout,
                                 exposure_settings, header_ipc_kernel, header_nonlinearity,
@@ -107,12 +104,6 @@ from scenesim.rampfit.fitter import FITTERS, fit_ramps
 
 __all__ = ["PrepareOptions", "PreparedExposure", "prepare_exposure", "load_exposure",
            "fit_exposure_file"]
-
-#: Rows of the common-mode and read-noise fits (every ``ceil(ny / rows)``-th row).
-_CM_ROWS, _RN_ROWS = 64, 256
-#: Values (float32) of a block of frames or rows read at once by the streamed
-#: preparation (:func:`fit_exposure_file`): 32 MB.
-_BLOCK_VALUES = 1 << 23
 
 #: Truncation error of the IPC deconvolution in :func:`prepare_exposure`, as a
 #: fraction of the noise of one read (white read noise and ADC quantisation).
@@ -404,8 +395,7 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
     if options.remove_common_mode:
         outputs = np.broadcast_to(output_of_column, det.shape).astype(np.intp)
         offsets = common_mode(e, times, read_noise=rdn_model, groups=outputs,
-                              saturated=sat, refmask=refmask, threads=options.threads,
-                              max_rows=_CM_ROWS)
+                              saturated=sat, refmask=refmask, threads=options.threads)
         # (nints, nres, n_out) -> (nints, nres, 1, nx): each column its output's
         e -= offsets[:, :, None, output_of_column].astype(np.float32)
     if not options.measure_noise:
@@ -413,7 +403,7 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
     columns = np.broadcast_to(np.arange(det.nx), det.shape)
     return e, measure_read_noise(e, times, read_noise=rdn_model, groups=columns,
                                  saturated=sat, refmask=refmask,
-                                 threads=options.threads, max_rows=_RN_ROWS)
+                                 threads=options.threads)
 
 
 def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
