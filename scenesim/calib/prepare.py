@@ -48,8 +48,8 @@ The engine reads ``F K(p(q))`` (flat ``F``, IPC kernel ``K``, nonlinearity ``p``
 charge ``q``).  Inverting ``p`` pixel by pixel on that signal mixes ``p`` of
 neighbours that hold different charges.  ``K`` is linear, so ``K^-1`` of a resultant
 is exactly the mean over its reads of ``p(q)``; the linearisation then inverts ``p``
-(its documented error for multi-read resultants, ``~ c2 var(q within the group)``,
-is unchanged).  :func:`undo_ipc` is the exact inverse of
+(with the reads' spread within a multi-read resultant taken out, from the read
+times).  :func:`undo_ipc` is the exact inverse of
 :func:`scenesim.detector.ipc.apply_ipc`, edges included (the engine applies IPC to
 the reference pixels too, so they get back to their own signal), iterated to 1e-3
 of the noise of one read, ``sqrt(RDNOISE^2 + GAIN^2 / 12)``.  The fit then reports
