@@ -112,6 +112,9 @@ def fit_command(args):
     """``scenesim fit``: fit the slopes of an exposure."""
     out = args.output or fit_path_for(args.exposure, args.fitter)
     check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite)
+    cleaned = clean_stale_temps([out])          # e.g. a killed fit's prepared cube
+    if cleaned:
+        print(cleaned)
     if args.fitter.lower().startswith("stcal-"):
         fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
                            options=PrepareOptions(refpix=args.refpix),

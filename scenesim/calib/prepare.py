@@ -73,10 +73,25 @@ general), not ``RATE_IPC``.  Consequences:
   light before the Poisson draws), so undoing IPC gives each pixel's own charge, the
   flat included: the fit recovers ``K^-1 RATE_IPC = RATE``.
 
+Memory of a fit (:func:`fit_exposure_file`)
+-------------------------------------------
+:func:`prepare_exposure` holds the whole cube in float32 e- (and its flags).
+:func:`fit_exposure_file` instead runs the same steps by frames or rows of a
+temporary float32 cube beside the output (``.scenesim-<pid>-*.tmp``, removed on
+every exit; one left by a killed process is removed by the next run), keeps the
+saturation flags as the first saturated resultant of each pixel, and fits from the
+file by row blocks, to the same bits: what it holds does not grow with the number of
+resultants, except the noise fits' row subsamples (64 and 256 rows of every
+resultant: 1/8 of the cube at 2048 rows, 1/16 at 4096) and the linearisation's
+batch (``nints`` x 2 frames at least).  The ``'irs2'`` correction (each reference
+sample's mean over the groups) and compressed files still take the whole cube.
+Measured in BENCHMARKS.md ("The fit's scaling").
+
 Measurements of each step on the example scenes (bias, ``chi2``, flags, cost) are
 in ``docs/VALIDATION_FIT.md``.
 """
 
+import contextlib
 import math
 import os
 from dataclasses import dataclass
@@ -86,16 +101,19 @@ from astropy.io import fits
 
 from noise.clock import Detector, detector_from_header
 from noise.errors import ParameterError
+from noise.fitsio import input_path, temp_file
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
 from scenesim.calib.noise_model import common_mode, measure_read_noise
 from scenesim.calib.refpix import (SCHEMES, check_correction_options, correct_irs2,
                                    correct_reference)
-from scenesim.calib.saturation import SaturationOptions, saturation_flags
+from scenesim.calib.saturation import (SaturationOptions, saturation_flags,
+                                       zero_level_bound)
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
 from scenesim.detector.readout import Readout
-from scenesim.io.exposure import Exposure, raw_resultants
+from scenesim.io.cuberows import NpyCube, exposure_rows
+from scenesim.io.exposure import Exposure, raw_resultants, read_exposure_header
 from scenesim.io.fitfile import write_fit
 from scenesim.io.header import (exposure_read_noise, exposure_readout,
                                 exposure_settings, header_ipc_kernel, header_nonlinearity,
@@ -104,6 +122,13 @@ from scenesim.rampfit.fitter import FITTERS, fit_ramps
 
 __all__ = ["PrepareOptions", "PreparedExposure", "prepare_exposure", "load_exposure",
            "fit_exposure_file"]
+
+#: Rows of the common-mode and read-noise fits (every ``ceil(ny / rows)``-th row).
+_CM_ROWS, _RN_ROWS = 64, 256
+#: Values (float32) of a block of frames or rows read at once by the streamed
+#: preparation (:func:`fit_exposure_file`): 32 MB; and of the batches of
+#: resultants linearised at once (at least two frames of every integration).
+_BLOCK_VALUES, _LINEARIZE_VALUES = 1 << 23, 1 << 25
 
 #: Truncation error of the IPC deconvolution in :func:`prepare_exposure`, as a
 #: fraction of the noise of one read (white read noise and ADC quantisation).
@@ -395,7 +420,8 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
     if options.remove_common_mode:
         outputs = np.broadcast_to(output_of_column, det.shape).astype(np.intp)
         offsets = common_mode(e, times, read_noise=rdn_model, groups=outputs,
-                              saturated=sat, refmask=refmask, threads=options.threads)
+                              saturated=sat, refmask=refmask, threads=options.threads,
+                              max_rows=_CM_ROWS)
         # (nints, nres, n_out) -> (nints, nres, 1, nx): each column its output's
         e -= offsets[:, :, None, output_of_column].astype(np.float32)
     if not options.measure_noise:
@@ -403,7 +429,259 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
     columns = np.broadcast_to(np.arange(det.nx), det.shape)
     return e, measure_read_noise(e, times, read_noise=rdn_model, groups=columns,
                                  saturated=sat, refmask=refmask,
-                                 threads=options.threads)
+                                 threads=options.threads, max_rows=_RN_ROWS)
+
+
+class _Source:
+    """The ``SCI`` cube of an exposure in e- (``DN.astype(float32) * float32(GAIN)``,
+    as :func:`prepare_exposure`), read by frames or rows: from its file (positioned
+    reads, :func:`scenesim.io.cuberows.exposure_rows`) or from an in-memory
+    :class:`Exposure`.  ``exposure`` is an :class:`Exposure` whose ``sci`` may be a
+    stand-in of the right shape (for :func:`exposure_readout`)."""
+
+    def __init__(self, exposure, gain, rows=None):
+        self.exposure, self.gain, self._rows = exposure, np.float32(gain), rows
+        self.shape = exposure.sci.shape
+
+    def frames(self, k, r0, r1):
+        if self._rows is not None:
+            return self._rows.frames(k, r0, r1)
+        return self.exposure.sci[k, r0:r1].astype(np.float32) * self.gain
+
+    def rows(self, y0, y1):
+        if self._rows is not None:
+            return self._rows.rows(y0, y1)
+        return self.exposure.sci[:, :, y0:y1].astype(np.float32) * self.gain
+
+
+def _open_source(exposure):
+    """A :class:`_Source` of ``exposure`` (path or :class:`Exposure`), or None for a
+    file that cannot be read by blocks (compressed)."""
+    if isinstance(exposure, Exposure):
+        gain = exposure_settings(exposure.header)["gain"]
+        return _Source(exposure, gain)
+    if not isinstance(exposure, (str, os.PathLike)):
+        return None                              # prepare_exposure says why
+    path = input_path(exposure, "exposure")
+    if str(path).endswith(".gz"):
+        return None
+    header, reads = read_exposure_header(path)
+    gain = exposure_settings(header)["gain"]
+    rows = exposure_rows(path, gain=gain)
+    stand_in = np.broadcast_to(np.uint16(0), rows.shape)
+    return _Source(Exposure(stand_in, header, reads, os.fspath(path)), gain, rows)
+
+
+class _FirstSaturated:
+    """Sticky saturation flags kept as the first saturated resultant of each pixel
+    and integration ((nints, ny, nx); ``nres`` when none), a row source of bool
+    blocks (nints, nres, rows, nx) for :func:`scenesim.rampfit.fit_ramps`."""
+
+    dtype = np.dtype(bool)
+
+    def __init__(self, first, nres):
+        self.first, self.nres = first, nres
+        self.shape = (first.shape[0], nres) + first.shape[1:]
+
+    def rows(self, y0, y1):
+        return self.take(slice(y0, y1))
+
+    def take(self, rows):
+        """Flags of the rows ``rows`` (a slice or an index array)."""
+        return np.arange(self.nres)[None, :, None, None] >= self.first[:, None, rows]
+
+
+class _CorrectedRows:
+    """Rows of the prepared cube (a file) less the common mode of each output."""
+
+    all_finite = False
+
+    def __init__(self, cube, offsets, output_of_column):
+        self.cube, self.shape, self.dtype = cube, cube.shape, cube.dtype
+        self._off = None if offsets is None else \
+            offsets[:, :, None, output_of_column].astype(np.float32)
+
+    def rows(self, y0, y1):
+        return self.take(self.cube.rows(y0, y1))
+
+    def take(self, block):
+        if self._off is not None:
+            block -= self._off
+        return block
+
+
+def _row_blocks(ny, per_row):
+    """Row bounds of blocks of about :data:`_BLOCK_VALUES` values (``per_row`` a row)."""
+    step = max(1, _BLOCK_VALUES // max(per_row, 1))
+    return [(y, min(y + step, ny)) for y in range(0, ny, step)]
+
+
+def _gather_rows(cube, rows):
+    """Rows ``rows`` of every integration and resultant of ``cube``, stacked."""
+    return np.concatenate([cube.rows(y, y + 1) for y in rows], axis=2)
+
+
+def _prepare_to_file(src, path, options):
+    """:func:`prepare_exposure` with every step by frames or rows of a float32 cube in
+    the file ``path`` (steps 1-5; 6-7 on their row subsamples).
+
+    Same values as :func:`prepare_exposure` to the last bit: each step is applied
+    to the same unit it is in memory (IPC undo and the reference correction per
+    frame, the linearisation per resultant over every integration's whole frame with
+    the zero level from resultants 0 and 1, the saturation tests per pixel with the
+    zero-level bound of the whole frames, the noise fits on the same row
+    subsamples).  Held at once: a block of frames or rows (~32 MB, or ``threads``
+    frames), the linearisation's ``nints x (2 + batch)`` frames and their float64
+    zero level, the flags as one first-saturated index per pixel, and the noise
+    fits' row subsamples (64 and 256 rows of every resultant).
+
+    Returns ``(prep, resultants, saturated)``: a :class:`PreparedExposure` whose
+    ``electrons`` and ``saturated`` are None, and the row sources of the prepared
+    resultants (common mode removed as read) and of the flags.
+    """
+    exp = src.exposure
+    ro = exposure_readout(exp)
+    if ro.ngroups < 2:
+        raise ParameterError(
+            f"exposure {exp.name!r} has one group (NGROUPS = 1): there is no slope to "
+            f"fit (a one-group exposure only gives a zero point)")
+    hdr = exp.header
+    det = detector_from_header(hdr)
+    cfg = exposure_settings(hdr)
+    gain, t_frame = cfg["gain"], cfg["t_frame"]
+    rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
+    tbar = ro.mean_times(t_frame)
+    refmask = det.reference_mask()
+    kernel = header_ipc_kernel(hdr)
+    decon = options.deconvolve_ipc and kernel is not None
+    threads = min(os.cpu_count() or 1, 8) if options.threads is None else options.threads
+    nints, nres, ny, nx = src.shape
+    cube = NpyCube.create(path, src.shape)
+    # 1-2: e-, IPC undone, frame by frame
+    batch = max(threads, 1)
+    for k in range(nints):
+        for r0 in range(0, nres, batch):
+            f = src.frames(k, r0, min(r0 + batch, nres))
+            if decon:
+                _undo_recorded_ipc(f, kernel, exp.name, rdn, gain, threads)
+            cube.write_frames(k, r0, f)
+    rn_gain = ipc_noise_gain(kernel) if decon else 1.0
+    # 3: saturation flags by row blocks (halo for the growth)
+    first = _saturation_by_rows(src, cube, hdr, cfg, ro, tbar, kernel, decon,
+                                rdn * rn_gain, refmask)
+    sat = _FirstSaturated(first, nres)
+    # 4: reference correction, frame by frame
+    if options.refpix != "none" and refmask.any():
+        step = max(1, _BLOCK_VALUES // (ny * nx))
+        for k in range(nints):
+            for r0 in range(0, nres, step):
+                f = cube.frames(k, r0, min(r0 + step, nres))
+                cube.write_frames(k, r0, np.asarray(
+                    correct_reference(f, det, scheme=options.refpix), dtype=np.float32))
+    # 5: linearisation, per resultant over all integrations, zero from 0 and 1
+    nl = header_nonlinearity(hdr) if options.linearize else None
+    if nl is not None:
+        _linearize_file(cube, nl, tbar)
+    if ro.reset_mode == "global":
+        times = ro.read_times(t_frame, det.pixel_time())
+    else:
+        times = ro.read_times(t_frame)
+    rdn_model = rdn * rn_gain
+    offsets, rn_fit = _noise_from_file(cube, times, det, sat, refmask, rdn_model,
+                                       options)
+    cards = preparation_cards(exp.name, hdr, options, rdn_model, decon, rn_gain,
+                              nl is not None)
+    prep = PreparedExposure(
+        name=exp.name, header=hdr, detector=det, readout=ro, gain=gain,
+        t_frame=t_frame, electrons=None, saturated=None, read_times=times,
+        read_noise=rn_fit, read_noise_model=float(rdn_model), refmask=refmask,
+        cards=cards)
+    ooc = np.asarray(det.output_of_column()).reshape(-1)
+    return prep, _CorrectedRows(cube, offsets, ooc), sat
+
+
+def _saturation_by_rows(src, cube, hdr, cfg, ro, tbar, kernel, decon, rdn, refmask):
+    """Step 3 of :func:`_prepare_to_file`: the first saturated resultant (nints, ny,
+    nx) int32, as :func:`_undo_ipc_and_flag_saturation` flags them."""
+    nints, nres, ny, nx = cube.shape
+    gain = cfg["gain"]
+    ceiling = (2 ** cfg["adc_bits"] - 1) * gain
+    t_last = np.array([t[-1] for t in ro.read_times(cfg["t_frame"])])
+    n_reads = np.asarray(ro.n_per_resultant)
+    grow = 1 if not decon and (kernel is not None or cfg["ipc_unrecorded"]) else 0
+    opts = SaturationOptions(cfg["full_well"], ceiling, read_noise=rdn,
+                             nonlinearity=header_nonlinearity(hdr), grow=grow)
+    bound = zero_level_bound(np.stack([cube.frames(k, 0, 2) for k in range(nints)]),
+                             tbar, refmask=refmask, nsigma=opts.nsigma)
+    lead = bool(np.any(t_last > tbar))
+    first = np.empty((nints, ny, nx), np.int32)
+    for y0, y1 in _row_blocks(ny, nints * nres * nx):
+        a, b = max(0, y0 - grow), min(ny, y1 + grow)
+        flags = saturation_flags(cube.rows(a, b), tbar, opts, t_last=t_last,
+                                 n_reads=n_reads, refmask=refmask[a:b],
+                                 zero_bound=bound)[:, :, y0 - a:y1 - a]
+        if decon:
+            # the ADC clip, judged on the raw ramps and grown to the 3 x 3 box
+            a, b = max(0, y0 - 1), min(ny, y1 + 1)
+            raw = src.rows(a, b)
+            if lead or float(raw.max()) >= ceiling:
+                flags |= saturation_flags(
+                    raw, tbar, SaturationOptions(0.0, ceiling, grow=1), t_last=t_last,
+                    n_reads=n_reads)[:, :, y0 - a:y1 - a]
+        first[:, y0:y1] = np.where(flags.any(axis=1), flags.argmax(axis=1), nres)
+    return first
+
+
+def _linearize_file(cube, nl, tbar):
+    """Step 5 on the cube file: :func:`linearize_resultants` of resultants 0 and 1
+    with a batch of the others, so that each resultant is inverted over the same
+    whole frames (every integration) with the same zero level as on the whole cube."""
+    nints, nres, ny, nx = cube.shape
+    tbar = np.asarray(tbar)
+    batch = max(2, _LINEARIZE_VALUES // (nints * ny * nx))
+    head = np.stack([cube.frames(k, 0, 2) for k in range(nints)])
+    starts = list(range(2, nres, batch)) or [nres]
+    for i, r0 in enumerate(starts):
+        r1 = min(r0 + batch, nres)
+        stack = head if r1 == r0 else np.concatenate(
+            [head, np.stack([cube.frames(k, r0, r1) for k in range(nints)])], axis=1)
+        lin = linearize_resultants(stack, nl, np.concatenate([tbar[:2], tbar[r0:r1]]))
+        for k in range(nints):
+            if i == 0:
+                cube.write_frames(k, 0, lin[k, :2])
+            if r1 > r0:
+                cube.write_frames(k, r0, lin[k, 2:])
+
+
+def _noise_from_file(cube, times, det, sat, refmask, rdn_model, options):
+    """Steps 6-7 of :func:`_prepare_to_file` on the same row subsamples as
+    :func:`_noise_from_data`: the common-mode offsets (or None) and the read noise."""
+    ny, nx = det.shape
+    ooc = np.asarray(det.output_of_column()).reshape(-1)
+
+    def subsample(max_rows):
+        rows = np.arange(0, ny, -(-ny // max_rows))
+        t = [x[:, rows] if np.ndim(x) == 3 else x for x in times]
+        return rows, t, sat.take(rows), refmask[rows]
+
+    offsets = None
+    if options.remove_common_mode:
+        rows, t, s, ref = subsample(_CM_ROWS)
+        groups = np.broadcast_to(ooc, (rows.size, nx)).astype(np.intp)
+        offsets = common_mode(_gather_rows(cube, rows), t, read_noise=rdn_model,
+                              groups=groups, saturated=s, refmask=ref,
+                              threads=options.threads, max_rows=rows.size)
+    if not options.measure_noise:
+        return offsets, rdn_model
+    rows, t, s, ref = subsample(_RN_ROWS)
+    corrected = _CorrectedRows(cube, offsets, ooc)
+    sub = corrected.take(_gather_rows(cube, rows))
+    columns = np.broadcast_to(np.arange(nx), (rows.size, nx))
+    rn = measure_read_noise(sub, t, read_noise=rdn_model, groups=columns,
+                            saturated=s, refmask=ref, threads=options.threads,
+                            max_rows=rows.size)
+    # a value per column (the model times the column's factor): every row alike
+    return offsets, np.ascontiguousarray(np.broadcast_to(rn[0], (ny, nx)))
 
 
 def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
@@ -444,11 +722,24 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
                                "0 or None turn detection off", minimum=0.0)
     _check_options(options)
     check_writable("output", output, overwrite=overwrite)
-    prep = prepare_exposure(exposure, options=options)
-    result = fit_ramps(prep.electrons, prep.read_times, read_noise=prep.read_noise,
-                       gain=prep.gain, fitter=fitter, saturated=prep.saturated,
-                       jump_threshold=jump_threshold or None, refmask=prep.refmask,
-                       threads=options.threads)
+    src = None if options.refpix == "irs2" else _open_source(exposure)
+    if src is None:                  # IRS2 or a compressed file: the whole cube
+        prep = prepare_exposure(exposure, options=options)
+        result = fit_ramps(prep.electrons, prep.read_times, read_noise=prep.read_noise,
+                           gain=prep.gain, fitter=fitter, saturated=prep.saturated,
+                           jump_threshold=jump_threshold or None,
+                           refmask=prep.refmask, threads=options.threads)
+    else:
+        tmp = temp_file(output, tag="prepared")
+        try:
+            prep, resultants, saturated = _prepare_to_file(src, tmp, options)
+            result = fit_ramps(resultants, prep.read_times, read_noise=prep.read_noise,
+                               gain=prep.gain, fitter=fitter, saturated=saturated,
+                               jump_threshold=jump_threshold or None,
+                               refmask=prep.refmask, threads=options.threads)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
     cards = list(prep.cards)
     cards.insert(2, ("JUMPTHR", float(jump_threshold or 0.0),
                      "[sigma] jump threshold, 0=off"))

@@ -90,7 +90,7 @@ from noise.validate import check_float, check_int, check_mask, describe
 
 from scenesim.detector.nonlinearity import Nonlinearity
 
-__all__ = ["SaturationOptions", "saturation_flags"]
+__all__ = ["SaturationOptions", "saturation_flags", "zero_level_bound"]
 
 #: Flattening test: a resultant difference below this fraction of the increment
 #: expected from the ramp's earlier rate may be a saturated one.
@@ -164,7 +164,8 @@ class SaturationOptions:
         return float(self.nonlinearity.apply(min(fw, self.nonlinearity.q_hi)))
 
 
-def saturation_flags(e, tbar, options, *, t_last=None, n_reads=None, refmask=None):
+def saturation_flags(e, tbar, options, *, t_last=None, n_reads=None, refmask=None,
+                     zero_bound=None):
     """Boolean flags of saturated resultants, same shape as ``e`` (nints, nres, ny, nx).
 
     The three tests, the onset and the growth of the module notes.
@@ -185,6 +186,12 @@ def saturation_flags(e, tbar, options, *, t_last=None, n_reads=None, refmask=Non
     refmask : ndarray of bool, shape (ny, nx), keyword-only, optional
         Reference pixels: only the ADC ceiling is checked, and their zero levels
         are left out of the bound.
+    zero_bound : ndarray, shape (nints,), float32, e-, keyword-only, optional
+        The bound of the zero levels (module notes), when ``e`` is a block of rows
+        of a larger frame: :func:`zero_level_bound` of the whole frame's first two
+        resultants, so that the flags of each block are those of the whole frame
+        (the other tests are per pixel; growth needs ``grow`` rows of margin).
+        None: computed from ``e``.
 
     Returns
     -------
@@ -209,7 +216,8 @@ def saturation_flags(e, tbar, options, *, t_last=None, n_reads=None, refmask=Non
         last = e + slope[:, None] * lead[None, :, None, None]
     sat = last >= options.adc_ceiling_e
     if options.full_well > 0 and nres >= 2:
-        _full_well_flags(e, last, slope, sat, tbar, n_reads, refmask, options)
+        _full_well_flags(e, last, slope, sat, tbar, n_reads, refmask, options,
+                         zero_bound)
     sat = np.maximum.accumulate(sat, axis=1)          # once saturated, stay saturated
     if options.grow and sat.any():
         sat = _grown(sat, options.grow)
@@ -256,10 +264,13 @@ def _check_ramp_args(e, tbar, t_last, n_reads, refmask):
     return tbar, t_last, n_reads, refmask
 
 
-def _full_well_flags(e, last, slope, sat, tbar, n_reads, refmask, options):
+def _full_well_flags(e, last, slope, sat, tbar, n_reads, refmask, options, bound):
     """Level and flattening tests (module notes); update ``sat`` in place."""
     m_full = options.full_signal
-    zero = _zero_level(e, slope, tbar, refmask, options.nsigma)
+    zero = e[:, 0] - slope * np.float32(tbar[0])
+    if bound is None:
+        bound = _bound(zero, refmask, options.nsigma)
+    zero = np.minimum(zero, np.asarray(bound, np.float32)[:, None, None])
     above = last - zero[:, None]
     high = above >= np.float32(options.floor * m_full)
     level = above >= np.float32(options.fraction * m_full)
@@ -278,17 +289,41 @@ def _full_well_flags(e, last, slope, sat, tbar, n_reads, refmask, options):
             float(options.read_noise), options.nonlinearity, float(options.nsigma))
 
 
-def _zero_level(e, slope, tbar, refmask, nsigma):
-    """Zero level (nints, ny, nx) float32 of every ramp, bounded (module notes)."""
-    nints = e.shape[0]
-    zero = e[:, 0] - slope * np.float32(tbar[0])
+def zero_level_bound(first_two, tbar, *, refmask=None, nsigma=5.0):
+    """The bound of the zero levels of :func:`saturation_flags` (module notes).
+
+    Parameters
+    ----------
+    first_two : ndarray, shape (nints, 2, ny, nx), float, e-
+        The first two resultants of each integration, whole frames.
+    tbar : ndarray, shape (2,) or more, s
+        Mean read times of (at least) those two resultants.
+    refmask : ndarray of bool, shape (ny, nx), keyword-only, optional
+        Reference pixels, left out.
+    nsigma : float, keyword-only
+        As :attr:`SaturationOptions.nsigma`.
+
+    Returns
+    -------
+    ndarray, shape (nints,), float32, e-
+        Median zero level plus ``nsigma`` robust standard deviations.
+    """
+    e = np.asarray(first_two)
+    t = np.asarray(tbar, dtype=np.float64)
+    slope = np.maximum(e[:, 1] - e[:, 0], 0) / np.float32(t[1] - t[0])
+    return _bound(e[:, 0] - slope * np.float32(t[0]), refmask, nsigma)
+
+
+def _bound(zero, refmask, nsigma):
+    """Median plus ``nsigma`` robust standard deviations of the zero levels
+    (nints, ny, nx) of the regular pixels: (nints,) float32."""
+    nints = zero.shape[0]
     regular = None if refmask is None else ~refmask
     zs = zero.reshape(nints, -1) if regular is None or not regular.any() \
         else zero[:, regular]
     med = np.median(zs, axis=1)
     spread = 1.4826 * np.median(np.abs(zs - med[:, None]), axis=1)
-    bound = (med + nsigma * spread).astype(np.float32)
-    return np.minimum(zero, bound[:, None, None])
+    return (med + nsigma * spread).astype(np.float32)
 
 
 def _grown(sat, grow):

@@ -19,7 +19,10 @@ file: each block is ``nints x nres`` positioned reads (``os.preadv``, no memory
 map, so the pages read are not counted in the process's resident memory, and
 nothing is cached here), converted to float32 electrons.  :func:`exposure_rows`
 opens the ``SCI`` cube of an exposure file (:mod:`scenesim.io.exposure`: uint16 DN,
-BZERO 32768, big-endian) and :func:`npy_rows` a ``.npy`` file.
+BZERO 32768, big-endian) and :func:`npy_rows` a ``.npy`` file; :meth:`CubeRows.frames`
+reads whole frames.  :class:`NpyCube` is a float32 ``.npy`` cube that is also written
+in place, by frames or rows (the temporary cube of the streamed preparation of
+:func:`scenesim.calib.prepare.fit_exposure_file`).
 
 The values are those of the in-memory path to the last bit: ``DN.astype(float32) *
 float32(gain)`` as :func:`scenesim.calib.prepare.prepare_exposure` computes
@@ -36,7 +39,7 @@ from noise.validate import check_float, check_int
 
 from scenesim.io.exposure import _check_exposure
 
-__all__ = ["CubeRows", "exposure_rows", "npy_rows"]
+__all__ = ["CubeRows", "NpyCube", "exposure_rows", "npy_rows"]
 
 _F32 = np.float32
 
@@ -91,24 +94,36 @@ class CubeRows:
         y1 - y0, nx)`` of :attr:`dtype` (e- for integer data times the gain)."""
         nints, nres_file, ny, nx = self._file_shape
         nres = self.shape[1]
-        n = (y1 - y0) * nx
-        item = self._file_dtype.itemsize
-        raw = np.empty((nints, nres, n), self._file_dtype)
+        raw = np.empty((nints, nres, (y1 - y0) * nx), self._file_dtype)
         fd = os.open(self.path, os.O_RDONLY)
         try:
             for k in range(nints):
                 for r in range(nres):
-                    pos = self._offset + (((k * nres_file + r) * ny + y0) * nx) * item
-                    buf = memoryview(raw[k, r]).cast("B")
-                    got = os.preadv(fd, [buf], pos)
-                    while got < len(buf):          # short reads: continue
-                        more = os.preadv(fd, [buf[got:]], pos + got)
-                        if more == 0:
-                            raise FileFormatError(
-                                f"{self.path!r} ended while reading rows {y0}:{y1}")
-                        got += more
+                    _read_into(fd, raw[k, r], self._pos(k, r, y0), self.path)
         finally:
             os.close(fd)
+        return self._values(raw).reshape(nints, nres, y1 - y0, nx)
+
+    def frames(self, k, r0, r1):
+        """Resultants ``r0:r1`` of integration ``k``, whole frames: ndarray ``(r1 -
+        r0, ny, nx)`` of :attr:`dtype` (one positioned read: they are contiguous)."""
+        ny, nx = self.shape[2:]
+        raw = np.empty((r1 - r0, ny, nx), self._file_dtype)
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            _read_into(fd, raw, self._pos(k, r0, 0), self.path)
+        finally:
+            os.close(fd)
+        return self._values(raw)
+
+    def _pos(self, k, r, y):
+        """Byte position of row ``y`` of resultant ``r`` of integration ``k``."""
+        _, nres_file, ny, nx = self._file_shape
+        return self._offset + (((k * nres_file + r) * ny + y) * nx) \
+            * self._file_dtype.itemsize
+
+    def _values(self, raw):
+        """Stored values ``raw`` as :attr:`dtype`, with BZERO and the gain."""
         if self._file_dtype.kind in "iu":
             if self._file_dtype == np.dtype(">i2") and self._bzero == 32768:
                 # uint16 stored with BZERO: flip the sign bit, exactly the uint16 value
@@ -122,7 +137,68 @@ class CubeRows:
             out = raw.astype(self.dtype)
             if self._gain != 1:
                 out *= self.dtype.type(self._gain)
-        return out.reshape(nints, nres, y1 - y0, nx)
+        return out
+
+
+def _read_into(fd, arr, pos, path):
+    """Fill the contiguous ndarray ``arr`` from byte ``pos`` of the open file ``fd``."""
+    buf = memoryview(arr).cast("B")
+    got = 0
+    while got < len(buf):                      # short reads: continue
+        more = os.preadv(fd, [buf[got:]], pos + got)
+        if more == 0:
+            raise FileFormatError(f"{path!r} ended at byte {pos + got} while reading")
+        got += more
+
+
+class NpyCube(CubeRows):
+    """A float32 ``.npy`` cube ``(nints, nres, ny, nx)`` written and read in place.
+
+    :meth:`create` makes the file (sparse, zeros) and the object; frames and rows are
+    then written with positioned writes (``os.pwrite``) and read as a
+    :class:`CubeRows` (no memory map, so nothing of the file counts in the process's
+    resident memory).  The values read are those written, to the last bit.  The
+    caller removes the file.
+    """
+
+    @classmethod
+    def create(cls, path, shape):
+        """Create ``path`` holding a zero float32 cube of ``shape`` and return it."""
+        shape = tuple(int(v) for v in shape)
+        if len(shape) != 4 or min(shape) < 1:
+            raise ParameterError(f"'shape' must be 4 positive integers (nints, nres, "
+                                 f"ny, nx), got {shape!r}")
+        with open(path, "wb") as f:
+            np.lib.format.write_array_header_1_0(
+                f, {"descr": np.lib.format.dtype_to_descr(np.dtype("<f4")),
+                    "fortran_order": False, "shape": shape})
+            offset = f.tell()
+            f.truncate(offset + 4 * int(np.prod(shape)))
+        return cls(path, offset, shape, "<f4")
+
+    def write_frames(self, k, r0, values):
+        """Write ``values`` ``(n, ny, nx)`` as resultants ``r0:r0 + n`` of
+        integration ``k``."""
+        arr = np.ascontiguousarray(values, dtype="<f4")
+        self._write(arr, self._pos(k, r0, 0))
+
+    def write_rows(self, y0, values):
+        """Write ``values`` ``(nints, nres, n, nx)`` as rows ``y0:y0 + n`` of every
+        integration and resultant."""
+        arr = np.asarray(values, dtype="<f4")
+        for k in range(arr.shape[0]):
+            for r in range(arr.shape[1]):
+                self._write(np.ascontiguousarray(arr[k, r]), self._pos(k, r, y0))
+
+    def _write(self, arr, pos):
+        buf = memoryview(arr).cast("B")
+        fd = os.open(self.path, os.O_WRONLY)
+        try:
+            done = 0
+            while done < len(buf):
+                done += os.pwrite(fd, buf[done:], pos + done)
+        finally:
+            os.close(fd)
 
 
 def exposure_rows(path, *, gain=None, nres=None):

@@ -195,9 +195,11 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     fitter : {'gls', 'ols', 'cds'}
         Optimal generalised least squares, equal-weight least squares on resultants
         against mean read time, or last minus first usable resultant.
-    saturated : ndarray of bool, same shape as ``resultants``, optional
+    saturated : ndarray of bool, same shape as ``resultants``, or a row source, optional
         Saturated resultants; only resultants before the first saturated one of
-        each pixel and integration are used (flagged values may be NaN).
+        each pixel and integration are used (flagged values may be NaN).  A row
+        source (``shape`` that of ``resultants`` as 4-D, ``dtype`` bool) is read by
+        row blocks with the resultants.
     jump_threshold : float or None
         Jump detection threshold in sigma (> 0); ``None`` turns detection off.
     n_iter : int
@@ -301,6 +303,12 @@ def _check_resultants(resultants, saturated):
         src = _ArrayRows(_resultant_array(resultants))
     if saturated is None:
         return src, None
+    if _is_row_source(saturated):
+        if tuple(saturated.shape) != src.shape or np.dtype(saturated.dtype) != bool:
+            raise ParameterError(
+                f"'saturated' row source must give bool blocks of shape {src.shape}, "
+                f"got {np.dtype(saturated.dtype)} {tuple(saturated.shape)}")
+        return src, _SourceRows(saturated, src.shape, "saturated")
     sat = check_mask("saturated", saturated, src.shape if src.ndim == 4 else
                      src.shape[1:])
     return src, _ArrayRows(sat if sat.ndim == 4 else sat[None])
@@ -343,7 +351,7 @@ def _check_row_source(src):
     if np.dtype(src.dtype).kind not in "iuf":
         raise ParameterError(f"'resultants' row source must give real numbers (e-), "
                              f"got dtype {src.dtype}")
-    return _SourceRows(src, shape)
+    return _SourceRows(src, shape, "resultants")
 
 
 class _ArrayRows:
@@ -367,15 +375,16 @@ class _SourceRows:
 
     ndim = 4
 
-    def __init__(self, src, shape):
+    def __init__(self, src, shape, name):
         self.src, self.shape, self.dtype = src, shape, np.dtype(src.dtype)
         self.all_finite = bool(getattr(src, "all_finite", False))
+        self.name = name
 
     def rows(self, y0, y1):
         blk = np.asarray(self.src.rows(y0, y1))
         want = self.shape[:2] + (y1 - y0, self.shape[3])
         if blk.shape != want:
-            raise ParameterError(f"'resultants' row source gave shape {blk.shape} for "
+            raise ParameterError(f"{self.name!r} row source gave shape {blk.shape} for "
                                  f"rows {y0}:{y1}, expected {want}")
         return blk
 
