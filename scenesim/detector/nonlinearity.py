@@ -267,6 +267,7 @@ class Nonlinearity:
 
 
 _PASSES = 3   # linearisations of multi-read ramps: one plain, then two with the rate
+_PIXELS = 1 << 18  # pixels per block of the multi-read linearisation (2 MB images)
 
 
 def linearize_resultants(e, nl, tbar, *, read_times=None, saturated=None):
@@ -287,8 +288,9 @@ def linearize_resultants(e, nl, tbar, *, read_times=None, saturated=None):
     group's read times ``t_k``): without it a 6-read resultant 5.4e4 e- deep is read
     ``c2 f^2 var(t)`` = -14 e- low for ``c2`` = -8e-7.  It is 0 for one-read
     resultants, and when ``read_times`` is not given (one read at ``tbar`` assumed).
-    ``f`` is the least-squares slope of the linearised ramp over its unsaturated
-    resultants (0, no correction, with fewer than two); the ramp is linearised
+    ``f`` is the least-squares slope of the linearised ramp over its resultants
+    before the first one flagged ``saturated`` (0, no correction, with fewer than
+    two); the ramp is linearised
     ``_PASSES`` = 3 times, without ``delta`` and then with the rate of the previous
     pass.  The rate error of a pass scales the next one's by ``2 eps`` (``eps``: the
     relative slope error without the correction, 5.5e-4 for the Roman test window),
@@ -329,7 +331,9 @@ def linearize_resultants(e, nl, tbar, *, read_times=None, saturated=None):
         offset 0); their means must be ``tbar``.  Without it (or with one read per
         resultant) the result is that of one read per resultant.
     saturated : ndarray of bool, shape of ``e``, optional, keyword-only
-        Resultants left out of the rate and given no ``delta``.
+        Saturated resultants (sticky, as
+        :func:`scenesim.calib.saturation.saturation_flags` makes them): the rate
+        is fitted before the first one, and flagged resultants get no ``delta``.
 
     Returns
     -------
@@ -359,20 +363,24 @@ def linearize_resultants(e, nl, tbar, *, read_times=None, saturated=None):
     e = np.asarray(e, dtype=np.float32)
     lo, hi = nl.measured_range
     lo, hi = np.nextafter(lo, np.inf), np.nextafter(hi, -np.inf)   # strictly inside
+    out = np.empty_like(e)
     if (groups is None or nl.is_linear or e.shape[1] < 2
             or all(g.size == 1 for g in groups)):
-        out = np.empty_like(e)
-        _linearize(e, nl, tbar, lo, hi, [None] * e.shape[1], out)
+        _linearize(e, nl, tbar, lo, hi, out)
         return out
-    out = np.empty_like(e)
-    delta = [None] * e.shape[1]
-    for i in range(_PASSES):
-        rate = _linearize(e, nl, t, lo, hi, delta, out, saturated,
-                          want_rate=i < _PASSES - 1)
-        if rate is not None:
-            delta = [_group_excess(nl, rate, g, None if saturated is None
-                                   else saturated[:, r]) if g.size > 1 else None
-                     for r, g in enumerate(groups)]
+    # pixels are independent: blocks of rows keep the passes' float64 images small
+    nints, _, ny, nx = e.shape
+    rows = max(1, _PIXELS // (nints * nx))
+    for y0 in range(0, ny, rows):
+        sl = (slice(None), slice(None), slice(y0, y0 + rows))
+        sat = None if saturated is None else saturated[sl]
+        # resultants before the first flagged one give the rate (flags are sticky)
+        n_ok = None if sat is None else np.where(sat.any(axis=1), sat.argmax(axis=1),
+                                                  e.shape[1])
+        rate = None
+        for i in range(_PASSES):
+            rate = _linearize(e[sl], nl, t, lo, hi, out[sl], rate=rate, groups=groups,
+                              saturated=sat, n_ok=n_ok, want_rate=i < _PASSES - 1)
     return out
 
 
@@ -401,42 +409,58 @@ def _minus(x, d):
     return x if d is None else x - d
 
 
-def _linearize(e, nl, tbar, lo, hi, delta, out, saturated=None, want_rate=False):
-    """One linearisation of ``e`` into ``out`` with the excesses ``delta`` (None: 0);
-    returns the least-squares rate of the linearised ramps when ``want_rate``."""
+def _linearize(e, nl, tbar, lo, hi, out, *, rate=None, groups=None, saturated=None,
+               n_ok=None, want_rate=False):
+    """One linearisation of ``e`` into ``out``, with the excesses of the resultants
+    of ``groups`` at ``rate`` taken out (none when ``rate`` is None); returns the
+    least-squares rate of the linearised ramps over their first ``n_ok`` resultants
+    (all when None) when ``want_rate``.  Memory: a few (nints, ny, nx) float64
+    images; each excess is made when its resultant is inverted."""
+    def excess(r):
+        if rate is None or groups[r].size == 1:
+            return None
+        return _group_excess(nl, rate, groups[r],
+                             None if saturated is None else saturated[:, r])
+
+    nres = e.shape[1]
     r0 = e[:, 0].astype(np.float64)
     zero = r0
-    if e.shape[1] >= 2:
+    if nres >= 2:
         # extrapolate on the linearised scale: the raw ramp is curved, so a straight
         # line through R_0, R_1 misplaces z by ~ -2 c2 q_0^2; each pass shrinks the
         # error by a factor ~ c2 q (three passes: < 1e-6 e- for H2RG-like c2)
         r1 = e[:, 1].astype(np.float64)
+        d0, d1 = excess(0), excess(1)
         w = tbar[0] / (tbar[1] - tbar[0])
         for _ in range(4):
-            l0 = nl.invert(np.clip(_minus(r0 - zero, delta[0]), lo, hi))
-            l1 = nl.invert(np.clip(_minus(r1 - zero, delta[1]), lo, hi))
+            l0 = nl.invert(np.clip(_minus(r0 - zero, d0), lo, hi))
+            l1 = nl.invert(np.clip(_minus(r1 - zero, d1), lo, hi))
             zero = zero + l0 - np.maximum(l1 - l0, 0.0) * w
-    sums = None
-    for r in range(e.shape[1]):
-        m = np.clip(_minus(e[:, r] - zero, delta[r]), lo, hi)
+    if want_rate:
+        # least squares of q on tbar - tbar_0 (centred: no cancellation): the sums
+        # over the first n resultants of 1, t, t^2 are tables, those of q, t q images
+        tr = np.asarray(tbar, dtype=np.float64) - float(tbar[0])
+        s0 = np.arange(nres + 1, dtype=np.float64)
+        st = np.concatenate([[0.0], np.cumsum(tr)])
+        stt = np.concatenate([[0.0], np.cumsum(tr * tr)])
+        sq = np.zeros(e.shape[:1] + e.shape[2:])
+        stq = np.zeros_like(sq)
+    for r in range(nres):
+        m = np.clip(_minus(e[:, r] - zero, excess(r)), lo, hi)
         q = nl.invert(m)
         out[:, r] = q + zero
         if want_rate:
-            # least squares of q on tbar over the unsaturated resultants
-            wt = (np.ones(q.shape) if saturated is None
-                  else (~saturated[:, r]).astype(np.float64))
-            tr = float(tbar[r] - tbar[0])             # centred: no cancellation
-            if sums is None:
-                sums = [np.zeros(q.shape) for _ in range(5)]
-            for s, v in zip(sums, (wt, wt * tr, wt * tr * tr, wt * q, wt * tr * q)):
-                s += v
+            if n_ok is not None:
+                q = np.where(r < n_ok, q, 0.0)
+            sq += q
+            stq += tr[r] * q
     if not want_rate:
         return None
-    s0, st, stt, sq, stq = sums
+    n = nres if n_ok is None else n_ok
+    s0, st, stt = s0[n], st[n], stt[n]
     den = s0 * stt - st * st
     with np.errstate(divide="ignore", invalid="ignore"):
-        rate = np.where(den > 0, (s0 * stq - st * sq) / den, 0.0)
-    return rate
+        return np.where(den > 0, (s0 * stq - st * sq) / den, 0.0)
 
 
 def _group_excess(nl, rate, times, saturated):

@@ -112,6 +112,26 @@ def test_saturated_resultants_get_no_excess_and_leave_the_rate_out():
     assert abs(raw[0, 1, 0, 0] - f * tbar[1]) > 0.05
 
 
+def test_blocks_of_rows_give_the_same_result(monkeypatch):
+    # pixels are independent: blocks of 7 rows (the last one short) equal one block
+    # to float32 round-off (the Newton solver stops per block)
+    import scenesim.detector.nonlinearity as mod
+    nl = Nonlinearity((C2,))
+    groups = [np.arange(a, a + n) + 1.0 for a, n in TABLE]
+    tbar = np.array([g.mean() for g in groups])
+    rng = np.random.default_rng(9)
+    f = rng.uniform(0.0, 2500.0, (2, 30, 11))
+    r = np.stack([1000.0 + np.mean([nl.apply(f * tk) for tk in g], axis=0)
+                  + rng.normal(0.0, 5.0, f.shape) for g in groups],
+                 axis=1).astype(np.float32)
+    sat = np.zeros(r.shape, bool)
+    sat[:, 3, :5] = True
+    whole = linearize_resultants(r, nl, tbar, read_times=groups, saturated=sat)
+    monkeypatch.setattr(mod, "_PIXELS", 2 * 7 * 11)
+    blocks = linearize_resultants(r, nl, tbar, read_times=groups, saturated=sat)
+    np.testing.assert_allclose(blocks, whole, rtol=0, atol=0.01)
+
+
 def test_bad_read_times_and_flags_are_refused():
     nl = Nonlinearity((C2,))
     e = np.zeros((1, 2, 4, 4), np.float32)
