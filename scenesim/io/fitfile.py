@@ -41,7 +41,8 @@ from noise.errors import FileFormatError, ParameterError
 from noise.fitsio import atomic_file, check_output_name, input_path, open_fits
 from noise.validate import check_writable
 
-from scenesim.io.header import check_file_kind, filetype_card, nextend_card
+from scenesim.io.header import (check_file_kind, dms_to_detector, filetype_card,
+                                nextend_card)
 from scenesim.pipelines.products import is_asdf, read_roman_l2
 
 __all__ = ["FitResult", "write_fit", "read_fit", "read_slopes", "fit_arrays"]
@@ -310,6 +311,8 @@ def read_slopes(path, *, gain=None):
             else:
                 var = np.asarray(hdul["ERR"].data, dtype=np.float64) ** 2
             dq = np.asarray(hdul["DQ"].data).astype(np.uint32)
+            # a NIRSpec file in the DMS frame (IRS2): back to the detector's
+            sci, var, dq = (dms_to_detector(a, hdul[0].header) for a in (sci, var, dq))
             if sci.ndim == 3:                   # a rateints file: one plane per int
                 sci, var, dq = _combine_integrations(sci, var, dq)
                 layout = "jwst-rateints"

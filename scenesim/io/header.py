@@ -67,7 +67,7 @@ __all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
            "header_psf", "exposure_settings", "preparation_cards",
            "header_ipc_deconvolved", "FILETYPES", "filetype_card", "nextend_card",
            "file_kind", "check_file_kind", "instrument_cards", "header_instrument",
-           "header_jwst_steps"]
+           "header_jwst_steps", "dms_to_detector"]
 
 
 #: Exposure header keywords copied into the header of a fit.
@@ -457,6 +457,21 @@ def header_jwst_steps(header):
     """
     return {step for key, step in JWST_STEP_KEYWORDS.items()
             if str(header.get(key, "")).strip().upper() == "COMPLETE"}
+
+
+def dms_to_detector(array, header):
+    """``array`` (..., ny, nx) of a JWST file back in scenesim's detector orientation,
+    from the file's ``FASTAXIS``/``SLOWAXIS``: ``(2, 1)`` (NIRSpec NRS1 in the DMS
+    frame: scenesim's IRS2 uncal and what Detector1 makes of it) is transposed,
+    ``(-2, -1)`` (NRS2) reversed on both axes and transposed (the inverse of
+    :func:`scenesim.pipelines.jwst.irs2_to_dms`); any other pair (scenesim's own
+    ``(1, 2)``, or none) is returned as it is."""
+    axes = (header.get("FASTAXIS"), header.get("SLOWAXIS"))
+    if axes == (2, 1):
+        return np.swapaxes(array, -1, -2)
+    if axes == (-2, -1):
+        return np.swapaxes(array[..., ::-1, ::-1], -1, -2)
+    return array
 
 
 def instrument_cards(instrument):

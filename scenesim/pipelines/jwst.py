@@ -44,7 +44,9 @@ the four outputs' 512 normal and 128 interleaved columns each), turned into the 
 orientation that code expects (``jwst.refpix.irs2_subtract_reference.correct_model``
 swaps the axes back for ``NRS1``; for ``NRS2`` it also flips both): shape (nints,
 ngroups, 3200, 2048) with ``FASTAXIS = 2``, ``SLOWAXIS = 1`` (NRS1; NRS2: ``-2``,
-``-1``), ``SUBSIZE1 = 2048``, ``SUBSIZE2 = 3200``, ``NRS_NORM``/``NRS_REF`` from the
+``-1``), ``SUBSIZE1 = SUBSIZE2 = 2048`` (the image's size: jwst's
+``reffile_utils.ref_matches_sci`` accepts 3200 rows of data under ``SUBSIZE2 = 2048``,
+so IRS2 references of either height match), ``NRS_NORM``/``NRS_REF`` from the
 detector's interleave; ``PIXELDQ``/``GROUPDQ`` of that shape.  Only the full frame
 (jwst's IRS2 code and NIRSpec read IRS2 only in full frame).  Such an uncal is not a
 scenesim exposure: keep the exposure file for scenesim's own fits.
@@ -76,12 +78,31 @@ engine's kernel, 5x5, :func:`scenesim.pipelines.reffiles.ipc_inverse_kernel`; th
 superbias is the bias after that same convolution, since the ``ipc`` step runs before
 ``superbias``). Each is validated with ``strict_validation=True`` when it is written.
 
+IRS2 (an interleaved detector, :func:`check_irs2_detector`): the references are for
+Detector1 on the IRS2 uncal, so they are in its DMS orientation (:func:`irs2_to_dms`,
+``FASTAXIS``/``SLOWAXIS`` as the uncal's), and the two that act before ``refpix``
+strips the interleaved samples are in the raw IRS2 layout, 3200 x 2048 (jwst's
+``dq_init`` ORs and ``superbias`` subtracts them as they are): ``mask`` (the image's
+DQ on the normal samples, ``REFERENCE_PIXEL`` on the interleaved and
+reference-output ones) and ``superbias`` (the image's bias on the normal samples,
+:attr:`~scenesim.pipelines.reffiles.DetectorReference.raw_level` on the others).
+``saturation`` stays 2048 x 2048: jwst's IRS2 saturation code
+(``irs2_flag_saturation``) compares only the normal samples, and takes the bias of
+its group-2 check from the IRS2 superbias.  ``refpix`` is the IRS2 file
+(:func:`write_irs2_reference`); the others act after ``refpix``, on the 2048 x 2048
+image; ``ipc`` (which jwst applies to the normal samples only) is the inverse kernel
+turned into the DMS frame too.
+
 Detector1 offline (:func:`run_detector1`)
 ----------------------------------------
 CRDS is never contacted: the process gets an empty local CRDS cache
 (``CRDS_PATH``), an unreachable server (``CRDS_SERVER_URL``), ``CRDS_MODE=local``, and
 ``STPIPE_DISABLE_CRDS_STEPPARS`` (no parameter references); the pipeline does not
 prefetch references, and each step that needs one gets its ``override_<type>``.
+An IRS2 uncal runs the same steps, ``refpix`` with its IRS2 algorithm and the
+``refpix`` reference (the references must be the IRS2 ones of
+:func:`write_reference_files`); the rate file is then in the DMS frame, which
+:func:`scenesim.io.header.dms_to_detector` turns back for ``compare``.
 Steps with no scenesim reference are skipped: ``persistence``, ``charge_migration``,
 ``picture_frame`` and ``clean_flicker_noise`` (also skipped by the pipeline's own
 defaults), ``emicorr``, ``rscd``, ``firstframe``, ``lastframe`` and ``reset`` (MIRI
@@ -104,6 +125,7 @@ from noise.fitsio import atomic_path
 from noise.validate import check_writable
 
 from scenesim.adapters.stcal import stcal_read_noise
+from scenesim.detector.dq import REFERENCE_PIXEL
 from scenesim.io.exposure import Exposure
 from scenesim.io.header import header_instrument, readout_from_table
 from scenesim.pipelines.instrument import resolve_instrument
@@ -315,7 +337,6 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     if irs2:
         ex.nrs_normal = det.interleave.normal
         ex.nrs_reference = det.interleave.reference
-        sub.xsize, sub.ysize = data.shape[-1], data.shape[-2]
         sub.fastaxis, sub.slowaxis = (2, 1) if ident["detector"] == "NRS1" else (-2, -1)
     mjd0 = start.mjd
     cols = [f"int_{when}_{scale}" for scale in ("MJD_UTC", "BJD_TDB")
@@ -381,6 +402,9 @@ def _save_fits(model, path, overwrite):
 
 # ------------------------------------------------------------------ reference files
 def _ref_meta(model, reftype, ident, det, description):
+    axes = (1, 2)
+    if det.interleave is not None:          # IRS2: the uncal's DMS frame
+        axes = (2, 1) if ident["detector"] == "NRS1" else (-2, -1)
     meta = model.meta
     meta.reftype = reftype.upper()
     meta.description = description
@@ -394,7 +418,7 @@ def _ref_meta(model, reftype, ident, det, description):
         meta.subarray.name = ident["subarray"]
         meta.subarray.xstart, meta.subarray.ystart = det.x0 + 1, det.y0 + 1
         meta.subarray.xsize, meta.subarray.ysize = det.nx, det.ny
-        meta.subarray.fastaxis, meta.subarray.slowaxis = 1, 2
+        meta.subarray.fastaxis, meta.subarray.slowaxis = axes
     except AttributeError:
         pass
     try:
@@ -445,27 +469,44 @@ def write_reference_files(reference, readout, t_frame, directory, *, instrument=
     f32 = np.float32
     dq0 = np.zeros(shape, dtype=np.uint32)
     nc = reference.linearity.size
+    if det.interleave is not None:          # IRS2: DMS frame, raw layout before refpix
+        check_irs2_detector(det, ident["detector"])
+
+        def img(a):
+            return irs2_to_dms(a, ident["detector"])
+
+        def raw(a, fill):
+            return irs2_to_dms(_raw_layout(det, a, fill), ident["detector"])
+    else:
+        def img(a):
+            return a
+
+        def raw(a, fill):
+            return a
+    raw_shape = raw(dq0, 0).shape
     makers = {
         "gain": lambda: (dm.GainModel(data=np.full(shape, g, dtype=f32)),
                          "gain (e-/DN) of the simulated ADC"),
-        "readnoise": lambda: (dm.ReadnoiseModel(data=np.asarray(
-            stcal_read_noise(reference.read_noise, g), dtype=f32)),
+        "readnoise": lambda: (dm.ReadnoiseModel(data=img(np.asarray(
+            stcal_read_noise(reference.read_noise, g), dtype=f32))),
             "white read noise: CDS of two frames, DN"),
         "saturation": lambda: (dm.SaturationModel(
-            data=(reference.saturation / g).astype(f32), dq=dq0.copy()),
+            data=img((reference.saturation / g).astype(f32)), dq=dq0.copy()),
             "full-well level, raw DN with bias"),
         "superbias": lambda: (dm.SuperBiasModel(
-            data=(_superbias(reference) / g).astype(f32), err=np.zeros(shape, dtype=f32),
-            dq=dq0.copy()), "mean reset level (bias), DN"),
+            data=raw(_superbias(reference) / g, reference.raw_level / g).astype(f32),
+            err=np.zeros(raw_shape, dtype=f32),
+            dq=np.zeros(raw_shape, dtype=np.uint32)), "mean reset level (bias), DN"),
         "linearity": lambda: (dm.LinearityModel(
             coeffs=np.broadcast_to(reference.linearity.astype(f32)[:, None, None],
                                    (nc,) + shape).copy(), dq=dq0.copy()),
             "inverse of the simulated nonlinearity"),
-        "dark": lambda: (_dark_model(dm, reference, readout, t_frame),
+        "dark": lambda: (_dark_model(dm, reference, readout, t_frame, img),
                          "dark current and hot pixels, DN per group"),
-        "mask": lambda: (dm.MaskModel(dq=reference.mask.astype(np.uint32)),
+        "mask": lambda: (dm.MaskModel(dq=raw(reference.mask.astype(np.uint32),
+                                              REFERENCE_PIXEL).astype(np.uint32)),
                          "reference and hot pixels"),
-        "ipc": lambda: (dm.IPCModel(data=reference.ipc_inverse.astype(f32)),
+        "ipc": lambda: (dm.IPCModel(data=img(reference.ipc_inverse.astype(f32))),
                         "IPC correction: inverse kernel, convolved"),
     }
     for t in types:
@@ -559,14 +600,26 @@ def _superbias(reference):
                          reference.detector.reference_mask())
 
 
-def _dark_model(dm, reference, readout, t_frame):
+def _raw_layout(det, image, fill):
+    """``image`` (ny, nx) in the raw layout of ``det`` (:meth:`noise.clock.Detector.
+    raw_columns`), (ny, raw_nx): each normal sample its pixel's value, every other
+    (interleaved reference, reference output) ``fill``."""
+    _, _, image_x = det.raw_columns()
+    out = np.full((image.shape[0], image_x.size), fill, dtype=np.asarray(image).dtype)
+    normal = image_x >= 0
+    out[:, normal] = image[:, image_x[normal]]
+    return out
+
+
+def _dark_model(dm, reference, readout, t_frame, orient=lambda a: a):
     """DarkModel in the exposure's MULTIACCUM pattern: group ``g`` is the mean over
-    its reads ``k`` of ``dark * (k + 1) * t_frame / gain`` (DN)."""
+    its reads ``k`` of ``dark * (k + 1) * t_frame / gain`` (DN); ``orient`` turns an
+    image into the file's frame (IRS2: :func:`irs2_to_dms`)."""
     mean_k = np.array([np.mean(np.asarray(r, dtype=np.float64) + 1.0)
                        for r in readout.resultants])
     cube = (mean_k[:, None, None] * (float(t_frame) / reference.gain)) \
         * reference.dark[None, :, :]
-    model = dm.DarkModel(data=cube.astype(np.float32),
+    model = dm.DarkModel(data=orient(cube.astype(np.float32)),
                          err=np.zeros(cube.shape, dtype=np.float32),
                          dq=np.zeros(reference.detector.shape, dtype=np.uint32))
     model.meta.exposure.nframes = int(readout.nframes)
@@ -627,10 +680,8 @@ def irs2_refpix_exposure(uncal, refpix_reference, exposure, **step_pars):
     (``scenesim.calib.prepare.fit_exposure_file(..., options=PrepareOptions(refpix=
     'none'))``) and ``scenesim compare`` grades.
 
-    Only this step of Detector1 runs: the steps before it need NIRSpec's IRS2-format
-    (3200 x 2048) mask and superbias, which scenesim does not write
-    (:func:`run_detector1` refuses an IRS2 uncal); after it the data are a 2048 x 2048
-    ramp.  ``PIXELDQ``/``GROUPDQ`` start at 0 (scenesim's fit flags saturation from
+    Only this step of Detector1 runs (:func:`run_detector1` runs all of them): its
+    corrected ramp, 2048 x 2048, for scenesim's own fitters.  ``PIXELDQ``/``GROUPDQ`` start at 0 (scenesim's fit flags saturation from
     the data).
 
     Parameters
@@ -681,6 +732,25 @@ def irs2_refpix_exposure(uncal, refpix_reference, exposure, **step_pars):
     return Exposure(sci, exp.header, exp.reads, f"{os.fspath(uncal)} (jwst refpix IRS2)")
 
 
+def _check_irs2_references(uncal, references):
+    """Raise unless ``references`` are the IRS2 ones (module notes): a ``refpix``
+    reference and a 3200 x 2048 (raw IRS2 layout) mask and superbias."""
+    from astropy.io import fits
+    if "refpix" not in references:
+        raise ParameterError(
+            f"'uncal' {os.fspath(uncal)!r} is an IRS2 uncal: 'references' needs the IRS2 "
+            f"'refpix' reference (write_reference_files of the IRS2 detector writes it)")
+    for t, ext in (("mask", "DQ"), ("superbias", "SCI")):
+        h = fits.getheader(os.fspath(references[t]), ext)
+        shape = (h.get("NAXIS2"), h.get("NAXIS1"))
+        if shape != (3200, 2048):
+            raise ParameterError(
+                f"'uncal' {os.fspath(uncal)!r} is an IRS2 uncal: its {t} reference "
+                f"{os.fspath(references[t])!r} must be in the raw IRS2 layout (3200 x "
+                f"2048, DMS), got {shape[0]} x {shape[1]} (write_reference_files of the "
+                f"IRS2 detector writes it)")
+
+
 def detector1_products(uncal, output_dir):
     """``{'rate': path, 'rateints': path}`` that Detector1 writes for ``uncal`` in
     ``output_dir`` (the stem without ``_uncal``)."""
@@ -720,12 +790,7 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
         ``rate`` and ``rateints`` paths (``rateints`` None when not written).
     """
     from astropy.io import fits
-    if "NRS_NORM" in fits.getheader(os.fspath(uncal)):
-        raise ParameterError(
-            f"'uncal' {os.fspath(uncal)!r} is an IRS2 uncal: Detector1's steps before "
-            f"refpix need NIRSpec's IRS2-format (3200 x 2048) mask and superbias, which "
-            f"scenesim does not write; run jwst's refpix step alone "
-            f"(scenesim.pipelines.jwst.irs2_refpix_exposure) and fit its output")
+    irs2 = "NRS_NORM" in fits.getheader(os.fspath(uncal))
     products = detector1_products(uncal, output_dir)
     if os.path.isdir(output_dir):
         for path in products.values():
@@ -735,6 +800,8 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
     if missing:
         raise ParameterError(f"'references' lacks {missing}; write them with "
                              f"write_reference_files")
+    if irs2:
+        _check_irs2_references(uncal, references)
     cfg = {name: {"skip": True} for name in SKIPPED_STEPS}
     for step, reftypes in (("dq_init", ("mask",)),
                            ("saturation", ("saturation", "superbias")),

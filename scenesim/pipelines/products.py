@@ -118,9 +118,11 @@ def subtracted_dark_rate(header, t_frame, gain):
             rate = np.asarray(m.dark_slope, dtype=np.float64) * float(gain)
         return rate, (f"the pipeline subtracted the dark {os.path.basename(path)}: "
                       f"compared with the truth minus its rate")
+    from scenesim.io.header import dms_to_detector
     with fits.open(path) as hdul:
-        sci = np.asarray(hdul["SCI"].data, dtype=np.float64)
         h = hdul[0].header
+        # a dark in the DMS frame (NIRSpec IRS2): back to the detector's orientation
+        sci = dms_to_detector(np.asarray(hdul["SCI"].data, dtype=np.float64), h)
         nframes, groupgap = int(h.get("NFRAMES", 1)), int(h.get("GROUPGAP", 0))
     if sci.ndim != 3 or sci.shape[0] < 2:
         raise FileFormatError(f"dark reference {path!r}: SCI must be (ngroups >= 2, ny, "

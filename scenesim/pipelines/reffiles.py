@@ -52,6 +52,11 @@ What each reference holds, and how it follows from the forward model of
   (:func:`scenesim.sky.rates.scene_rates` draws them from the scene seed's
   ``HOT_PIXELS`` stream); 0 on reference pixels.  It is the dark *before* IPC: the
   pipeline subtracts it after undoing IPC.
+* **raw level** (e-, ``raw_level``): the mean level of the raw samples that are not
+  image pixels (IRS2's interleaved reference samples, the reference output): the
+  constant ``bias_offset`` (:mod:`noise.generator`: the templates and kTC are maps
+  of the image's pixels, and a reference sample's kTC has mean 0).  A pipeline that
+  subtracts a bias from the raw samples (JWST's IRS2 ``superbias``) needs it.
 * **mask** (DQ bits, JWST values): ``REFERENCE_PIXEL`` on the reference border,
   ``HOT`` on hot pixels (flagged, still fitted: not ``DO_NOT_USE``).
 * **IPC kernel**: the engine's 3x3 kernel, ``k[1 + dy, 1 + dx]`` the fraction of a
@@ -115,6 +120,9 @@ class DetectorReference:
         :func:`ipc_inverse_kernel` of ``ipc_kernel``.
     adc_top : int
         Highest ADC code.
+    raw_level : float
+        Mean level (e-) of the raw samples that are not image pixels (interleaved
+        reference samples, reference output): ``bias_offset``; 0 without noise.
     """
 
     detector: object
@@ -130,6 +138,7 @@ class DetectorReference:
     ipc_kernel: np.ndarray
     ipc_inverse: np.ndarray
     adc_top: int
+    raw_level: float = 0.0
 
     @property
     def has_ipc(self):
@@ -349,4 +358,5 @@ def detector_reference(scene, engine):
                              nonlinearity=nonlinearity_coefficients(nl, gain),
                              dark=dark, mask=mask,
                              ipc_kernel=kernel, ipc_inverse=ipc_inverse_kernel(kernel),
-                             adc_top=top)
+                             adc_top=top,
+                             raw_level=0.0 if params is None else float(params.bias_offset))
