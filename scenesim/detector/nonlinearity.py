@@ -303,13 +303,17 @@ def linearize_resultants(e, nl, tbar, *, read_times=None, saturated=None):
     ``f^2 var(t) + f (tbar - tau)`` (``tau = (1/n^2) sum_jk min(t_j, t_k)``, from the
     random walk's covariance ``f min(t_j, t_k)``).  ``delta`` removes the first term;
     the second, ``c2 f (tbar - tau)`` = ``c2 f dt (n^2 - 1) / (6 n)`` for ``n`` reads
-    ``dt`` apart, is a fraction ``2 / (n f dt)`` of the first: +1.9e-3 e- for the
-    6-read resultant above (``f dt`` = 2.5e3 e-), 1e-5 of its noise.  The rate's own
+    ``dt`` apart, is a fraction ``2 / (n f dt)`` of the first: -1.9e-3 e- for the
+    6-read resultant above (``f dt`` = 2.5e3 e-), 1e-5 of its noise (a Monte Carlo
+    of the random walk agrees; with ``c3`` read ``c2 + 3 c3 q`` for ``c2``).  The
+    rate's own
     noise ``sigma_f`` enters as ``2 c2 f var(t) delta_f`` (zero mean) plus ``c2
     var(t) sigma_f^2``, far smaller still.  With a global reset the pixel's clock
     offset shifts every ``t_k`` (``read_times`` are those of a pixel at offset 0);
-    ``delta`` moves by ``3 c3 f^3 var(t)`` per second of offset, which ``c3`` of
-    -2e-12 makes < 1e-3 e-.
+    the ``c2`` part of ``delta`` does not depend on it, the ``c3`` part moves by
+    ``3 c3 f^3 var(t)`` per second of offset: -2.2 e-/s for the 6-read resultant
+    above with ``c3`` = -2e-12, up to -0.27 e- for an offset of one frame time
+    (1e-3 of its noise).  Not corrected.
 
     ``e`` must be free of IPC, which the engine applies
     after the nonlinearity: :func:`prepare_exposure` undoes it first
