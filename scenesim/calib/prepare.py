@@ -111,6 +111,7 @@ from scenesim.calib.saturation import (SaturationOptions, saturation_flags,
                                        zero_level_bound)
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
 from scenesim.detector.nonlinearity import linearize_resultants
+from scenesim.detector.nonlinearity import _PIXELS as _LINEARIZE_PIXELS  # its blocks
 from scenesim.detector.readout import Readout
 from scenesim.io.cuberows import NpyCube, exposure_rows
 from scenesim.io.exposure import Exposure, raw_resultants, read_exposure_header
@@ -518,7 +519,11 @@ def _row_blocks(ny, per_row):
 
 def _gather_rows(cube, rows):
     """Rows ``rows`` of every integration and resultant of ``cube``, stacked."""
-    return np.concatenate([cube.rows(y, y + 1) for y in rows], axis=2)
+    nints, nres, _, nx = cube.shape
+    out = np.empty((nints, nres, len(rows), nx), cube.dtype)
+    for i, y in enumerate(rows):
+        out[:, :, i:i + 1] = cube.rows(y, y + 1)
+    return out
 
 
 def _prepare_to_file(src, path, options):
@@ -581,7 +586,7 @@ def _prepare_to_file(src, path, options):
     # 5: linearisation, per resultant over all integrations, zero from 0 and 1
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:
-        _linearize_file(cube, nl, tbar)
+        _linearize_file(cube, nl, tbar, ro.read_times(t_frame), first)
     if ro.reset_mode == "global":
         times = ro.read_times(t_frame, det.pixel_time())
     else:
@@ -632,11 +637,22 @@ def _saturation_by_rows(src, cube, hdr, cfg, ro, tbar, kernel, decon, rdn, refma
     return first
 
 
-def _linearize_file(cube, nl, tbar):
+def _linearize_file(cube, nl, tbar, groups, first):
     """Step 5 on the cube file: :func:`linearize_resultants` of resultants 0 and 1
     with a batch of the others, so that each resultant is inverted over the same
-    whole frames (every integration) with the same zero level as on the whole cube."""
+    whole frames (every integration) with the same zero level as on the whole cube.
+    With multi-read resultants (``groups``: the read times) each pixel's whole ramp
+    is needed (its rate): blocks of rows, of the size the function itself works in,
+    so the bits are those of the whole cube; ``first``: first saturated resultant."""
     nints, nres, ny, nx = cube.shape
+    if not nl.is_linear and any(np.size(g) > 1 for g in groups):
+        rows = max(1, _LINEARIZE_PIXELS // (nints * nx))
+        for y0 in range(0, ny, rows):
+            y1 = min(y0 + rows, ny)
+            sat = np.arange(nres)[None, :, None, None] >= first[:, None, y0:y1]
+            cube.write_rows(y0, linearize_resultants(
+                cube.rows(y0, y1), nl, tbar, read_times=groups, saturated=sat))
+        return
     tbar = np.asarray(tbar)
     batch = max(2, _LINEARIZE_VALUES // (nints * ny * nx))
     head = np.stack([cube.frames(k, 0, 2) for k in range(nints)])

@@ -9,6 +9,8 @@ of the read times) for ``p(q) = q + c2 q^2``, so inverting ``R`` as one read lea
 storage, the ADC's rounding), bounded next to each assertion.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -193,6 +195,10 @@ def test_noise_free_engine_ramps_prepare_to_rate_times_mean_time():
 
 
 # ---------------------------------------------------------------- Roman window
+_ROMAN_PREP = PrepareOptions(refpix="none", remove_common_mode=False,
+                             measure_noise=False)
+
+
 def _roman_window_pulls(tmp_path, linearize):
     """(slope - truth) / sigma of the GLS fit of the Roman nonlinear test window
     (tests/data/pipelines/roman_nonlinear.toml: 6-resultant MA table of 1-6 reads,
@@ -211,9 +217,8 @@ def _roman_window_pulls(tmp_path, linearize):
     cfg["noise"] = {"preset": "none", "rd_noise": 10.0, "bias_offset": 5000.0}
     cfg["output"] = {"path": str(tmp_path / "r.fits"), "truth": True}
     run_scene(parse_scene(cfg), progress=False)
-    opts = PrepareOptions(refpix="none", remove_common_mode=False,
-                          measure_noise=False, linearize=linearize)
-    p = prepare_exposure(str(tmp_path / "r.fits"), options=opts)
+    p = prepare_exposure(str(tmp_path / "r.fits"), options=_ROMAN_PREP if linearize
+                         else replace(_ROMAN_PREP, linearize=False))
     e = p.electrons
     if not linearize:      # the former treatment: each resultant one read at tbar
         e = linearize_resultants(e, Nonlinearity(tuple(cfg["effects"]["nonlinearity"])),
@@ -234,3 +239,20 @@ def test_gls_slopes_of_the_roman_nonlinear_window_are_unbiased(tmp_path):
     z = _roman_window_pulls(tmp_path, linearize=True)
     assert z.size == 3600
     assert abs(z.mean()) < 5 / np.sqrt(z.size)
+
+
+def test_the_streamed_fit_linearises_as_prepare_exposure(tmp_path):
+    # fit_exposure_file prepares the exposure in a file, by blocks; with multi-read
+    # resultants its linearisation must take the excess out as prepare_exposure does
+    # (same blocks of rows, so the same bits): the slopes are equal
+    from scenesim.calib.prepare import fit_exposure_file
+    from scenesim.rampfit.fitter import fit_ramps
+    _roman_window_pulls(tmp_path, linearize=True)
+    path = str(tmp_path / "r.fits")
+    p = prepare_exposure(path, options=_ROMAN_PREP)
+    mem = fit_ramps(p.electrons, p.read_times, read_noise=p.read_noise, gain=p.gain,
+                    saturated=p.saturated, refmask=p.refmask, jump_threshold=5.0,
+                    threads=1)
+    streamed = fit_exposure_file(path, str(tmp_path / "s.fits"),
+                                 options=replace(_ROMAN_PREP, threads=1))
+    np.testing.assert_array_equal(streamed.slope, mem.slope)
