@@ -147,6 +147,13 @@ def test_bad_read_times_and_flags_are_refused():
     with pytest.raises(ParameterError, match="'saturated'"):
         linearize_resultants(e, nl, tbar, read_times=[[1.0], [2.0, 3.0]],
                              saturated=np.zeros((1, 2, 4, 4)))
+    with pytest.raises(ParameterError, match="'read_times'"):
+        linearize_resultants(e, nl, tbar, read_times=5)
+    with pytest.raises(ParameterError, match="'read_times'"):
+        linearize_resultants(e, nl, tbar, read_times=["a", "b"])
+    with pytest.raises(ParameterError, match="'saturated'"):
+        linearize_resultants(e, nl, tbar, read_times=[[1.0], [2.0, 3.0]],
+                             saturated="x")
 
 
 # ---------------------------------------------------------------- engine
