@@ -91,6 +91,13 @@ def test_bad_irs2_requests(irs2_exposure, tmp_path):
         "gain", "readnoise", "saturation", "superbias", "linearity", "dark", "mask")}
     with pytest.raises(ParameterError, match="IRS2 'refpix' reference"):
         jwst.run_detector1(uncal, refs, os.fspath(tmp_path))
+    # ... and with a refpix reference but an image-layout (2048 x 2048) mask
+    from astropy.io import fits
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.zeros((2048, 2048), np.uint8),
+                                                   name="DQ")]).writeto(refs["mask"])
+    refs["refpix"] = os.fspath(tmp_path / "refpix.fits")
+    with pytest.raises(ParameterError, match="mask reference .* raw IRS2 layout"):
+        jwst.run_detector1(uncal, refs, os.fspath(tmp_path))
     with pytest.raises(ParameterError, match="full 2048 x 2048 frame"):
         jwst.write_irs2_reference(DET.stripe(0, 64), os.fspath(tmp_path / "r.fits"))
     small = preset("NIRSPEC-IRS2", naxis1=256, naxis2=64)
