@@ -100,8 +100,8 @@ import numpy as np
 from astropy.io import fits
 
 from noise.clock import Detector, detector_from_header
-from noise.errors import ParameterError
-from noise.fitsio import input_path, temp_file
+from noise.errors import ParameterError, ScenesimError
+from noise.fitsio import input_path, output_error, temp_file
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
 from scenesim.calib.noise_model import common_mode, measure_read_noise
@@ -746,9 +746,17 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
                            jump_threshold=jump_threshold or None,
                            refmask=prep.refmask, threads=options.threads)
     else:
-        tmp = temp_file(output, tag="prepared")
         try:
-            prep, resultants, saturated = _prepare_to_file(src, tmp, options)
+            tmp = temp_file(output, tag="prepared")
+        except OSError as exc:
+            raise output_error(output, exc) from exc
+        try:
+            try:
+                prep, resultants, saturated = _prepare_to_file(src, tmp, options)
+            except OSError as exc:        # the temporary cube: disk full, size limit
+                if isinstance(exc, ScenesimError):
+                    raise
+                raise output_error(output, exc) from exc
             result = fit_ramps(resultants, prep.read_times, read_noise=prep.read_noise,
                                gain=prep.gain, fitter=fitter, saturated=saturated,
                                jump_threshold=jump_threshold or None,
