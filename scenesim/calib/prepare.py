@@ -711,7 +711,10 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
         the same contents in memory (e.g. ``write_exposure(engine, None)
         ["exposure"]``).
     output : str or os.PathLike
-        Slope file (see :func:`scenesim.io.fitfile.write_fit`).
+        Slope file (see :func:`scenesim.io.fitfile.write_fit`).  While fitting, the
+        prepared resultants are kept in a temporary file beside it (float32: 4
+        bytes per sample, twice the exposure's ``SCI``), removed on return (module
+        notes, "Memory of a fit"); not for ``'irs2'`` or a compressed exposure.
     fitter : {'cds', 'ols', 'gls'}
     jump_threshold : float or None
         Jump detection in sigma; 0 or None turns it off.
@@ -732,6 +735,9 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
         Bad parameter or unwritable ``output``, before any work.
     noise.errors.FileFormatError
         Missing or malformed exposure.
+    noise.errors.OutputError
+        The slope file or the temporary cube cannot be written (disk full, file-size
+        limit), naming ``output``.
     """
     check_choice("fitter", fitter, FITTERS)
     jump_threshold = _optional(check_float, "jump_threshold", jump_threshold,
