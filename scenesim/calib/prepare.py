@@ -469,6 +469,9 @@ def _open_source(exposure):
     header, reads = read_exposure_header(path)
     gain = exposure_settings(header)["gain"]
     rows = exposure_rows(path, gain=gain)
+    if rows.dtype != np.float32:
+        # float64 data would be scaled in float64, not as astype(float32) * gain
+        return None
     stand_in = np.broadcast_to(np.uint16(0), rows.shape)
     return _Source(Exposure(stand_in, header, reads, os.fspath(path)), gain, rows)
 
