@@ -84,7 +84,8 @@ file by row blocks, to the same bits: what it holds does not grow with the numbe
 resultants, except the noise fits' row subsamples (64 and 256 rows of every
 resultant: 1/8 of the cube at 2048 rows, 1/16 at 4096) and the linearisation's
 batch (``nints`` x 2 frames at least).  The ``'irs2'`` correction (each reference
-sample's mean over the groups) and compressed files still take the whole cube.
+sample's mean over the groups), compressed files and float64 ``SCI`` still take
+the whole cube.
 Measured in BENCHMARKS.md ("The fit's scaling").
 
 Measurements of each step on the example scenes (bias, ``chi2``, flags, cost) are
