@@ -11,10 +11,20 @@ its truth, as the scene asks), timed four ways in the same process:
   tasks below, so the difference is the batch's own cost;
 * ``batch, 1 worker`` and ``batch, 2 workers``: :func:`scenesim.batch.runner.run_batch`
   on a new ``LocalCluster`` (one thread per task), wall time of the whole call:
-  cluster start, worker imports, tasks, manifest, stop.
+  cluster start, worker warm-up (imports), tasks, manifest, stop; and, apart, the
+  wall time of its tasks alone (first submitted to last finished,
+  ``BatchResult.task_seconds``): the steady throughput that a long batch tends to,
+  beside the fixed start-up and stop cost that a short one pays.
 
-The four are timed in two passes, the second in reverse order (loop, loop 1 thread,
-1 worker, 2 workers; then 2 workers, ..., loop), so that a load that drifts during
+* ``2 processes``: no dask, two plain processes (``multiprocessing``, spawned),
+  each a loop of :func:`~scenesim.run.run_scene` on one thread over half the
+  realisations, timed from a barrier after each has made one warm-up run (imports
+  and first calls) to the last one finished: what this machine gives two
+  processes at all (memory and cache shared, the hypervisor's cores), the ceiling
+  a 2-worker batch can reach.
+
+The five are timed in two passes, the second in reverse order (loop, loop 1 thread,
+1 worker, 2 workers, 2 processes; then 2 processes, ..., loop), so that a load that drifts during
 the run (a shared machine) weighs on each about equally; each throughput is the
 ``2 n`` exposures over the two passes' wall time, and each pass's own figure is
 printed beside it, with the CPU seconds per exposure of each way (this process and
@@ -32,6 +42,7 @@ import time
 
 import numpy as np
 
+from noise.fast.memory import keep_freed_memory
 from scenesim.batch.plan import plan_batch
 from scenesim.batch.runner import run_batch
 from scenesim.engine import EngineOptions
@@ -76,27 +87,77 @@ def _scheduler_overhead():
 
 
 #: The four ways, in the order of the first pass (the second runs them reversed).
-_WAYS = ("loop", "loop_1thread", "batch_1", "batch_2")
+_WAYS = ("loop", "loop_1thread", "batch_1", "batch_2", "procs_2")
+
+
+def _process_loop(tasks, folder, barrier, queue):
+    """One of the ``2 processes``: a warm-up run, the barrier, then ``tasks`` in a
+    loop of runs on one thread; puts the loop's wall seconds on ``queue``."""
+    try:
+        keep_freed_memory()           # the malloc policy of the scenesim command
+        scene = load_scene(QUICK_SCENE)
+        opts = EngineOptions(threads=1)
+        warm = os.path.join(folder, f"warm{os.getpid()}.fits")
+        run_scene(scene, output=warm, seed=tasks[0].seed, options=opts, progress=False)
+        barrier.wait()
+        t0 = time.perf_counter()
+        for t in tasks:
+            run_scene(scene, output=os.path.join(folder, f"{t.name}.fits"),
+                      seed=t.seed, options=opts, progress=False)
+        queue.put(time.perf_counter() - t0)
+    except BaseException as exc:                   # noqa: BLE001 - to the parent
+        barrier.abort()
+        queue.put(f"{type(exc).__name__}: {exc}")
+
+
+def _time_processes(tasks, folder, nproc=2):
+    """Wall seconds of ``nproc`` plain processes sharing ``tasks`` (see
+    :func:`_process_loop`): the slowest one's loop."""
+    import multiprocessing
+    ctx = multiprocessing.get_context("spawn")
+    barrier, queue = ctx.Barrier(nproc), ctx.Queue()
+    procs = [ctx.Process(target=_process_loop,
+                         args=(tasks[i::nproc], folder, barrier, queue))
+             for i in range(nproc)]
+    for pr in procs:
+        pr.start()
+    try:
+        got = [queue.get(timeout=600) for _ in procs]
+    finally:
+        for pr in procs:
+            pr.join(timeout=60)
+            if pr.is_alive():
+                pr.kill()
+    bad = [g for g in got if isinstance(g, str)]
+    if bad:
+        raise RuntimeError(f"a bench process failed: {bad[0]}")
+    return max(got)
 _PASSES = 2
 
 
 def _time_way(way, tasks, scene, n, threads, folder):
-    """``(wall s, CPU s)`` of the ``n`` realisations done one ``way`` into
-    ``folder``."""
+    """``(wall s, CPU s, task wall s)`` of the ``n`` realisations done one ``way``
+    into ``folder`` (task wall: a batch's tasks alone, without its start-up and
+    stop; a loop's whole wall)."""
     os.makedirs(folder)
     t0, c0 = time.perf_counter(), _cpu_seconds()
-    if way.startswith("loop"):
+    if way.startswith("procs"):
+        task_wall = _time_processes(tasks, folder, int(way.split("_")[1]))
+    elif way.startswith("loop"):
         opts = EngineOptions(threads=threads if way == "loop" else 1)
         for t in tasks:
             run_scene(scene, output=os.path.join(folder, f"{t.name}.fits"),
                       seed=t.seed, options=opts, progress=False)
+        task_wall = None
     else:
         workers = int(way.split("_")[1])
         plan = plan_batch(QUICK_SCENE, out=os.path.join(folder, "out"), realisations=n)
         res = run_batch(plan, workers=workers, threads=1, progress=False)
         if len(res.ran) != n:
             raise RuntimeError(f"batch ran {len(res.ran)} of {n} tasks")
-    return time.perf_counter() - t0, _cpu_seconds() - c0
+        task_wall = res.task_seconds
+    wall = time.perf_counter() - t0
+    return wall, _cpu_seconds() - c0, (wall if task_wall is None else task_wall)
 
 
 def bench_batch(n, threads):
@@ -113,17 +174,22 @@ def bench_batch(n, threads):
     scene = load_scene(QUICK_SCENE)          # its [output]: GLS fit and compare
     walls = {w: [] for w in _WAYS}
     cpus = {w: [] for w in _WAYS}
+    steady = {w: [] for w in _WAYS}
     with tempfile.TemporaryDirectory() as tmp:
         for p in range(_PASSES):
             for way in (_WAYS if p % 2 == 0 else _WAYS[::-1]):
-                wall, cpu = _time_way(way, tasks, scene, n, threads,
-                                      os.path.join(tmp, f"{way}_{p}"))
+                wall, cpu, task_wall = _time_way(way, tasks, scene, n, threads,
+                                                 os.path.join(tmp, f"{way}_{p}"))
                 walls[way].append(wall)
                 cpus[way].append(cpu)
+                steady[way].append(task_wall)
     start_stop, per_task = _scheduler_overhead()
     total = {w: sum(v) for w, v in walls.items()}
     count = _PASSES * n
     per_min = {w: 60.0 * count / total[w] for w in _WAYS}
+    steady_total = {w: sum(v) for w, v in steady.items()}
+    steady_min = {w: 60.0 * count / steady_total[w] for w in _WAYS}
+    fixed = {w: (total[w] - steady_total[w]) / _PASSES for w in _WAYS}
 
     cpu_per = {w: sum(cpus[w]) / count for w in _WAYS}
 
@@ -149,15 +215,31 @@ def bench_batch(n, threads):
         f"{(total['batch_1'] - total['loop_1thread']) / count:+.3f} s); CPU s per "
         f"exposure (this process and its reaped children, i.e. the workers): loop "
         f"{cpu_per['loop']:.2f}, 1-thread loop {cpu_per['loop_1thread']:.2f}, 1 worker "
-        f"{cpu_per['batch_1']:.2f}, 2 workers {cpu_per['batch_2']:.2f}; scheduler: "
+        f"{cpu_per['batch_1']:.2f}, 2 workers {cpu_per['batch_2']:.2f}, 2 processes "
+        f"{cpu_per['procs_2']:.2f} (their warm-up runs and imports included); "
+        f"scheduler: "
         f"{1e3 * per_task:.2f} ms per task ({_NOOP_TASKS} no-op tasks), cluster start "
-        f"+ stop {start_stop:.2f} s; wall/floor columns: the 2-worker batch, both "
+        f"+ stop {start_stop:.2f} s; two plain processes (no dask, after a warm-up run "
+        f"each) {steady_min['procs_2']:.1f} exposures/min = "
+        f"{total['loop_1thread'] / steady_total['procs_2']:.2f}x the 1-thread loop "
+        f"(this machine's own 2-process scaling, the ceiling of 2 workers); steady throughput (the batch's tasks alone, "
+        f"first submitted to last finished, without its start-up, worker warm-up and "
+        f"stop: {fixed['batch_1']:.2f} s per call with 1 worker, "
+        f"{fixed['batch_2']:.2f} s with 2): 1 worker {steady_min['batch_1']:.1f}, "
+        f"2 workers {steady_min['batch_2']:.1f} exposures/min, 2 workers = "
+        f"{steady_total['batch_1'] / steady_total['batch_2']:.2f}x 1 worker, 1 worker "
+        f"= {total['loop_1thread'] / steady_total['batch_1']:.2f}x the 1-thread loop, "
+        f"2 workers = {steady_total['procs_2'] / steady_total['batch_2']:.2f}x the "
+        f"two plain processes; "
+        f"wall/floor columns: the 2-worker batch, both "
         f"passes (CPU: driver and its worker processes) against the random numbers of "
         f"its {count} exposures")
     return dict(wall=total["batch_2"], cpu=sum(cpus["batch_2"]), n_normal=count * nn,
                 n_poisson=count * npo, lam=typical_lambda(engine.rate, det.frame_time),
                 detail=detail, walls=walls, cpus=cpus, cpu_per_exposure=cpu_per,
                 exposures_per_minute=per_min,
+                steady_exposures_per_minute=steady_min,
+                fixed_seconds_per_call=fixed,
                 scheduler_seconds_per_task=per_task,
                 cluster_start_stop_seconds=start_stop,
                 pixel_reads=int(count * det.ny * det.nx * n_reads))

@@ -68,7 +68,9 @@ def batch_command(args):
                     progress=not args.quiet and sys.stderr.isatty(), log=log,
                     force=args.force)
     n = len(res.ran)
-    rate = f" ({60 * n / res.seconds:.1f} exposures/min)" if n else ""
+    rate = (f" ({60 * n / res.seconds:.1f} exposures/min; the tasks alone "
+            f"{60 * n / res.task_seconds:.1f}/min after {res.startup_seconds:.1f} s "
+            f"of start-up)") if n and res.task_seconds > 0 else ""
     log(f"batch: {n} run, {len(res.skipped)} already finished, {len(res.failed)} "
         f"failed, in {res.seconds:.1f} s{rate}; batch seed {plan.batch_seed} "
         f"({plan.seed_source}); manifest {os.path.join(args.out, 'batch.json')}")

@@ -19,7 +19,10 @@ before any task starts and nothing is written:
 3. create the directory, take its lock, remove the temporary files of dead
    processes, find the finished tasks (:func:`scenesim.batch.manifest.load_record`),
    write the manifest;
-4. submit the rest (``retries``: a task that raises is run again; a task whose
+4. run :func:`scenesim.batch.tasks.warm_worker` on every worker (the imports a
+   task would make on first use, done once per worker, in parallel, before any
+   task: reported as part of the start-up, not of the throughput), then submit
+   the rest (``retries``: a task that raises is run again; a task whose
    worker dies is rescheduled by dask itself, up to its
    ``distributed.scheduler.allowed-failures``), and as each finishes record it and
    rewrite the manifest (at most once a second);
@@ -52,7 +55,7 @@ from scenesim.budget import check_batch_budget
 from scenesim.batch.manifest import (Manifest, batch_lock, check_same_batch,
                                      load_record, read_manifest)
 from scenesim.batch.pool import pool_reports
-from scenesim.batch.tasks import run_task
+from scenesim.batch.tasks import run_task, warm_worker
 
 __all__ = ["run_batch", "BatchResult", "BatchError", "check_scheduler"]
 
@@ -77,6 +80,14 @@ class BatchResult:
     pooled : dict
         ``{point label or '': {fitter: pool_reports(...)}}`` (empty without compare).
     seconds : float
+        Wall time of the whole call (cluster start and stop included).
+    task_seconds : float
+        Wall time from the first task submitted to the last one finished (0 when
+        nothing ran): ``len(ran) / task_seconds`` is the batch's throughput.
+    startup_seconds : float
+        Wall time before the first task was submitted: checks, cluster start or
+        connection, worker warm-up (:func:`scenesim.batch.tasks.warm_worker`),
+        manifest.
     dashboard : str or None
         dask's dashboard link, when it serves one.
     workers : int
@@ -92,6 +103,8 @@ class BatchResult:
     seconds: float
     dashboard: str | None
     workers: int
+    task_seconds: float = 0.0
+    startup_seconds: float = 0.0
 
 
 def check_scheduler(scheduler):
@@ -149,13 +162,20 @@ def _client(target, workers, connect_timeout, log):
     Client, LocalCluster, _ = _import_dask()
     logging.getLogger("distributed").setLevel(logging.ERROR)
     cluster = client = None
+    # dask's nanny sets its pre-spawn variables (OMP_NUM_THREADS=1,
+    # MALLOC_TRIM_THRESHOLD_=65536, ...) in this process's environment to pass them
+    # to the workers, and leaves them there: put the caller's environment back
+    environ = dict(os.environ)
     try:
         if target is None:
             dashboard = ":0" if importlib.util.find_spec("bokeh") is not None else None
             with _sigint_blocked():
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
                                        processes=True, dashboard_address=dashboard,
-                                       silence_logs=logging.ERROR)
+                                       # a worker whose scheduler stops first (Ctrl-C)
+                                       # logs its failed heartbeat at ERROR; task errors
+                                       # reach the manifest through their futures
+                                       silence_logs=logging.CRITICAL)
                 client = Client(cluster, set_as_default=False)
         else:
             kind, where = target
@@ -177,6 +197,9 @@ def _client(target, workers, connect_timeout, log):
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close(timeout=10)
+        if os.environ != environ:
+            os.environ.clear()
+            os.environ.update(environ)
 
 
 @contextlib.contextmanager
@@ -361,6 +384,7 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
                 manifest.pending(t.name)
         manifest.write()
         ran, failed, nworkers, dashboard = [], [], 0, None
+        t_tasks = t_start = None
         if todo and client is not None:
             nworkers = len(client.scheduler_info().get("workers", {}))
             dashboard = _dashboard(client, cluster)
@@ -370,11 +394,15 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
                 + (f"; dashboard {dashboard}" if dashboard else ""))
             if nworkers == 0:
                 log("batch: the scheduler has no workers yet; the tasks wait for them")
+            else:
+                _warm_workers(client, plan.fitters, log)
             interrupted = True
+            t_start = time.perf_counter()
             try:
                 _submit_and_collect(client, todo, manifest, records, ran, failed,
                                     retries, progress, len(tasks), len(skipped),
                                     on_result)
+                t_tasks = time.perf_counter() - t_start
                 interrupted = False
             finally:
                 if cluster is not None:
@@ -410,7 +438,10 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
             f"Errors are in {manifest.path}; run the same command again to retry them")
     return BatchResult(plan=plan, manifest=manifest.data, ran=ran, skipped=skipped,
                        failed=failed, pooled=pooled, seconds=time.perf_counter() - t0,
-                       dashboard=dashboard, workers=nworkers)
+                       dashboard=dashboard, workers=nworkers,
+                       task_seconds=t_tasks or 0.0,
+                       startup_seconds=(t_start if t_start is not None
+                                        else time.perf_counter()) - t0)
 
 
 def _finished(plan, record):
@@ -444,6 +475,20 @@ def _checked_against_manifest(plan):
         plan = dataclasses.replace(plan, batch_seed=int(existing["batch_seed"]))
     check_same_batch(existing, plan.identity(), plan.out_dir)
     return plan
+
+
+def _warm_workers(client, fitters, log):
+    """Run :func:`warm_worker` on every worker, in parallel; a worker where it
+    fails is left cold (its first task makes the same imports and reports the
+    error in its own record)."""
+    try:
+        took = client.run(warm_worker, tuple(fitters), on_error="return")
+    except Exception as exc:                # noqa: BLE001 - an optimisation only
+        log(f"batch: worker warm-up skipped ({_one_line(exc)})")
+        return
+    secs = [v for v in took.values() if isinstance(v, float)]
+    if secs:
+        log(f"batch: {len(secs)} workers warmed (imports, {max(secs):.1f} s)")
 
 
 def _dashboard(client, cluster):

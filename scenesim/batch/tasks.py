@@ -38,7 +38,7 @@ from scenesim.io.header import psf_cards
 from scenesim.run import build_engine, write_exposure
 from scenesim.validate.compare import compare_files
 
-__all__ = ["run_task", "file_entry", "files_match", "batch_cards", "RECORD_FORMAT"]
+__all__ = ["run_task", "warm_worker", "file_entry", "files_match", "batch_cards", "RECORD_FORMAT"]
 
 #: The ``format`` of a task record.
 RECORD_FORMAT = "scenesim-batch-task 1"
@@ -102,6 +102,23 @@ def _fit(exposure, output, fitter, refpix, threads):
     else:
         fit_exposure_file(exposure, output, fitter=fitter, options=options,
                           overwrite=True)
+
+
+def warm_worker(fitters=()):
+    """Import, on a worker, what its tasks import on first use; return the seconds.
+
+    The batch runs this on every worker once, before submitting the tasks
+    (:func:`scenesim.batch.runner.run_batch`): the comparison's photometry
+    (photutils) and, for stcal fitters, stcal.  Otherwise each worker's first task
+    pays these imports (~1 CPU s), inside the throughput.
+    """
+    t0 = time.perf_counter()
+    import photutils.aperture  # noqa: F401 - scenesim.validate.photometry, lazily
+    import scenesim.pipelines.instrument  # noqa: F401 - scenesim.run, lazily
+    import scenesim.pipelines.zeroframe  # noqa: F401
+    if any(f.startswith("stcal-") for f in fitters):
+        import stcal.ramp_fitting.ramp_fit  # noqa: F401 - scenesim.adapters.stcal
+    return time.perf_counter() - t0
 
 
 def run_task(task, *, grade_only=False):

@@ -64,8 +64,20 @@ def reference(tmp_path_factory):
     scene = root / "small.toml"
     scene.write_text(SMALL_SCENE)
     plan = plan_batch(scene, out=root / "w2", realisations=N)
+    before = dict(os.environ)
     res = run_batch(plan, workers=2, progress=False)
+    # dask's nanny puts OMP_NUM_THREADS=1, MALLOC_TRIM_THRESHOLD_=65536, ... in the
+    # environment of the process that starts the cluster: the batch puts it back,
+    # so the caller's later subprocesses are not slowed or single-threaded
+    assert dict(os.environ) == before
     return scene, plan, res
+
+
+def test_batch_timings_split_start_up_from_tasks(reference):
+    _, _, res = reference
+    # the whole call is the start-up, the tasks and the stop, each positive
+    assert 0 < res.startup_seconds and 0 < res.task_seconds
+    assert res.startup_seconds + res.task_seconds < res.seconds
 
 
 def test_two_workers_equal_one_worker_and_run_seed(reference, tmp_path):
