@@ -68,7 +68,10 @@ background gives most pixels the *same* mean.  When a call of at least 4096 mean
 one value held by at least half of them (16 evenly spaced probes propose it, one
 comparison pass confirms it), every element is drawn from that mean by **guide-table
 inversion** (Chen & Asau 1974; Devroye 1986, ch. III.2.4) and the other elements are
-then overwritten by their own draws (the rules here, recursively).  The table splits
+then overwritten by their own draws: with ``g.poisson`` in one call when fewer than
+``OTHERS_NUMPY_BELOW = 8192`` of them (the sources' pixels, whose many small passes of
+the search would hold the GIL while other threads draw), else by the rules here,
+recursively.  The table splits
 ``[0, 1)`` into ``M = 2**16`` buckets; ``guide[b]`` is the value ``X(u)`` common to
 every ``u`` of bucket ``b``, or a mark when ``F`` steps inside it.  A draw takes 16
 random bits ``b`` (four per raw 64-bit output of the bit generator) and one table
@@ -107,7 +110,8 @@ from scipy.special import pdtr
 
 from noise.errors import ParameterError
 
-__all__ = ["poisson", "guide_table", "k_max", "k_max_exact", "GUIDE_BITS", "NUMPY_BELOW"]
+__all__ = ["poisson", "guide_table", "k_max", "k_max_exact", "GUIDE_BITS", "NUMPY_BELOW",
+           "OTHERS_NUMPY_BELOW"]
 
 #: Largest mean ``Generator.poisson`` accepts (numpy's ``POISSON_LAM_MAX``).
 _LAM_MAX = float(np.iinfo(np.int64).max - np.sqrt(np.iinfo(np.int64).max) * 10)
@@ -127,6 +131,16 @@ _FEW_LAM = 1.0
 #: beats the per-pass overhead of the search (measured: 256 means 9 vs 17-44 us, 1024
 #: means 26-58 vs 29-132 us, 2048 means 30-107 vs 43-148 us; equal near 4096).
 NUMPY_BELOW = 2048
+#: The elements left after a dominant mean's guide-table draws (:func:`poisson`: the
+#: pixels of sources over a uniform background, a wide spread of means, many above
+#: ``small``) go to ``g.poisson`` whole when fewer than this.  There the search's
+#: ~35 passes of small numpy calls hold the GIL most of the time: with 2 threads
+#: drawing different chunks they ran 1.9-2.2x slower than alone, while numpy's one
+#: call for the whole remainder runs alone as fast up to ~8192 elements and keeps its
+#: speed with 2 threads (star-field remainders of 2048-32768 elements, 32 arrays,
+#: best of 3: 8192 elements 12.3 ms serial either way; on 2 threads 23.6 ms for the
+#: search against 8.0 ms for numpy).
+OTHERS_NUMPY_BELOW = 8192
 
 
 def k_max(lam_max):
@@ -361,8 +375,10 @@ def poisson(g, lam, *, small=10.0):
                 # all of them, then the others overwritten with their own draws.
                 out = np.empty(flat.size, np.int64)
                 _shared(g, c, flat.size, out)
-                if other.size:
+                if other.size >= OTHERS_NUMPY_BELOW:
                     out[other] = poisson(g, flat[other], small=small)
+                elif other.size:
+                    out[other] = g.poisson(flat[other])
                 return out.reshape(lam.shape)
     if flat.size and (lo > small or flat.size < NUMPY_BELOW):
         return g.poisson(flat).astype(np.int64, copy=False).reshape(lam.shape)

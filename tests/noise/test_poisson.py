@@ -7,7 +7,8 @@ import pytest
 from scipy import stats
 
 from noise.errors import ParameterError
-from noise.fast.poisson import (GUIDE_BITS, NUMPY_BELOW, guide_table, k_max, k_max_exact,
+from noise.fast.poisson import (GUIDE_BITS, NUMPY_BELOW, OTHERS_NUMPY_BELOW, guide_table,
+                               k_max, k_max_exact,
                                poisson)
 
 N = 200_000
@@ -231,15 +232,18 @@ def test_guide_table_is_the_inverse_cdf(lam):
     assert np.count_nonzero(~pure) <= cdf.size
 
 
-def test_shared_mean_among_others_and_zero_background():
+@pytest.mark.parametrize("n_others", [2000, 2 * OTHERS_NUMPY_BELOW])
+def test_shared_mean_among_others_and_zero_background(n_others):
     """A dominant mean (background) with scattered others: each group follows its own
-    law; a dominant mean of 0 gives exact zeros (no draws needed)."""
+    law; a dominant mean of 0 gives exact zeros (no draws needed).  The others are
+    fewer than OTHERS_NUMPY_BELOW (drawn by g.poisson in one call) or more (by the
+    rules of poisson, recursively)."""
     g = np.random.default_rng(31)
-    n = 8192
+    n = max(8192, 4 * n_others)
     means = np.full(n, 2.0)
-    pos = np.random.default_rng(2).permutation(n)[:2000]
-    means[pos[:1000]] = 0.0
-    means[pos[1000:]] = 50.0
+    pos = np.random.default_rng(2).permutation(n)[:n_others]
+    means[pos[:n_others // 2]] = 0.0
+    means[pos[n_others // 2:]] = 50.0
     x = np.stack([poisson(g, means) for _ in range(50)])
     for mu, sel in ((2.0, means == 2.0), (50.0, means == 50.0)):
         v = x[:, sel].ravel()
