@@ -29,7 +29,9 @@ import os
 import socket
 import time
 
+from noise.errors import ParameterTypeError
 from noise.fast.memory import keep_freed_memory
+from noise.validate import describe
 from noise.fitsio import atomic_file
 from scenesim.adapters.stcal import fit_exposure_stcal
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
@@ -112,11 +114,19 @@ def warm_worker(fitters=()):
     (photutils) and, for stcal fitters, stcal.  Otherwise each worker's first task
     pays these imports (~1 CPU s), inside the throughput.
     """
+    try:
+        names = list(fitters)
+    except TypeError:
+        names = None
+    if names is None or isinstance(fitters, str) or \
+            not all(isinstance(f, str) for f in names):
+        raise ParameterTypeError(f"'fitters' must be a list of fitter names, got "
+                                 f"{describe(fitters)}")
     t0 = time.perf_counter()
     import photutils.aperture  # noqa: F401 - scenesim.validate.photometry, lazily
     import scenesim.pipelines.instrument  # noqa: F401 - scenesim.run, lazily
     import scenesim.pipelines.zeroframe  # noqa: F401
-    if any(f.startswith("stcal-") for f in fitters):
+    if any(f.startswith("stcal-") for f in names):
         import stcal.ramp_fitting.ramp_fit  # noqa: F401 - scenesim.adapters.stcal
     return time.perf_counter() - t0
 
