@@ -141,11 +141,20 @@ def test_rateints_combine_to_the_rate(jwst_loop):
     rate = compare_files(out["rate"], str(d / "jwst_loop_truth.fits"), **kw)
     ints = compare_files(out["rateints"], str(d / "jwst_loop_truth.fits"), **kw)
     assert "fit layout: jwst-rateints" in ints.notes
+    compared = 0
     for a, b in zip(rate.rows, ints.rows):
-        if a["n"] >= 10 and a["lo"] < 1e4:
+        # bins holding flagged pixels around the saturated star (frac_flagged 0.2 in
+        # the 100-1e4 e-/s bins of 14-24 pixels) are left out: there one pixel whose
+        # integrations saturate differently moves the bin by ~0.1 sigma, the
+        # difference the docstring names; the faint bins' few flags (hot pixels,
+        # jumps: 1.3 % of 3510 pixels) are combined alike
+        if a["n"] >= 10 and a["lo"] < 1e4 and a["frac_flagged"] < 0.05:
             assert b["n"] == a["n"]
+            assert b["frac_flagged"] == a["frac_flagged"]
             assert abs(b["bias_rep"] - a["bias_rep"]) < 0.01
             assert abs(b["chi2_rep"] / a["chi2_rep"] - 1) < 0.01
+            compared += 1
+    assert compared >= 2
 
 
 def test_pipeline_command_prints_the_report(jwst_loop):
