@@ -200,21 +200,29 @@ def test_wrong_arguments():
         check_budget(_scene(), force="yes")
 
 
-MEASURE = textwrap.dedent("""\
+#: Opening of the peak-memory scripts: ``status(key)`` reads /proc/self/status (bytes).
+_PEAK_HEAD = textwrap.dedent("""\
     import gc, sys
     def status(key):
         for line in open("/proc/self/status"):
             if line.startswith(key):
                 return int(line.split()[1]) * 1024
-    import photutils.psf, scenesim.run, scenesim.calib.prepare, scenesim.validate.compare
-    from scenesim.budget import estimate_budget
-    from scenesim.engine import EngineOptions
-    from scenesim.scene import load_scene
+    """)
+#: Load the scene of argv[1], then reset the peak (VmHWM) to the current RSS ``base``.
+_PEAK_RESET = textwrap.dedent("""\
     scene = load_scene(sys.argv[1])
     gc.collect()
     base = status("VmRSS")
     with open("/proc/self/clear_refs", "w") as f:
         f.write("5")                  # reset the peak (VmHWM) to the current RSS
+    """)
+
+MEASURE = _PEAK_HEAD + textwrap.dedent("""\
+    import photutils.psf, scenesim.run, scenesim.calib.prepare, scenesim.validate.compare
+    from scenesim.budget import estimate_budget
+    from scenesim.engine import EngineOptions
+    from scenesim.scene import load_scene
+    """) + _PEAK_RESET + textwrap.dedent("""\
     scenesim.run.run_scene(scene, progress=False, options=EngineOptions(threads=2))
     print(status("VmHWM") - base, estimate_budget(scene).memory)
     """)
@@ -431,23 +439,14 @@ def test_full_frame_irs2_uncal_size_bounds_the_file(tmp_path):
     assert 0 <= est - size <= HEADERS                    # exact but for the headers
 
 
-MEASURE_PRODUCTS = textwrap.dedent("""\
-    import gc, sys
-    def status(key):
-        for line in open("/proc/self/status"):
-            if line.startswith(key):
-                return int(line.split()[1]) * 1024
+MEASURE_PRODUCTS = _PEAK_HEAD + textwrap.dedent("""\
     import scenesim.run
     from scenesim.pipelines.command import write_run_products
     import scenesim.pipelines.jwst, scenesim.pipelines.roman, scenesim.pipelines.reffiles
     import jwst.datamodels, roman_datamodels.datamodels
     from scenesim.budget import estimate_budget
     from scenesim.scene import load_scene
-    scene = load_scene(sys.argv[1])
-    gc.collect()
-    base = status("VmRSS")
-    with open("/proc/self/clear_refs", "w") as f:
-        f.write("5")                  # reset the peak (VmHWM) to the current RSS
+    """) + _PEAK_RESET + textwrap.dedent("""\
     res = scenesim.run.run_scene(scene, progress=False, products=("reffiles",))
     write_run_products(scene, res, reffiles=True)
     print(status("VmHWM") - base, estimate_budget(scene, products=("reffiles",)).memory,

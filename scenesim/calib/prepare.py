@@ -298,6 +298,19 @@ def _check_options(options):
     return options
 
 
+def _exposure_setup(exp, options):
+    """``(readout, header, detector, settings, read noise e-)`` of an exposure to
+    fit; a one-group exposure is refused (no slope to fit)."""
+    ro = exposure_readout(exp)
+    if ro.ngroups < 2:
+        raise ParameterError(
+            f"exposure {exp.name!r} has one group (NGROUPS = 1): there is no slope to "
+            f"fit (a one-group exposure only gives a zero point)")
+    hdr = exp.header
+    rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
+    return ro, hdr, detector_from_header(hdr), exposure_settings(hdr), rdn
+
+
 def prepare_exposure(exposure, *, options=PrepareOptions()):
     """Read an exposure and make its ramps ready for a fitter (module notes).
 
@@ -325,18 +338,10 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
     """
     _check_options(options)
     exp = load_exposure(exposure)
-    ro = exposure_readout(exp)
-    if ro.ngroups < 2:
-        raise ParameterError(
-            f"exposure {exp.name!r} has one group (NGROUPS = 1): there is no slope to "
-            f"fit (a one-group exposure only gives a zero point)")
-    hdr = exp.header
-    det = detector_from_header(hdr)
+    ro, hdr, det, cfg, rdn = _exposure_setup(exp, options)
     if options.refpix == "irs2":              # needs interleaved reference samples
         check_correction_options(det, "irs2", 11, 3.0)
-    cfg = exposure_settings(hdr)
     gain, t_frame = cfg["gain"], cfg["t_frame"]
-    rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
     e = exp.sci.astype(np.float32) * np.float32(gain)
     tbar = ro.mean_times(t_frame)
     refmask = det.reference_mask()
@@ -549,16 +554,8 @@ def _prepare_to_file(src, path, options):
     resultants (common mode removed as read) and of the flags.
     """
     exp = src.exposure
-    ro = exposure_readout(exp)
-    if ro.ngroups < 2:
-        raise ParameterError(
-            f"exposure {exp.name!r} has one group (NGROUPS = 1): there is no slope to "
-            f"fit (a one-group exposure only gives a zero point)")
-    hdr = exp.header
-    det = detector_from_header(hdr)
-    cfg = exposure_settings(hdr)
+    ro, hdr, det, cfg, rdn = _exposure_setup(exp, options)
     gain, t_frame = cfg["gain"], cfg["t_frame"]
-    rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
     tbar = ro.mean_times(t_frame)
     refmask = det.reference_mask()
     kernel = header_ipc_kernel(hdr)
