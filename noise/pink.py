@@ -70,6 +70,7 @@ the frame mean removed, equals ``amp**2``::
 """
 
 import functools
+import math
 import time
 
 import numpy as np
@@ -517,8 +518,12 @@ class PinkSeries:
         ----------
         start, n : int
             Sample range, as in :meth:`get`.
-        out : ndarray, shape (nseries, n), float32
-            Destination (e-); may be a strided view.  Filled when the task has run.
+        out : ndarray, shape (nseries, n) or lead + (n,), float32
+            Destination (e-); may be a strided view.  Its leading axes, read in C
+            order, are the series (``prod(lead) == nseries``): e.g. pairs of series
+            interleaved sample by sample into ``k`` lines are the ``(k, 2, n)`` view
+            ``lines.reshape(k, n, 2).transpose(0, 2, 1)``.  Filled when the task has
+            run.
 
         Returns
         -------
@@ -530,6 +535,12 @@ class PinkSeries:
             or :meth:`plan` on this object until the task has run.
         """
         start, n = int(start), int(n)
+        if (not isinstance(out, np.ndarray) or out.ndim < 2 or out.shape[-1] != n
+                or math.prod(out.shape[:-1]) != self.nseries):
+            raise ParameterError(
+                f"'out' must be an ndarray whose leading axes hold the {self.nseries} "
+                f"series and whose last axis the {n} samples, got shape "
+                f"{getattr(out, 'shape', type(out).__name__)}")
         lev = self._top
         b0, b1 = start // lev.B, (start + n - 1) // lev.B
         todo = [b for b in range(b0, b1 + 1) if b not in lev._cache]
@@ -552,9 +563,10 @@ class PinkSeries:
 
     def _write(self, y, b, start, n, out):
         B = self._top.B
+        lead = out.shape[:-1]
         lo, hi = max(start, b * B), min(start + n, (b + 1) * B)
-        np.multiply(y[:, lo - b * B:hi - b * B], self.scale[:, None],
-                    out=out[:, lo - start:hi - start])
+        np.multiply(y[:, lo - b * B:hi - b * B].reshape(lead + (hi - lo,)),
+                    self.scale.reshape(lead + (1,)), out=out[..., lo - start:hi - start])
 
     def _run(self, run, start, n, out):
         lev = self._top
@@ -569,9 +581,11 @@ class PinkSeries:
                 self._write(y[:, b - run[0]], b, start, n, out)
         if full0 <= full1:
             k, i0 = full1 - full0 + 1, full0 - run[0]
-            dst = out[:, full0 * B - start:(full1 + 1) * B - start].reshape(
-                self.nseries, k, B)
-            np.multiply(y[:, i0:i0 + k], self.scale[:, None, None], out=dst)
+            lead = out.shape[:-1]
+            dst = out[..., full0 * B - start:(full1 + 1) * B - start].view()
+            dst.shape = lead + (k, B)        # splits the last axis: always a view
+            np.multiply(y[:, i0:i0 + k].reshape(lead + (k, B)),
+                        self.scale.reshape(lead + (1, 1)), out=dst)
         for i, b in enumerate(run):
             if (b + 1) * B > start + n:              # needed by a later request
                 lev._cache[b] = y[:, i]

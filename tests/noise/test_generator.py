@@ -481,6 +481,30 @@ def test_band_and_chunk_layout_do_not_change_frames(band_rows):
         np.testing.assert_array_equal(gen.cube(3), ref)
 
 
+@pytest.mark.parametrize("per", [1, 3])
+def test_series_per_task_does_not_change_frames(per):
+    """The uncorrelated and ACN series of several outputs are synthesised together
+    (``Layout.series_per_task``, default 8); the grouping only batches the work: one
+    series per task, or groups of 3 (the last one short), give the same frames on the
+    banded path (65536 pixels), the batched path of small frames and the raw frames of
+    an interleaved detector with a reference output (whose extra samples take each
+    output's lines from its group), and the same time lines."""
+    cases = [(preset("H2RG", naxis1=256, naxis2=256, n_out=8), {}),
+             (preset("H2RG", naxis1=64, naxis2=64, n_out=8), {}),
+             (preset("NIRSPEC-IRS2").stripe(8, 64, "S64"), {"raw": True})]
+    for det, kw in cases:
+        def frames(layout):
+            gen = NoiseGenerator(det, ALL_ON, rng=86, threads=2, layout=layout)
+            return np.array([f for *_, f in gen.frames(3, nints=2, **kw)]), gen
+        ref, gen_ref = frames(Layout())
+        got, gen = frames(Layout(series_per_task=per))
+        np.testing.assert_array_equal(got, ref)
+        assert ref.std() > 0
+    for name, o in (("u_pink", 2), ("acn", 3), ("pink", 1)):
+        np.testing.assert_array_equal(gen.timeline(name, o, 500, 3000),
+                                      gen_ref.timeline(name, o, 500, 3000))
+
+
 def test_reads_subset_equals_full_ramp():
     params = NIRSPEC_DEFAULTS          # RTN off: its chain is advanced per requested read
     full = _gen(params, rng=82).cube(6, nints=2)

@@ -14,6 +14,7 @@ import pytest
 
 from noise import ZERO_NOISE, NoiseGenerator, PinkSeries, pink_psd_shape, preset
 from noise.clock import Detector
+from noise.errors import ParameterError
 from noise.pink import measure_psd_error
 
 DET = preset("H2RG", naxis1=128, naxis2=128, n_out=4)   # 4 outputs of 32 columns
@@ -238,6 +239,14 @@ def test_plan_tasks_equal_get_in_any_order_and_thread():
     task()
     np.testing.assert_array_equal(inter[0::2], whole[0, 1234:51_234])
     np.testing.assert_array_equal(inter[1::2], whole[1, 1234:51_234])
+    # leading axes read in C order as the series: (1, 2, n), one line's even/odd pair
+    pair = np.zeros((1, 2 * 50_000), dtype=np.float32)
+    _series().plan(1234, 50_000, pair.reshape(1, -1, 2).transpose(0, 2, 1))()
+    np.testing.assert_array_equal(pair[0], inter)
+    for bad in (np.zeros((3, 50_000), np.float32), np.zeros((2, 49_999), np.float32),
+                np.zeros(100_000, np.float32)):
+        with pytest.raises(ParameterError, match="'out'.*2 series.*50000 samples"):
+            _series().plan(1234, 50_000, bad)
 
 
 # ----------------------------------------------------------------- PSD error
