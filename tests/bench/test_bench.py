@@ -108,3 +108,23 @@ def test_fit_scaling_grid_arguments_are_checked_before_work(tmp_path):
     with pytest.raises(ParameterError, match="add the 'fit' workload"):
         bench.main(["noise"], out_dir=str(tmp_path / "x"), fit_sizes=[64])
     assert not os.path.exists(tmp_path / "x")
+
+
+def test_kernel_probe_times_every_kernel_and_refuses_unknown_names():
+    """``python -m scenesim.bench.kernels``: each kernel runs on 1 and 2 threads (a
+    small fraction of its calls here); the values are measured, so only their form is
+    checked.  The Poisson chunk's means hold one dominant value (the guide-table path
+    the probe is about)."""
+    from scenesim.bench import kernels
+    rows = kernels.run_kernels(repeats=1, scale=0.005)
+    assert [r["name"] for r in rows] == list(kernels.KERNELS)
+    for r in rows:
+        assert r["us_per_call"] > 0 and r["speedup"] > 0 and r["description"]
+    lam = kernels.chunk_means()
+    assert np.count_nonzero(lam == np.median(lam)) == lam.size - 3500
+    with pytest.raises(ParameterError, match="'names'.*'fft_9'"):
+        kernels.run_kernels(["fft_9"])
+    with pytest.raises(ParameterError, match="'names' must be a list"):
+        kernels.run_kernels("fft_4x32768")
+    with pytest.raises(ParameterError, match="'repeats'"):
+        kernels.run_kernels(["streams"], repeats=0)
