@@ -89,6 +89,7 @@ _ROWS = 32               # at least this many rows per stream chunk ...
 _CHUNK_PIXELS = 65536    # ... and at least this many pixels (one chunk below it)
 _DENSE = 0.5             # chunks at least this charged are drawn whole (0 e- elsewhere)
 _GROUP_DRAWS = 65536     # reads drawn per call: max(1, _GROUP_DRAWS // chunk draws)
+_RUNS_PER_THREAD = 4     # pool tasks per thread and read: runs of consecutive chunks
 ARRIVALS = ("time", "2d")
 
 
@@ -536,10 +537,15 @@ class ChargeEngine:
         return lam
 
     def _map_chunks(self, task, pool):
-        """``task(c)`` for every chunk index (on the pool for large frames)."""
+        """``task(c)`` for every chunk index (on the pool for large frames, as a few
+        runs of consecutive chunks per thread: one dispatch per chunk cost the pool's
+        hand-overs; the chunks' results do not depend on the runs)."""
         n = len(self._chunks)
         if pool is not None and n > 1 and self._npix_charged > 65536:
-            list(pool.map(task, range(n)))
+            edges = np.linspace(0, n, min(n, _RUNS_PER_THREAD * self.threads) + 1)
+            runs = [range(a, b) for a, b in zip(edges[:-1].astype(int),
+                                                 edges[1:].astype(int)) if b > a]
+            list(pool.map(lambda run: [task(c) for c in run], runs))
         else:
             for c in range(n):
                 task(c)
