@@ -1024,7 +1024,8 @@ class NoiseGenerator:
                 for g0, g1 in zip([0] + cut.tolist(), cut.tolist() + [slots.size])]
 
     def _small_line_tasks(self, groups, store):
-        """Tasks (one per 1/f series) writing the lines of ``groups`` into ``store``.
+        """Tasks (one per 1/f series object) writing the lines of ``groups`` into
+        ``store``.
 
         ``store`` has one row per line of :meth:`_line_buffers` (its jobs' lines in
         order); group ``q`` occupies ``span_q * frame_samples`` samples after those of

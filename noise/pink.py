@@ -58,8 +58,10 @@ Properties:
 * **Cost** (one core, measured): one float32 normal per output sample (3-6 ns with the
   Box-Muller sampler of :mod:`noise.fast.normal`, exact to float32 in the body and to 53-bit
   resolution in the tails; numpy's ziggurat costs 9-11 ns) plus ~5 ns of FFT work and
-  ~1 ns of copies; :meth:`PinkSeries.plan` hands a range of samples to a thread pool as
-  one independent task per series.  Requests are served by whole groups, so up to one
+  ~1 ns of copies; :meth:`PinkSeries.plan` hands a range of samples of all the
+  object's series to a thread pool as one independent task (their draws and FFTs
+  batched: :class:`noise.generator.NoiseGenerator` puts the series of up to 8 outputs
+  in one object).  Requests are served by whole groups, so up to one
   group (115k samples) per series is drawn ahead of the request and used by the next one.
 
 Normalisation (see :mod:`noise.params`): the level is set from the *realised* PSD of the
