@@ -293,24 +293,16 @@ class NoiseGenerator:
         # one PinkSeries whose series keep their own output's keys (same values as one
         # series per output: a series' draws depend only on its key, and the FFTs of a
         # batch are computed row by row)
+        self._kw = kw
         per = self.layout.series_per_task
         self._u_groups, self._acn_groups = [], []
-        u_on = [o for o in range(nout) if self._u_amps[o] > 0]
-        for a in range(0, len(u_on), per):
-            outs = tuple(u_on[a:a + per])
-            self._u_groups.append((PinkSeries(
-                1 / det.dt, L, [self._u_amps[o] for o in outs],
-                seed_keys=[self.key + (NOISE_COMPONENTS["u_pink"], o) for o in outs],
-                **kw), outs))
-        acn_on = [o for o in range(nout) if self._acn_amps[o] > 0]
-        per_acn = max(1, per // 2)
-        for a in range(0, len(acn_on), per_acn):
-            outs = tuple(acn_on[a:a + per_acn])
-            self._acn_groups.append((PinkSeries(
-                0.5 / det.dt, L // 2, [self._acn_amps[o] for o in outs for _ in (0, 1)],
-                seed_keys=[self.key + (NOISE_COMPONENTS["acn"], o, parity)
-                           for o in outs for parity in (0, 1)], **kw), outs))
-        self._kw = kw
+        for name, groups, amps, size in (("u_pink", self._u_groups, self._u_amps, per),
+                                         ("acn", self._acn_groups, self._acn_amps,
+                                          max(1, per // 2))):
+            on = [o for o in range(nout) if amps[o] > 0]
+            for a in range(0, len(on), size):
+                outs = tuple(on[a:a + size])
+                groups.append((self._output_series(name, outs), outs))
         self._singles = {}          # (component, output) -> PinkSeries, for timeline
         # the reference output's own series: keys of an output numbered n_out_active
         self._ref_u = self._ref_acn = None
@@ -515,16 +507,20 @@ class NoiseGenerator:
                 or not amps[output] > 0:
             return None
         if (component, output) not in self._singles:
-            det, key = self.detector, NOISE_COMPONENTS[component]
-            if component == "u_pink":
-                series = PinkSeries(1 / det.dt, self._L, [amps[output]],
-                                    seed_keys=[self.key + (key, output)], **self._kw)
-            else:
-                series = PinkSeries(0.5 / det.dt, self._L // 2, [amps[output]] * 2,
-                                    seed_keys=[self.key + (key, output, 0),
-                                               self.key + (key, output, 1)], **self._kw)
-            self._singles[component, output] = series
+            self._singles[component, output] = self._output_series(component, (output,))
         return self._singles[component, output]
+
+    def _output_series(self, component, outs):
+        """One PinkSeries of the 'u_pink' series (or the 'acn' pairs: even, odd) of
+        the outputs ``outs``, in that order, each with its own output's keys."""
+        det, key = self.detector, NOISE_COMPONENTS[component]
+        if component == "u_pink":
+            return PinkSeries(1 / det.dt, self._L, [self._u_amps[o] for o in outs],
+                              seed_keys=[self.key + (key, o) for o in outs], **self._kw)
+        return PinkSeries(0.5 / det.dt, self._L // 2,
+                          [self._acn_amps[o] for o in outs for _ in (0, 1)],
+                          seed_keys=[self.key + (key, o, parity)
+                                     for o in outs for parity in (0, 1)], **self._kw)
 
     # ------------------------------------------------------------- raw samples
     @functools.cached_property

@@ -542,9 +542,7 @@ class ChargeEngine:
         hand-overs; the chunks' results do not depend on the runs)."""
         n = len(self._chunks)
         if pool is not None and n > 1 and self._npix_charged > 65536:
-            edges = np.linspace(0, n, min(n, _RUNS_PER_THREAD * self.threads) + 1)
-            runs = [range(a, b) for a, b in zip(edges[:-1].astype(int),
-                                                 edges[1:].astype(int)) if b > a]
+            runs = _even_runs(n, min(n, _RUNS_PER_THREAD * self.threads))
             list(pool.map(lambda run: [task(c) for c in run], runs))
         else:
             for c in range(n):
@@ -662,8 +660,7 @@ class ChargeEngine:
         ny, nx = self.detector.shape
         # a few blocks per thread, but none below ~64k pixels (dispatch overhead)
         n = max(1, min(ny, 4 * self.threads, -(-ny * nx // 65536)))
-        edges = np.linspace(0, ny, n + 1).astype(int)
-        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+        return [slice(r.start, r.stop) for r in _even_runs(ny, n)]
 
     # ------------------------------------------------------------------- run
     def simulate(self, *, save_charge=False, save_noise=False, progress=None,
@@ -872,6 +869,12 @@ class ChargeEngine:
         if self.ipc_kernel is not None:
             out = apply_ipc(out, self.ipc_kernel)
         return out
+
+
+def _even_runs(n, k):
+    """``range(n)`` cut into ``k`` runs of nearly equal length (empty ones dropped)."""
+    edges = np.linspace(0, n, k + 1).astype(int)
+    return [range(a, b) for a, b in zip(edges[:-1].tolist(), edges[1:].tolist()) if b > a]
 
 
 def _as_1d(name, value, dtype):
