@@ -201,7 +201,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
     from noise.fast.memory import keep_freed_memory
     keep_freed_memory()
-    rows = run_kernels(args.names or None, repeats=args.repeats)
+    try:
+        rows = run_kernels(args.names or None, repeats=args.repeats)
+    except ParameterError as exc:           # one line, before any work
+        ap.error(str(exc))
     print(f"Two threads against one, each kernel ({time.strftime('%Y-%m-%d %H:%M:%S')};"
           f" median of {args.repeats} pairs)\n")
     print("| kernel | one call, 1 thread | speed-up, 2 threads |\n|---|---|---|")
