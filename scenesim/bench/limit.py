@@ -18,6 +18,16 @@ measured in the same run, with the same threads, best of ``repeats``:
 
 The limit is a bound for the current method, not for physics: the distance
 ``wall / limit`` says how much is left to win without drawing fewer variates.
+
+The **method floor** adds what the exact 1/f synthesis of :mod:`noise.pink` cannot
+avoid on top of the limit: overlap-save filters a *time-domain* white window, so
+every block of ``nfft - overlap`` new samples (28672 of 32768 at the finest level)
+pays a forward FFT of its window besides the inverse one.  The method floor is the
+draws, the forward and inverse FFTs of those blocks (:func:`fft_seconds` with
+``forward=True, overlap=4096``) and the write.  ``wall / method floor`` is the
+distance left for the implementation; ``method floor / limit`` is what the method
+itself costs above the limit (the coarse levels and the interpolator's small FFTs,
+about 3 % more, are still not counted).
 """
 
 import os
@@ -29,9 +39,10 @@ import numpy as np
 import scipy.fft as sfft
 
 from noise.errors import ParameterError
+from noise.pink import _NFFT_FINE, _OV
 from scenesim.bench.floor import floor_seconds, pink_samples_per_read
 
-__all__ = ["pink_samples", "fft_seconds", "write_seconds", "limit_seconds"]
+__all__ = ["pink_samples", "transforms", "fft_seconds", "write_seconds", "limit_seconds"]
 
 _BATCH = 4              # transforms per scipy call, as noise.pink batches them
 _WRITE_CHUNK = 1 << 26  # bytes of the pre-touched write buffer (64 MB), reused
@@ -62,18 +73,54 @@ def pink_samples(det, params, n_reads):
     return int(n_reads) * pink_samples_per_read(det, params)
 
 
-def fft_seconds(n_samples, threads, *, nfft=32768, repeats=3):
-    """Seconds of the inverse real FFTs that produce ``n_samples`` samples.
+def transforms(n_samples, nfft=_NFFT_FINE, overlap=0):
+    """Transforms of length ``nfft`` that produce ``n_samples`` samples when each keeps
+    ``nfft - overlap`` of its outputs: ``ceil(n_samples / (nfft - overlap))``.
 
     Parameters
     ----------
     n_samples : int
-        Output samples (>= 0); ``ceil(n_samples / nfft)`` transforms.
+        Output samples (>= 0).
+    nfft : int
+        Transform length (even, >= 2).
+    overlap : int
+        Samples of each transform that are discarded (0 <= overlap < nfft).
+
+    Returns
+    -------
+    int
+    """
+    n_samples, nfft, overlap = int(n_samples), int(nfft), int(overlap)
+    if n_samples < 0:
+        raise ParameterError(f"'n_samples' must be >= 0, got {n_samples}")
+    if nfft < 2 or nfft % 2:
+        raise ParameterError(f"'nfft' must be even and >= 2, got {nfft}")
+    if not 0 <= overlap < nfft:
+        raise ParameterError(f"'overlap' must be >= 0 and below 'nfft' = {nfft}, got "
+                             f"{overlap}")
+    return -(-n_samples // (nfft - overlap))
+
+
+def fft_seconds(n_samples, threads, *, nfft=_NFFT_FINE, overlap=0, forward=False,
+                repeats=3):
+    """Seconds of the real FFTs that produce ``n_samples`` samples.
+
+    Parameters
+    ----------
+    n_samples : int
+        Output samples (>= 0); :func:`transforms` ``(n_samples, nfft, overlap)``
+        transforms.
     threads : int
         Threads (>= 1); the transforms are split evenly, one ``scipy.fft`` call of
         four transforms at a time per thread (``workers=1``).
     nfft : int, keyword-only
         Transform length (even, >= 2).
+    overlap : int, keyword-only
+        Outputs of each transform discarded (0: the limit's one inverse FFT per
+        sample; 4096: overlap-save at :mod:`noise.pink`'s finest level).
+    forward : bool, keyword-only
+        Also a forward ``rfft`` of a float32 window before each inverse transform
+        (the method floor; the module notes).
     repeats : int, keyword-only
         Measure this many times and keep the fastest.
 
@@ -82,26 +129,26 @@ def fft_seconds(n_samples, threads, *, nfft=32768, repeats=3):
     float
         Wall seconds.
     """
-    n_samples, threads, nfft = int(n_samples), int(threads), int(nfft)
-    if n_samples < 0:
-        raise ParameterError(f"'n_samples' must be >= 0, got {n_samples}")
+    ntrans = transforms(n_samples, nfft, overlap)
+    threads = int(threads)
     if threads < 1:
         raise ParameterError(f"'threads' must be >= 1, got {threads}")
-    if nfft < 2 or nfft % 2:
-        raise ParameterError(f"'nfft' must be even and >= 2, got {nfft}")
-    if n_samples == 0:
+    nfft = int(nfft)
+    if ntrans == 0:
         return 0.0
-    ntrans = -(-n_samples // nfft)
     calls = -(-ntrans // _BATCH)
     parts = [calls // threads + (1 if t < calls % threads else 0) for t in range(threads)]
     g = np.random.default_rng(0)
     spec = [(g.standard_normal((_BATCH, nfft // 2 + 1), dtype=np.float32)
              + 1j * g.standard_normal((_BATCH, nfft // 2 + 1), dtype=np.float32)
              ).astype(np.complex64) for _ in range(threads)]
+    wins = [g.standard_normal((_BATCH, nfft), dtype=np.float32) for _ in range(threads)] \
+        if forward else None
 
     def work(t):
         for _ in range(parts[t]):
-            sfft.irfft(spec[t], n=nfft, axis=-1, workers=1)
+            x = sfft.rfft(wins[t], axis=-1, workers=1) if forward else spec[t]
+            sfft.irfft(x, n=nfft, axis=-1, overwrite_x=forward, workers=1)
 
     best = np.inf
     pool = ThreadPoolExecutor(threads) if threads > 1 else None
@@ -185,10 +232,14 @@ def limit_seconds(n_normal, n_poisson, lam, n_pink, nbytes, threads, *, director
     Returns
     -------
     dict
-        ``draws``, ``fft``, ``write`` and their sum ``limit``, seconds.
+        ``draws``, ``fft``, ``write`` and their sum ``limit``; ``fft_method`` (the
+        forward and inverse FFTs of the overlap-save blocks) and the method floor
+        ``method = draws + fft_method + write``; seconds.
     """
     draws = floor_seconds(n_normal, n_poisson, lam, threads, repeats=repeats,
                           sampler="scenesim") if (n_normal or n_poisson) else 0.0
     fft = fft_seconds(n_pink, threads, repeats=repeats)
+    fft_method = fft_seconds(n_pink, threads, overlap=_OV, forward=True, repeats=repeats)
     write = write_seconds(nbytes, directory, repeats=repeats)
-    return dict(draws=draws, fft=fft, write=write, limit=draws + fft + write)
+    return dict(draws=draws, fft=fft, write=write, limit=draws + fft + write,
+                fft_method=fft_method, method=draws + fft_method + write)

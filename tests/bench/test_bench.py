@@ -24,10 +24,14 @@ def test_quick_timeseries_writes_json_and_markdown(tmp_path):
     assert row["limit"] == pytest.approx(sum(row["limit_parts"].values()))
     assert row["limit_ratio"] == pytest.approx(row["wall"] / row["limit"])
     assert row["limit_parts"]["fft"] > 0 and row["limit_parts"]["write"] > 0
+    # the method floor replaces the limit's inverse FFTs by the overlap-save pairs
+    assert row["method_floor"] == pytest.approx(row["limit"] - row["limit_parts"]["fft"]
+                                                + row["fft_method"])
+    assert row["method_ratio"] == pytest.approx(row["wall"] / row["method_floor"])
     assert len(row["load_before"]) == 3 and len(data["meta"]["load_average_start"]) == 3
     assert row["peers"] == []
     md = (out / "bench.md").read_text()
-    assert "| timeseries | 30 |" in md
+    assert "| timeseries | 30 |" in md and "| wall / method floor |" in md
 
 
 def test_floor_counts_follow_design_section_7():

@@ -240,9 +240,25 @@ def test_limit_parts_and_arguments(tmp_path):
     assert list(tmp_path.iterdir()) == []          # the written file is removed
     lim = limit.limit_seconds(10_000, 1000, 2.0, 40_000, 1000, 1, repeats=1)
     assert lim["limit"] == pytest.approx(lim["draws"] + lim["fft"] + lim["write"])
+    assert lim["method"] == pytest.approx(lim["draws"] + lim["fft_method"] + lim["write"])
+    assert lim["fft_method"] > 0
     with pytest.raises(ParameterError, match="n_samples"):
         limit.fft_seconds(-1, 1)
     with pytest.raises(ParameterError, match="nfft"):
         limit.fft_seconds(10, 1, nfft=7)
+    with pytest.raises(ParameterError, match="'overlap'.*-1"):
+        limit.fft_seconds(10, 1, overlap=-1)
+    with pytest.raises(ParameterError, match="'overlap'.*32768"):
+        limit.transforms(10, overlap=32768)
+
+
+def test_method_floor_counts_one_overlap_save_block_per_28672_samples():
+    # noise.pink's finest level: windows of 32768 samples keep 32768 - 4096 = 28672
+    # new ones; the limit charges one transform per 32768 kept samples
+    assert limit.transforms(28672, overlap=4096) == 1
+    assert limit.transforms(28673, overlap=4096) == 2
+    assert limit.transforms(10 * 28672, overlap=4096) == 10
+    assert limit.transforms(10 * 32768) == 10 and limit.transforms(10 * 32768 + 1) == 11
+    assert limit.transforms(0, overlap=4096) == 0
     with pytest.raises(ParameterError, match="nbytes"):
         limit.write_seconds(-5)
