@@ -26,8 +26,8 @@ pays a forward FFT of its window besides the inverse one.  The method floor is t
 draws, the forward and inverse FFTs of those blocks (:func:`fft_seconds` with
 ``forward=True, overlap=4096``) and the write.  ``wall / method floor`` is the
 distance left for the implementation; ``method floor / limit`` is what the method
-itself costs above the limit (the coarse levels and the interpolator's small FFTs,
-about 3 % more, are still not counted).
+itself costs above the limit (the coarse levels and the interpolator's small FFTs
+are still not counted: the method floor stays a lower bound).
 """
 
 import os
