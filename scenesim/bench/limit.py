@@ -129,25 +129,25 @@ def fft_seconds(n_samples, threads, *, nfft=_NFFT_FINE, overlap=0, forward=False
     float
         Wall seconds.
     """
-    ntrans = transforms(n_samples, nfft, overlap)
-    threads = int(threads)
+    ntrans, nfft, threads = transforms(n_samples, nfft, overlap), int(nfft), int(threads)
     if threads < 1:
         raise ParameterError(f"'threads' must be >= 1, got {threads}")
-    nfft = int(nfft)
     if ntrans == 0:
         return 0.0
     calls = -(-ntrans // _BATCH)
     parts = [calls // threads + (1 if t < calls % threads else 0) for t in range(threads)]
     g = np.random.default_rng(0)
-    spec = [(g.standard_normal((_BATCH, nfft // 2 + 1), dtype=np.float32)
-             + 1j * g.standard_normal((_BATCH, nfft // 2 + 1), dtype=np.float32)
-             ).astype(np.complex64) for _ in range(threads)]
-    wins = [g.standard_normal((_BATCH, nfft), dtype=np.float32) for _ in range(threads)] \
-        if forward else None
+    if forward:                 # float32 windows, transformed forward each time
+        data = [g.standard_normal((_BATCH, nfft), dtype=np.float32)
+                for _ in range(threads)]
+    else:                       # complex64 spectra, transformed back each time
+        data = [(g.standard_normal((_BATCH, nfft // 2 + 1), dtype=np.float32)
+                 + 1j * g.standard_normal((_BATCH, nfft // 2 + 1), dtype=np.float32)
+                 ).astype(np.complex64) for _ in range(threads)]
 
     def work(t):
         for _ in range(parts[t]):
-            x = sfft.rfft(wins[t], axis=-1, workers=1) if forward else spec[t]
+            x = sfft.rfft(data[t], axis=-1, workers=1) if forward else data[t]
             sfft.irfft(x, n=nfft, axis=-1, overwrite_x=forward, workers=1)
 
     best = np.inf

@@ -250,6 +250,8 @@ def test_limit_parts_and_arguments(tmp_path):
         limit.fft_seconds(10, 1, overlap=-1)
     with pytest.raises(ParameterError, match="'overlap'.*32768"):
         limit.transforms(10, overlap=32768)
+    with pytest.raises(ParameterError, match="nbytes"):
+        limit.write_seconds(-5)
 
 
 def test_method_floor_counts_one_overlap_save_block_per_28672_samples():
@@ -260,5 +262,3 @@ def test_method_floor_counts_one_overlap_save_block_per_28672_samples():
     assert limit.transforms(10 * 28672, overlap=4096) == 10
     assert limit.transforms(10 * 32768) == 10 and limit.transforms(10 * 32768 + 1) == 11
     assert limit.transforms(0, overlap=4096) == 0
-    with pytest.raises(ParameterError, match="nbytes"):
-        limit.write_seconds(-5)

@@ -23,15 +23,19 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from noise.adc import ADC
+
 __all__ = ["main"]
 
 
+_ADC = ADC(1.0)           # the engine's 16-bit ADC at gain 1
+
+
 def _numpy_pass(acc, noise, q, dn, top):
+    # ChargeEngine._pointwise (no full well, linear), then _digitise for a later read
     np.copyto(q, acc, casting="unsafe")
-    f = np.add(q, noise)
-    np.rint(f, out=f)
-    np.clip(f, 0.0, top, out=f)
-    np.add(dn, f, out=dn, casting="unsafe")
+    codes = _ADC.codes(np.add(q, noise))
+    np.add(dn, codes, out=dn, casting="unsafe")
 
 
 def _compile():
