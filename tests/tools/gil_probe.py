@@ -13,9 +13,10 @@ If the two processes each take as long as one alone while the two threads take
 longer, the difference is the GIL, not memory or cache contention.  Every number
 printed is measured in that run::
 
-    python tests/tools/gil_probe.py [frames] [rounds]
+    python tests/tools/gil_probe.py [frames] [rounds]     # defaults 12 and 3
 """
 
+import argparse
 import multiprocessing as mp
 import sys
 import threading
@@ -78,6 +79,22 @@ def main(frames=12, rounds=3):
     return 0
 
 
+def _positive(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
 if __name__ == "__main__":
-    args = [int(a) for a in sys.argv[1:3]]
-    sys.exit(main(*args))
+    ap = argparse.ArgumentParser(description="GIL or machine: one generator alone, "
+                                 "two in threads, two in processes")
+    ap.add_argument("frames", nargs="?", type=_positive, default=12,
+                    help="frames per generator (default 12)")
+    ap.add_argument("rounds", nargs="?", type=_positive, default=3,
+                    help="rounds of the three runs (default 3)")
+    args = ap.parse_args()
+    sys.exit(main(args.frames, args.rounds))
