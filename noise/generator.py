@@ -113,8 +113,7 @@ from noise.errors import ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.pink import PinkSeries
 from noise.fast.producer import ForkedProducer, available as producer_available
-from noise.fast.seedhash import spawned_generators
-from noise.streams import NOISE_COMPONENTS, generator, root_seed
+from noise.streams import NOISE_COMPONENTS, KeyedStreams, generator, root_seed
 from noise.fast.normal import standard_normal, standard_normal_rows
 from noise.template import template_for
 
@@ -241,6 +240,9 @@ class NoiseGenerator:
             raise ParameterTypeError(
                 f"'params' must be a noise.NoiseParams, got {describe(params)}")
         self.entropy, self.key = root_seed(rng)
+        # white noise of (slot, row chunk): the chunks of a frame hashed together
+        self._white_streams = KeyedStreams(self.entropy,
+                                           [self.key + (NOISE_COMPONENTS["white"],)])
         self.threads = check_int("threads", threads, minimum=1) if threads is not None \
             else (os.cpu_count() or 1)
         self._validate()
@@ -665,18 +667,17 @@ class NoiseGenerator:
         else:
             list(pool.map(_call, tasks))
 
-    def _rows_task(self, out, slot, c0, c1, scalar, pf, views, r_base, adc):
+    def _rows_task(self, out, rng, c0, c1, scalar, pf, views, r_base, adc):
         """Rows ``c0:c1`` of a frame: white noise, reset level, offsets, time lines, RTN.
 
-        ``views`` place the 1/f lines of the band starting at row ``r_base``.  ``out``
-        is the float32 frame (e-), or, with an ``adc`` (:class:`noise.adc.ADC`), the
-        uint16 DN frame (the float32 rows are then made in a scratch buffer and
-        digitised by it).
+        ``rng`` is the white noise's stream of these rows (key ``(white, slot,
+        c0 // _WHITE_ROWS)``; None without white noise).  ``views`` place the 1/f lines
+        of the band starting at row ``r_base``.  ``out`` is the float32 frame (e-), or,
+        with an ``adc`` (:class:`noise.adc.ADC`), the uint16 DN frame (the float32 rows
+        are then made in a scratch buffer and digitised by it).
         """
         det, p = self.detector, self.params
         ncol, nx = det.ncols_out, det.nx
-        rng = self._stream(NOISE_COMPONENTS["white"], slot, c0 // _WHITE_ROWS) \
-            if self._sig_runs else None
         level = self._reset_level if self._level_map else None
         tmp_buf = np.empty((_SUB_ROWS, ncol), dtype=np.float32)
         if pf is not None:
@@ -786,9 +787,13 @@ class NoiseGenerator:
         img = np.empty(det.shape, dtype=dtype) if out is None else out
         adc = None if dn_gain is None else ADC(dn_gain)
 
+        rngs = (self._white_streams.generators(slot, np.arange(-(-det.ny // _WHITE_ROWS)))
+                if self._sig_runs else None)
+
         def rows(k):
             ra, rb = bands[k]
-            return [functools.partial(self._rows_task, img, slot, c0,
+            return [functools.partial(self._rows_task, img,
+                                      rngs[c0 // _WHITE_ROWS] if rngs else None, c0,
                                       min(c0 + _WHITE_ROWS, rb), scalar, pf,
                                       sets[k % _NSETS][1], ra, adc)
                     for c0 in range(ra, rb, _WHITE_ROWS)]
@@ -986,19 +991,14 @@ class NoiseGenerator:
         One stream per (slot, chunk), drawn as :meth:`frame` draws it (one
         :func:`standard_normal` call per chunk, as ``_SUB_ROWS == _WHITE_ROWS``), the
         transforms of all the frames at once (:func:`standard_normal_rows`); the
-        streams' seeds are hashed together (:mod:`noise.fast.seedhash`, the same generators
-        as ``SeedSequence`` builds one by one).
+        streams' seeds are hashed together (:class:`noise.streams.KeyedStreams`: the
+        same generators as ``SeedSequence`` builds one by one).
         """
         if not self._sig_runs:
             return
         m, nx = len(slots), self.detector.nx
         for c0, c1 in self._chunks:
-            if isinstance(self.entropy, (int, list, tuple)):    # hashed together
-                gens = spawned_generators(self.entropy, self.key + (NOISE_COMPONENTS["white"],),
-                                          [(slot, c0 // _WHITE_ROWS) for slot in slots])
-            else:
-                gens = [self._stream(NOISE_COMPONENTS["white"], slot, c0 // _WHITE_ROWS)
-                        for slot in slots]
+            gens = self._white_streams.generators(np.asarray(slots), c0 // _WHITE_ROWS)
             if len(self._chunks) == 1:
                 standard_normal_rows(gens, out.reshape(m, -1))
             else:

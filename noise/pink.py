@@ -82,7 +82,8 @@ from noise.errors import ParameterError
 from noise.params import check_pink_spectrum
 from noise.validate import check_array, check_float, check_int
 from noise.fast.normal import standard_normal
-from noise.streams import generator, root_seed
+from noise.fast.seedhash import pcg64
+from noise.streams import KeyedStreams, root_seed
 
 __all__ = ["PinkSeries", "pink_psd_shape", "realised_psd",
            "unit_frame_variance", "set_fft_workers", "measure_psd_error"]
@@ -100,6 +101,7 @@ _GROUP = 4       # blocks per white-noise stream at the two finest levels (115k 
                  # 16k samples); one block per stream at the coarser levels
 _QUAD = 4        # blocks per FFT batch at the two finest levels (one at coarser levels,
                  # which rarely need a new block)
+_SEEDS_AHEAD = 8  # white-noise groups whose stream seeds are hashed in one call
 _PAD = 64        # zero-padding factor when evaluating a filter's realised response
 
 
@@ -343,6 +345,8 @@ class _Level:
         self._cache = {}                # block -> (nseries, B) float32, unit scale
         self._child_arr = None
         self._child0 = 0
+        self._streams = KeyedStreams(entropy, self.keys)   # keys[s] + (g + 1,)
+        self._seeds = {}                # group -> (nseries, 4) stream seeds, ahead
 
     # ---------------------------------------------------------------- white noise
     def _groups_for(self, runs):
@@ -374,8 +378,13 @@ class _Level:
     def _fill(self, g):
         """Draw white-noise group ``g`` of every series (releases the GIL)."""
         arr = self._white[g]
-        for s in range(self.nseries):
-            bitgen = generator(self.entropy, self.keys[s] + (g + 1,)).bit_generator
+        seeds = self._seeds.pop(g, None)
+        if seeds is None:               # the seeds of this and the next groups at once
+            grid = self._streams.states_grid(np.arange(g + 1, g + 1 + _SEEDS_AHEAD))
+            self._seeds = {g + i: grid[:, i] for i in range(1, _SEEDS_AHEAD)}
+            seeds = grid[:, 0]
+        for s, state in enumerate(seeds):
+            bitgen = pcg64(state)
             if g < 0:                    # the head of group 0: w[0, _OV)
                 self._draw(bitgen, arr[s, 0, self.B:])
                 continue

@@ -4,8 +4,13 @@ Why: every frame of a window draws its white noise from its own stream, keyed
 ``(white, slot, chunk)``, so that the values depend only on the slot.  Building one
 ``Generator(PCG64(SeedSequence(entropy, spawn_key=key)))`` costs 12-19 us, mostly the
 hashing, done in Python-level loops per key; a 300-integration time series builds
-thousands.  The hash is a fixed function of 32-bit words, so the keys of a whole
-batch can go through it together as uint32 arrays.
+thousands; a full frame builds one per 64-row chunk and one per 1/f series and group,
+and in the worker threads that hashing holds the GIL (issue 16: 28 % of the time a
+one-thread noise run held the GIL was stream construction).  The hash is a fixed
+function of 32-bit words, so the keys of a whole batch can go through it together as
+uint32 arrays, and since every pool word past the fourth is mixed in by the same four
+steps, the pool after a fixed key prefix can be kept and extended
+(:class:`SeedPools`).
 
 The algorithm (O'Neill's seed_seq, as numpy's ``SeedSequence`` implements it, pool of 4
 words; all arithmetic modulo 2**32):
@@ -25,12 +30,14 @@ The result is tested word for word against ``numpy.random.SeedSequence``; a
 :class:`PCG64` seeded from these words is the generator numpy would build.
 """
 
+import functools
+
 import numpy as np
 from numpy.random.bit_generator import ISeedSequence
 
 from noise.errors import ParameterError
 
-__all__ = ["spawned_generators", "spawned_states"]
+__all__ = ["SeedPools", "pcg64", "spawned_generators", "spawned_states"]
 
 _INIT_A = np.uint32(0x43B0D7E5)
 _MULT_A = np.uint32(0x931E8875)
@@ -55,6 +62,11 @@ def _words(value):
     return out
 
 
+def _natural(value):
+    """An int (Python or numpy, not bool) >= 0."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 0
+
+
 def _entropy_words(entropy):
     if isinstance(entropy, (list, tuple)):
         return [w for e in entropy for w in _words(e)]
@@ -64,24 +76,129 @@ def _entropy_words(entropy):
                      f"{type(entropy).__name__}")
 
 
-class _Hash:
-    """The running hash constant of ``hashmix``, one per key (broadcast)."""
+@functools.lru_cache(maxsize=256)
+def _steps(h, k, mult):
+    """``k`` steps of a hash constant: the constants before and after each step (uint32
+    columns, shape (k, 1), read-only) and the constant after the last one (Python int).
+    Cached: the constants depend only on how many words were hashed before."""
+    seq = [h]
+    for _ in range(k):
+        seq.append(seq[-1] * mult & 0xFFFFFFFF)
+    before = np.array(seq[:-1], dtype=np.uint32)[:, None]
+    after = np.array(seq[1:], dtype=np.uint32)[:, None]
+    before.flags.writeable = after.flags.writeable = False
+    return before, after, seq[-1]
 
-    def __init__(self, n):
-        self.h = np.full(n, _INIT_A, dtype=np.uint32)
 
-    def mix(self, value):
-        value = value ^ self.h
-        self.h *= _MULT_A
-        value *= self.h
-        value ^= value >> _SHIFT
-        return value
+def _hashmix(value, before, after):
+    """``hashmix`` of ``value`` with the constants of one step each (broadcast)."""
+    value = (value ^ before) * after
+    value ^= value >> _SHIFT
+    return value
 
 
 def _mix(x, y):
     r = _MIX_L * x - _MIX_R * y
     r ^= r >> _SHIFT
     return r
+
+
+class SeedPools:
+    """The entropy pools of many ``SeedSequence`` objects that share their root entropy,
+    after their spawn keys: extend them by more key words, then seed generators.
+
+    Why: a spawned stream's key is a fixed prefix (exposure, component, series) and a
+    last word or two that change per frame or per block.  The pool after the fixed part
+    is kept; each new word costs ~9 numpy calls for all keys together.  With every
+    pool word past the first four mixed in by the same four steps, extending the pool of
+    ``prefix`` by the words of ``suffix`` is exactly the pool of ``prefix + suffix``.
+
+    Parameters
+    ----------
+    pool : ndarray, uint32, shape (4, n)
+        One column per key.
+    h : int
+        The ``hashmix`` constant after those keys (the same for every key: it depends
+        only on the number of words hashed).
+    """
+
+    __slots__ = ("pool", "h")
+
+    def __init__(self, pool, h):
+        self.pool = pool
+        self.h = h
+
+    @staticmethod
+    def accepts(entropy, keys):
+        """Whether :meth:`spawn` takes ``entropy`` and ``keys`` and its pools may be
+        extended (else use numpy's ``SeedSequence``): an int >= 0 or a non-empty
+        list/tuple of them, and non-empty keys of one length, of ints in ``[0, 2**32)``
+        (an empty key would skip the zero padding that a longer key gets)."""
+        if not (_natural(entropy) or (isinstance(entropy, (list, tuple)) and entropy
+                                      and all(map(_natural, entropy)))):
+            return False
+        keys = [tuple(k) for k in keys]
+        return (bool(keys) and len({len(k) for k in keys}) == 1 and len(keys[0]) > 0
+                and all(_natural(w) and w < 1 << 32 for k in keys for w in k))
+
+    @staticmethod
+    def accepts_word(word):
+        """Whether :meth:`extend` takes ``word``: an int or 1-D integer array in
+        ``[0, 2**32)``."""
+        w = np.asarray(word)
+        return bool(w.dtype.kind in "iu" and w.ndim <= 1
+                    and (w.size == 0 or (w.min() >= 0 and w.max() < 1 << 32)))
+
+    @classmethod
+    def spawn(cls, entropy, keys):
+        """Pools of ``SeedSequence(entropy, spawn_key=k)`` for every row ``k`` of ``keys``
+        (array_like of int, shape (n, m), elements in ``[0, 2**32)``)."""
+        keys = np.asarray(keys, dtype=np.int64)
+        if keys.ndim != 2 or (keys.size and (keys.min() < 0 or keys.max() >= 1 << 32)):
+            raise ParameterError(f"'keys' must be a 2-D array of integers in [0, 2**32), "
+                                 f"got shape {keys.shape}")
+        run = _entropy_words(entropy)
+        if keys.shape[1]:
+            run = run + [0] * max(0, _POOL - len(run))
+        words = np.concatenate([np.broadcast_to(np.array(run, dtype=np.uint32),
+                                                (keys.shape[0], len(run))),
+                                keys.astype(np.uint32)], axis=1).T
+        nw = words.shape[0]
+        before, after, h = _steps(int(_INIT_A), _POOL, int(_MULT_A))
+        first = np.zeros((_POOL, keys.shape[0]), dtype=np.uint32)
+        first[:min(nw, _POOL)] = words[:_POOL]
+        pool = list(_hashmix(first, before, after))
+        for src in range(_POOL):
+            for dst in range(_POOL):
+                if src != dst:
+                    b, a, h = _steps(h, 1, int(_MULT_A))
+                    pool[dst] = _mix(pool[dst], _hashmix(pool[src], b[0], a[0]))
+        pools = cls(np.stack(pool), h)
+        for src in range(_POOL, nw):
+            pools = pools.extend(words[src])
+        return pools
+
+    def extend(self, word):
+        """The pools after one more spawn-key word per key: ``word`` an int in
+        ``[0, 2**32)`` or an integer array of shape (n,); with a single pool, any
+        length (the one key extended by each word)."""
+        word = np.asarray(word)
+        if word.ndim > 1 or (word.size and (word.min() < 0 or word.max() >= 1 << 32)):
+            raise ParameterError(f"'word' must be an integer or a 1-D integer array in "
+                                 f"[0, 2**32), got {word!r}")
+        before, after, h = _steps(self.h, _POOL, int(_MULT_A))
+        return SeedPools(_mix(self.pool, _hashmix(word.astype(np.uint32), before, after)), h)
+
+    def states(self):
+        """``generate_state(4, uint64)`` of every pool: ndarray (n, 4), uint64."""
+        before, after, _ = _steps(int(_INIT_B), 2 * _POOL, int(_MULT_B))
+        v = _hashmix(np.concatenate([self.pool, self.pool]), before, after)
+        lo, hi = v[0::2].astype(np.uint64), v[1::2].astype(np.uint64)
+        return np.ascontiguousarray((lo | hi << np.uint64(32)).T)
+
+    def generators(self):
+        """``Generator(PCG64(...))`` seeded from every pool, as a list."""
+        return [np.random.Generator(np.random.PCG64(_Fixed(s))) for s in self.states()]
 
 
 def spawned_states(entropy, prefix, keys):
@@ -106,35 +223,15 @@ def spawned_states(entropy, prefix, keys):
     if keys.ndim != 2 or (keys.size and (keys.min() < 0 or keys.max() >= 1 << 32)):
         raise ParameterError(f"'keys' must be a 2-D array of integers in [0, 2**32), got "
                              f"shape {keys.shape}")
-    n = keys.shape[0]
-    run = _entropy_words(entropy)
     spawn = [w for p in prefix for w in _words(p)]
-    if spawn or keys.shape[1]:
-        run = run + [0] * max(0, _POOL - len(run))
-    fixed = np.array(run + spawn, dtype=np.uint32)
-    words = np.concatenate([np.broadcast_to(fixed, (n, fixed.size)),
-                            keys.astype(np.uint32)], axis=1)
-    nw = words.shape[1]
-    h = _Hash(n)
-    with np.errstate(over="ignore"):
-        pool = [h.mix(words[:, i] if i < nw else np.zeros(n, np.uint32))
-                for i in range(_POOL)]
-        for src in range(_POOL):
-            for dst in range(_POOL):
-                if src != dst:
-                    pool[dst] = _mix(pool[dst], h.mix(pool[src]))
-        for src in range(_POOL, nw):
-            for dst in range(_POOL):
-                pool[dst] = _mix(pool[dst], h.mix(words[:, src]))
-        state = np.empty((n, 8), dtype=np.uint32)
-        hb = np.full(n, _INIT_B, dtype=np.uint32)
-        for i in range(8):
-            v = pool[i % _POOL] ^ hb
-            hb *= _MULT_B
-            v *= hb
-            v ^= v >> _SHIFT
-            state[:, i] = v
-    return state.astype("<u4").view("<u8").astype(np.uint64)
+    if spawn:                                    # the prefix once, then the suffixes
+        pools = SeedPools.spawn(entropy, [spawn])
+        for col in keys.T:
+            pools = pools.extend(col)
+        if pools.pool.shape[1] != keys.shape[0]:  # no suffix: one key for every row
+            pools = SeedPools(np.repeat(pools.pool, keys.shape[0], axis=1), pools.h)
+        return pools.states()
+    return SeedPools.spawn(entropy, keys).states()
 
 
 class _Fixed(ISeedSequence):
@@ -148,6 +245,12 @@ class _Fixed(ISeedSequence):
             raise ParameterError("only generate_state(4, uint64) is precomputed, got "
                                  f"({n_words}, {np.dtype(dtype)})")
         return self._words
+
+
+def pcg64(state):
+    """The ``PCG64`` that ``SeedSequence`` words ``state`` (``generate_state(4, uint64)``,
+    e.g. a row of :meth:`SeedPools.states`) seed."""
+    return np.random.PCG64(_Fixed(state))
 
 
 def spawned_generators(entropy, prefix, keys):
