@@ -42,6 +42,10 @@ in bands of ``Layout.band_rows`` rows with one barrier per band:
   frame is written once; with ``dn_gain`` the rows are converted to uint16 DN in the
   same task.
 
+The lines of the next frame's first band are made with the rows of this frame's last
+band (:meth:`NoiseGenerator.frames`), so the threads have row tasks to fill their gaps
+at every barrier; the band buffer sets alternate across frames as within one.
+
 Small frames (fewer than ``Layout.pool_min_pixels`` pixels: windows, time series) are made
 without the thread pool, ``K`` requested frames at a time (``K * ny * nx <=
 batch_pixels``, ``K <= batch_frames``), because there the per-frame Python overhead
@@ -360,6 +364,7 @@ class NoiseGenerator:
         self._reset_int_raw = None
         self._reset_level_raw = None
         self._lines = None
+        self._ahead = None              # (slot, buffer set) of lines made ahead
         self._ped_block = None
 
     def _line_buffers(self):
@@ -753,6 +758,12 @@ class NoiseGenerator:
         ndarray, shape (ny, nx)
             float32 e-, or uint16 DN with ``dn_gain``.
         """
+        return self._frame(slot, integration, pool, dn_gain, out, None)
+
+    def _frame(self, slot, integration, pool, dn_gain, out, next_slot):
+        """:meth:`frame`; with ``next_slot``, the 1/f lines of that slot's first band
+        are made too, with this frame's last rows (they fill the threads' gaps at the
+        frame's last barrier; the next frame then starts at its second band)."""
         det, p = self.detector, self.params
         if self._level_map and self._reset_int != integration:
             self._reset_level = self._make_reset_level(integration, pool)
@@ -768,11 +779,17 @@ class NoiseGenerator:
         band = self.layout.band_rows
         bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
 
-        def lines(k):
+        # band k's lines go to buffer set (first + k) % _NSETS: consecutive bands, in
+        # this frame and across frames, alternate (the next frame's first band is
+        # made while this frame's last band is assembled)
+        ahead = self._ahead
+        first = ahead[1] if ahead is not None and ahead[0] == slot else 0
+
+        def lines(k, slot=slot, first=first):
             """Tasks making the 1/f lines of band ``k`` (ACN pairs, the largest, first)."""
             ra, rb = bands[k]
             tasks = []
-            for (series, per_row, nfr, _), out in zip(jobs, sets[k % _NSETS][0]):
+            for (series, per_row, nfr, _), out in zip(jobs, sets[(first + k) % _NSETS][0]):
                 n = (rb - ra) * per_row
                 task = series.plan(slot * nfr + ra * per_row, n, out[..., :n])
                 tasks.append((-series.nseries, len(tasks), task))
@@ -795,14 +812,24 @@ class NoiseGenerator:
             return [functools.partial(self._rows_task, img,
                                       rngs[c0 // _WHITE_ROWS] if rngs else None, c0,
                                       min(c0 + _WHITE_ROWS, rb), scalar, pf,
-                                      sets[k % _NSETS][1], ra, adc)
+                                      sets[(first + k) % _NSETS][1], ra, adc)
                     for c0 in range(ra, rb, _WHITE_ROWS)]
 
         # the rows of band k are assembled while the lines of band k + 1 are made (the
         # larger line tasks first, so the row chunks fill the gaps)
-        self._run(pool, lines(0))
+        self._ahead = None
+        if ahead is None or ahead[0] != slot:
+            self._run(pool, lines(0))
         for k in range(len(bands)):
-            self._run(pool, (lines(k + 1) if k + 1 < len(bands) else []) + rows(k))
+            if k + 1 < len(bands):
+                extra = lines(k + 1)
+            elif next_slot is not None:          # the next frame's first band
+                nxt = (first + k + 1) % _NSETS
+                extra = lines(0, next_slot, nxt)
+                self._ahead = (next_slot, nxt)
+            else:
+                extra = []
+            self._run(pool, extra + rows(k))
         return img
 
     def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None,
@@ -868,11 +895,12 @@ class NoiseGenerator:
     def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf):
         adc = None if dn_gain is None else ADC(dn_gain)
         self._reset_int_raw = None
-        for i, k, img in self._frames(nreads, reads, ints, None, nbuf):
+        # no lines made ahead: raw_frame reads the slot's 1/f series again
+        for i, k, img in self._frames(nreads, reads, ints, None, nbuf, ahead=False):
             raw = self.raw_frame(frame_slot(i, k, nreads), i, image=img)
             yield i, k, (raw if adc is None else adc.to_dn(raw))
 
-    def _frames(self, nreads, reads, ints, dn_gain, nbuf):
+    def _frames(self, nreads, reads, ints, dn_gain, nbuf, ahead=True):
         self._rtn_state = self._rtn_slot = None
         self._reset_int = None
         # small frames (windows) run inline: dispatching their tiny tasks to threads
@@ -883,18 +911,20 @@ class NoiseGenerator:
             yield from self._frames_small(nreads, reads, ints, dn_gain, nbuf)
             return
         pool = ThreadPoolExecutor(self.threads) if self.threads > 1 and big else None
-        bufs, n = [], 0
+        order = [(i, k) for i in ints for k in reads]
+        bufs = []
         try:
-            for i in ints:
-                for k in reads:
-                    slot = frame_slot(i, k, nreads)
-                    buf = bufs[n % nbuf] if nbuf and len(bufs) == nbuf else None
-                    img = self.frame(slot, i, pool, dn_gain=dn_gain, out=buf)
-                    if nbuf and buf is None:
-                        bufs.append(img)
-                    n += 1
-                    yield i, k, img
+            for n, (i, k) in enumerate(order):
+                slot = frame_slot(i, k, nreads)
+                buf = bufs[n % nbuf] if nbuf and len(bufs) == nbuf else None
+                nxt = frame_slot(*order[n + 1], nreads) if ahead and n + 1 < len(order) \
+                    else None
+                img = self._frame(slot, i, pool, dn_gain, buf, nxt)
+                if nbuf and buf is None:
+                    bufs.append(img)
+                yield i, k, img
         finally:
+            self._ahead = None
             if pool is not None:
                 pool.shutdown()
 
