@@ -817,19 +817,19 @@ class NoiseGenerator:
 
         # the rows of band k are assembled while the lines of band k + 1 are made (the
         # larger line tasks first, so the row chunks fill the gaps)
-        self._ahead = None
+        self._ahead = made = None
         if ahead is None or ahead[0] != slot:
             self._run(pool, lines(0))
         for k in range(len(bands)):
             if k + 1 < len(bands):
                 extra = lines(k + 1)
             elif next_slot is not None:          # the next frame's first band
-                nxt = (first + k + 1) % _NSETS
-                extra = lines(0, next_slot, nxt)
-                self._ahead = (next_slot, nxt)
+                made = (next_slot, (first + k + 1) % _NSETS)
+                extra = lines(0, *made)
             else:
                 extra = []
             self._run(pool, extra + rows(k))
+        self._ahead = made                       # only once its tasks have all run
         return img
 
     def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None,
