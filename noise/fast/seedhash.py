@@ -37,7 +37,7 @@ from numpy.random.bit_generator import ISeedSequence
 
 from noise.errors import ParameterError
 
-__all__ = ["SeedPools", "pcg64", "spawned_generators", "spawned_states"]
+__all__ = ["SeedPools", "pcg64"]
 
 _INIT_A = np.uint32(0x43B0D7E5)
 _MULT_A = np.uint32(0x931E8875)
@@ -182,10 +182,12 @@ class SeedPools:
         """The pools after one more spawn-key word per key: ``word`` an int in
         ``[0, 2**32)`` or an integer array of shape (n,); with a single pool, any
         length (the one key extended by each word)."""
-        word = np.asarray(word)
-        if word.ndim > 1 or (word.size and (word.min() < 0 or word.max() >= 1 << 32)):
+        if not SeedPools.accepts_word(word):
+            w = np.asarray(word)
             raise ParameterError(f"'word' must be an integer or a 1-D integer array in "
-                                 f"[0, 2**32), got {word!r}")
+                                 f"[0, 2**32), got {w.dtype} of shape {w.shape}"
+                                 + (f": {w.tolist()!r}" if w.size <= 8 else ""))
+        word = np.asarray(word)
         before, after, h = _steps(self.h, _POOL, int(_MULT_A))
         return SeedPools(_mix(self.pool, _hashmix(word.astype(np.uint32), before, after)), h)
 
@@ -195,43 +197,6 @@ class SeedPools:
         v = _hashmix(np.concatenate([self.pool, self.pool]), before, after)
         lo, hi = v[0::2].astype(np.uint64), v[1::2].astype(np.uint64)
         return np.ascontiguousarray((lo | hi << np.uint64(32)).T)
-
-    def generators(self):
-        """``Generator(PCG64(...))`` seeded from every pool, as a list."""
-        return [np.random.Generator(np.random.PCG64(_Fixed(s))) for s in self.states()]
-
-
-def spawned_states(entropy, prefix, keys):
-    """``SeedSequence(entropy, spawn_key=prefix + tuple(k)).generate_state(4, uint64)``
-    for every row ``k`` of ``keys``.
-
-    Parameters
-    ----------
-    entropy : int or list/tuple of int
-        Root entropy (non-negative; numpy arrays are not accepted: numpy coerces
-        their elements differently).
-    prefix : tuple of int
-        Common spawn-key prefix.
-    keys : array_like of int, shape (n, m)
-        Key suffixes, each element in ``[0, 2**32)``.
-
-    Returns
-    -------
-    ndarray, shape (n, 4), uint64
-    """
-    keys = np.asarray(keys, dtype=np.int64)
-    if keys.ndim != 2 or (keys.size and (keys.min() < 0 or keys.max() >= 1 << 32)):
-        raise ParameterError(f"'keys' must be a 2-D array of integers in [0, 2**32), got "
-                             f"shape {keys.shape}")
-    spawn = [w for p in prefix for w in _words(p)]
-    if spawn:                                    # the prefix once, then the suffixes
-        pools = SeedPools.spawn(entropy, [spawn])
-        for col in keys.T:
-            pools = pools.extend(col)
-        if pools.pool.shape[1] != keys.shape[0]:  # no suffix: one key for every row
-            pools = SeedPools(np.repeat(pools.pool, keys.shape[0], axis=1), pools.h)
-        return pools.states()
-    return SeedPools.spawn(entropy, keys).states()
 
 
 class _Fixed(ISeedSequence):
@@ -251,10 +216,3 @@ def pcg64(state):
     """The ``PCG64`` that ``SeedSequence`` words ``state`` (``generate_state(4, uint64)``,
     e.g. a row of :meth:`SeedPools.states`) seed."""
     return np.random.PCG64(_Fixed(state))
-
-
-def spawned_generators(entropy, prefix, keys):
-    """``Generator(PCG64(SeedSequence(entropy, spawn_key=prefix + tuple(k))))`` for
-    every row ``k`` of ``keys`` (see :func:`spawned_states`), as a list."""
-    states = spawned_states(entropy, prefix, keys)
-    return [np.random.Generator(np.random.PCG64(_Fixed(s))) for s in states]
