@@ -330,7 +330,6 @@ class _Level:
         self.H = H                      # (nfft // 2 + 1,) complex64, unit scale
         self.keys = [tuple(k) for k in keys]
         self.nseries = len(self.keys)
-        self.entropy = entropy
         self.group = group              # blocks per white-noise stream
         self.quad = quad                # blocks per FFT unit (divides group)
         self.child = child              # coarser _Level or None

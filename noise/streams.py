@@ -95,8 +95,8 @@ class KeyedStreams:
     ``prefix`` is computed once and the suffixes of a call go through the rest together
     (:class:`noise.fast.seedhash.SeedPools`): ~2 us per stream.  The generators are
     bit-identical to :func:`generator`'s; a root entropy or a key the vectorised hash
-    does not take (a numpy-array entropy, a word >= 2**32) falls back to
-    :func:`generator`.
+    does not take (a numpy-array entropy, a word >= 2**32) is hashed by numpy's own
+    ``SeedSequence``.
 
     Parameters
     ----------
@@ -117,7 +117,25 @@ class KeyedStreams:
         """One generator per key ``prefix[s] + words``, for every series ``s``; with a
         single prefix, a 1-D integer array among ``words`` gives one generator per
         element (the words broadcast).  A list in key order."""
-        return [np.random.Generator(b) for b in self.bit_generators(*words)]
+        if any(np.ndim(w) > 1 for w in words):
+            raise ParameterError(f"'words' must be ints or 1-D arrays, got shapes "
+                                 f"{[np.shape(w) for w in words]}")
+        lens = [np.size(w) for w in words]
+        n = max([len(self.prefix)] + lens)
+        if any(k not in (1, n) for k in lens) or len(self.prefix) not in (1, n):
+            raise ParameterError(f"'words' must be ints or arrays of one length ({n}), "
+                                 f"got lengths {lens} for {len(self.prefix)} prefixes")
+        if self._pools is not None and all(SeedPools.accepts_word(w) for w in words):
+            pools = self._pools
+            for w in words:
+                pools = pools.extend(w)
+            states = pools.states()
+        else:
+            cols = [np.ravel(np.asarray(w, dtype=object)) for w in words]
+            states = self._numpy_states([self.prefix[i % len(self.prefix)]
+                                         + tuple(int(c[i % len(c)]) for c in cols)
+                                         for i in range(n)])
+        return [np.random.Generator(pcg64(st)) for st in states]
 
     def states_grid(self, words):
         """``generate_state(4, uint64)`` of the key ``prefix[s] + (w,)`` for every prefix
@@ -133,26 +151,11 @@ class KeyedStreams:
         if self._pools is not None and SeedPools.accepts_word(words):
             pools = SeedPools(np.repeat(self._pools.pool, k, axis=1), self._pools.h)
             return pools.extend(np.tile(words, n)).states().reshape(n, k, 4)
-        return np.array([[np.random.SeedSequence(self.entropy, spawn_key=p + (int(w),))
-                          .generate_state(4, np.uint64) for w in words]
-                         for p in self.prefix], dtype=np.uint64).reshape(n, k, 4)
+        return self._numpy_states([p + (int(w),) for p in self.prefix
+                                   for w in words]).reshape(n, k, 4)
 
-    def bit_generators(self, *words):
-        """As :meth:`generators`, the ``PCG64`` bit generators only."""
-        if any(np.ndim(w) > 1 for w in words):
-            raise ParameterError(f"'words' must be ints or 1-D arrays, got shapes "
-                                 f"{[np.shape(w) for w in words]}")
-        lens = [np.size(w) for w in words]
-        n = max([len(self.prefix)] + lens)
-        if any(k not in (1, n) for k in lens) or len(self.prefix) not in (1, n):
-            raise ParameterError(f"'words' must be ints or arrays of one length ({n}), "
-                                 f"got lengths {lens} for {len(self.prefix)} prefixes")
-        if self._pools is not None and all(SeedPools.accepts_word(w) for w in words):
-            pools = self._pools
-            for w in words:
-                pools = pools.extend(w)
-            return [pcg64(s) for s in pools.states()]
-        cols = [np.ravel(np.asarray(w, dtype=object)) for w in words]
-        return [generator(self.entropy, self.prefix[i % len(self.prefix)]
-                          + tuple(int(c[i % len(c)]) for c in cols)).bit_generator
-                for i in range(n)]
+    def _numpy_states(self, keys):
+        """numpy's own ``generate_state(4, uint64)`` of each key (the fallback)."""
+        return np.array([np.random.SeedSequence(self.entropy, spawn_key=key)
+                         .generate_state(4, np.uint64) for key in keys],
+                        dtype=np.uint64).reshape(len(keys), 4)

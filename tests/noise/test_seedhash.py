@@ -126,8 +126,8 @@ def test_keyed_streams_draw_what_generator_draws(entropy):
         np.testing.assert_array_equal(g.random(8),
                                       generator(entropy, (0, 1, 1, 7, i)).random(8))
     many = KeyedStreams(entropy, [(0, 1, 3, s, 0) for s in range(4)])
-    for s, b in enumerate(many.bit_generators(9)):
-        np.testing.assert_array_equal(b.random_raw(8),
+    for s, g in enumerate(many.generators(9)):
+        np.testing.assert_array_equal(g.bit_generator.random_raw(8),
                                       generator(entropy, (0, 1, 3, s, 0, 9))
                                       .bit_generator.random_raw(8))
 
