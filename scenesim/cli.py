@@ -7,7 +7,7 @@ Subcommands::
         [--uncal] [--l1] [--reffiles]                        + JWST uncal, Roman L1, references
     scenesim fit EXPOSURE.fits [-o OUT] [--refpix none|median|jwst|irs2] [--fitter cds|ols|gls]
     scenesim compare FIT.fits TRUTH.fits [--plots DIR]       fit vs. injected truth
-    scenesim bench [WORKLOAD ...] [--quick] [--peers [--ng PATH]] [--scaling]
+    scenesim bench [WORKLOAD ...] [--quick] [--peers [--ng PATH]] [--scaling [--pairs N]]
         [--fit-sizes N,... --fit-resultants N,...]           the fit's scaling grid
     scenesim pipeline jwst|roman INPUT --refs DIR [--truth T]  the real pipelines, offline
     scenesim batch SCENE.toml --realisations N --out DIR     many realisations on dask
@@ -129,6 +129,9 @@ def _parser():
                    help="the original NG program (not on the package index), with --peers")
     b.add_argument("--scaling", action="store_true",
                    help="run each case again on one thread (1- and N-thread times)")
+    b.add_argument("--pairs", type=int, default=1, metavar="N",
+                   help="with --scaling: N alternating N-thread/1-thread pairs of runs "
+                        "per case; speed-ups are the medians of the pairs (default 1)")
     b.add_argument("--fit-sizes", default=None, metavar="N,N,...",
                    help="fit workload: only its scaling grid, at these array sizes "
                         "(default 512,1024,2048,4096)")

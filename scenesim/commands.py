@@ -153,7 +153,8 @@ def bench_command(args):
                       threads=args.threads, peers=args.peers, ng=args.ng,
                       scaling=args.scaling, command=shlex.join(["scenesim"] + sys.argv[1:]),
                       fit_sizes=_int_list("--fit-sizes", args.fit_sizes),
-                      fit_resultants=_int_list("--fit-resultants", args.fit_resultants))
+                      fit_resultants=_int_list("--fit-resultants", args.fit_resultants),
+                      pairs=args.pairs)
 
 
 def _int_list(option, text):

@@ -26,6 +26,9 @@ runs once more on one thread (``wall_1thread``, ``speedup``), and a simulation c
 limit is measured on one thread too (``limit_1thread``, ``limit_speedup``): the
 speed-up this machine gives the limit's own work (bulk draws, FFTs: independent
 numpy calls that release the GIL), the ceiling against which scenesim's is judged.
+With ``pairs`` > 1 the N- and one-thread runs alternate that many times and each
+speed-up is the median of the pairs' own ratios (the machine's speed drifts over
+minutes; a pair's two runs are seconds apart).
 
 **Peers** (:mod:`scenesim.bench.peers`) run only when asked (``--peers``, or the
 ``peers`` workload), each in its own process on the very input of the scenesim case
@@ -152,6 +155,12 @@ def _load(v):
 
 def _notes(r):
     notes = r["detail"]
+    if r.get("pairs", 1) > 1:
+        notes += (f"; speed-up {_spread(r['speedups'])}, in-process s "
+                  f"{'/'.join(f'{w:.2f}' for w in r['walls'])} against 1 thread "
+                  f"{'/'.join(f'{w:.2f}' for w in r['walls_1thread'])}")
+        if r.get("limit_speedups"):
+            notes += f"; limit's speed-up {_spread(r['limit_speedups'])}"
     if r.get("pixel_reads") and r.get("floor"):
         notes += (f"; {r['pixel_reads'] / r['wall'] / 1e6:.0f} Mpixel-reads/s "
                   f"(floor {r['pixel_reads'] / r['floor'] / 1e6:.0f})")
@@ -305,7 +314,8 @@ def _plot(rows, path):
 
 
 def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=False,
-         ng=None, scaling=False, command=None, fit_sizes=None, fit_resultants=None):
+         ng=None, scaling=False, command=None, fit_sizes=None, fit_resultants=None,
+         pairs=1):
     """Run the named workloads (all if empty), write ``bench.json``/``.md``/``.png``.
 
     Parameters
@@ -325,6 +335,9 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
         Path of the original NG program, ``nghxrg.py`` (with ``peers``).
     scaling : bool
         Run each case again on one thread (when ``threads`` > 1).
+    pairs : int
+        With ``scaling``: alternating (``threads``, one thread) pairs of runs per case,
+        >= 1; the speed-ups printed are medians over the pairs (:func:`_scaling`).
     command : str or None
         The command line, recorded in the outputs.
     fit_sizes, fit_resultants : sequence of int or None
@@ -353,6 +366,12 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
     if ng is not None and not peers:
         raise ParameterError("'--ng' runs NG as a peer: give it with --peers (or the "
                              "'peers' workload)")
+    if isinstance(pairs, bool) or not isinstance(pairs, (int, np.integer)) or pairs < 1:
+        raise ParameterError(f"'pairs' must be an integer >= 1, got {pairs!r}")
+    if pairs > 1 and not scaling:
+        raise ParameterError(f"'pairs' = {pairs} counts the 1- and N-thread runs of "
+                             f"--scaling: give it with --scaling")
+    pairs = int(pairs)
     ng = check_ng_path(ng)
     grid = _fit_grid(fit_sizes, fit_resultants)
     if grid and "fit" not in names:
@@ -361,8 +380,8 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
     os.makedirs(out_dir, exist_ok=True)
     meta = dict(command=command or f"scenesim.bench.main({names!r}, quick={quick}, "
                                    f"threads={threads}, peers={peers}, ng={ng!r}, "
-                                   f"scaling={scaling})",
-                threads=threads, quick=quick, peers=peers, scaling=scaling,
+                                   f"scaling={scaling}, pairs={pairs})",
+                threads=threads, quick=quick, peers=peers, scaling=scaling, pairs=pairs,
                 nproc=os.cpu_count(), load_average_start=load_average(),
                 python=sys.version.split()[0], numpy=np.__version__,
                 date=time.strftime("%Y-%m-%d %H:%M:%S"))
@@ -375,7 +394,8 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
             cases = grid if name == "fit" and grid else (small if quick else full)
             for case in cases:
                 rows.append(_run_one(name, case, threads, work, scaling=scaling,
-                                     peers=peers, ng=ng, exact=exact, cases=cases))
+                                     peers=peers, ng=ng, exact=exact, cases=cases,
+                                     pairs=pairs))
                 _write(rows, out_dir, meta)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -399,7 +419,8 @@ def _fit_grid(sizes, nres):
     return fit_scaling_cases(got["fit_sizes"], got["fit_resultants"])
 
 
-def _run_one(name, case, threads, work, *, scaling, peers, ng, exact, cases=()):
+def _run_one(name, case, threads, work, *, scaling, peers, ng, exact, cases=(),
+             pairs=1):
     """One case: the scenesim process, floors and limit, one-thread run, peers."""
     print(f"[bench] {name} {_label(case)} ...", flush=True)
     kwargs = PREPARE[name](case, work, cases) if name in PREPARE else {}
@@ -420,24 +441,7 @@ def _run_one(name, case, threads, work, *, scaling, peers, ng, exact, cases=()):
           f"ratio {_fmt(row['ratio'], '.1f')}, load {_load(row['load_before'])}",
           flush=True)
     if scaling and threads > 1:
-        r1 = _run_child(name, case, 1, work, kwargs)
-        row.update(wall_1thread=r1["wall"], process_wall_1thread=r1["process_wall"],
-                   speedup=r1["wall"] / row["wall"])
-        ceiling = ""
-        if row.get("limit"):
-            # the machine's own speed-up on the limit's work (draws, FFTs, write:
-            # independent, GIL-free numpy calls), measured now on 1 thread
-            one = limit_seconds(row["n_normal"], row["n_poisson"], row["lam"],
-                                row.get("n_pink", 0), row.get("output_bytes", 0), 1,
-                                directory=work)
-            lim1 = one["limit"]
-            row.update(limit_1thread=lim1, limit_speedup=lim1 / row["limit"],
-                       method_floor_1thread=one["method"],
-                       method_ratio_1thread=r1["wall"] / one["method"])
-            ceiling = (f" (the limit's own work: {lim1:.2f} s on 1 thread, speed-up "
-                       f"{row['limit_speedup']:.2f})")
-        print(f"[bench] {name} {_label(case)}: 1 thread {r1['wall']:.2f} s, speed-up "
-              f"with {threads} threads {row['speedup']:.2f}{ceiling}", flush=True)
+        _scaling(row, name, case, threads, work, kwargs, pairs)
     row["peers"] = []
     for plan in peer_plan(name, case, peers=peers, ng_path=ng):
         if plan["status"] == "run":
@@ -454,6 +458,68 @@ def _run_one(name, case, threads, work, *, scaling, peers, ng, exact, cases=()):
             print(f"[bench] {name} {_label(case)}: {plan['label']}: {NOT_MEASURED} "
                   f"({plan['reason']})", flush=True)
     return row
+
+
+def _scaling(row, name, case, threads, work, kwargs, pairs):
+    """One-thread times and speed-ups of a case, from ``pairs`` alternating runs.
+
+    Pair 1 is the case's first run (already in ``row``) and a one-thread run right
+    after it; each further pair runs the case again on ``threads`` and then on one
+    thread.  A simulation case's limit is measured in every pair on one thread, and
+    again on ``threads`` from the second pair on.  The speed-ups reported are the
+    medians over the pairs of each pair's own ratio: the machine's speed drifts by
+    tens of per cent over minutes (BENCHMARKS.md), and a ratio of two runs made
+    seconds apart is less exposed to that drift than one of medians over the whole
+    run.  With one pair the figures are those of that pair.
+    """
+    walls, walls1, procs1 = [row["wall"]], [], []
+    lims, lims1, methods1 = [row.get("limit")], [], []
+    for k in range(pairs):
+        if k:
+            walls.append(_run_child(name, case, threads, work, kwargs)["wall"])
+            if row.get("limit"):
+                lims.append(_limit_of(row, threads, work)["limit"])
+        r1 = _run_child(name, case, 1, work, kwargs)
+        walls1.append(r1["wall"])
+        procs1.append(r1["process_wall"])
+        if row.get("limit"):
+            one = _limit_of(row, 1, work)
+            lims1.append(one["limit"])
+            methods1.append(one["method"])
+    speedups = [w1 / w for w, w1 in zip(walls, walls1)]
+    row.update(pairs=pairs, walls=walls, walls_1thread=walls1,
+               wall_1thread=float(np.median(walls1)),
+               process_wall_1thread=float(np.median(procs1)),
+               speedup=float(np.median(speedups)), speedups=speedups)
+    ceiling = ""
+    if row.get("limit"):
+        # the machine's own speed-up on the limit's work (draws, FFTs, write:
+        # independent, GIL-free numpy calls), measured in the same pairs
+        lim_speedups = [l1 / ln for ln, l1 in zip(lims, lims1)]
+        row.update(limit_1thread=float(np.median(lims1)),
+                   limit_speedup=float(np.median(lim_speedups)),
+                   limit_speedups=lim_speedups,
+                   method_floor_1thread=float(np.median(methods1)))
+        row["method_ratio_1thread"] = row["wall_1thread"] / row["method_floor_1thread"]
+        ceiling = (f" (the limit's own work: {row['limit_1thread']:.2f} s on 1 thread, "
+                   f"speed-up {_spread(lim_speedups)})")
+    print(f"[bench] {name} {_label(case)}: 1 thread {row['wall_1thread']:.2f} s, "
+          f"speed-up with {threads} threads {_spread(speedups)}{ceiling}", flush=True)
+
+
+def _spread(values):
+    """``'1.62'`` for one value; ``'1.62 (median of 3 pairs, 1.50-1.70)'`` for more."""
+    if len(values) == 1:
+        return f"{values[0]:.2f}"
+    return (f"{float(np.median(values)):.2f} (median of {len(values)} pairs, "
+            f"{min(values):.2f}-{max(values):.2f})")
+
+
+def _limit_of(row, threads, work):
+    """The limit of a simulation row's counts, measured now on ``threads``."""
+    return limit_seconds(row["n_normal"], row["n_poisson"], row["lam"],
+                         row.get("n_pink", 0), row.get("output_bytes", 0), threads,
+                         directory=work)
 
 
 def _versus_exact(row, arrays, exact):

@@ -34,6 +34,41 @@ def test_quick_timeseries_writes_json_and_markdown(tmp_path):
     assert "| timeseries | 30 |" in md and "| wall / method floor |" in md
 
 
+def test_scaling_pairs_alternate_and_report_medians_of_their_ratios(tmp_path):
+    """With --scaling --pairs 2 a case runs twice on 2 threads and twice on 1 thread;
+    the speed-up is the median of each pair's own ratio, the limit's likewise."""
+    out = tmp_path / "s"
+    assert bench.main(["timeseries"], quick=True, out_dir=str(out), threads=2,
+                      scaling=True, pairs=2) == 0
+    data = json.loads((out / "bench.json").read_text())
+    (row,) = data["rows"]
+    assert data["meta"]["pairs"] == 2 and row["pairs"] == 2
+    assert len(row["walls"]) == len(row["walls_1thread"]) == 2
+    assert row["walls"][0] == row["wall"]          # pair 1 is the case's own run
+    ratios = [b / a for a, b in zip(row["walls"], row["walls_1thread"])]
+    assert row["speedups"] == pytest.approx(ratios)
+    assert row["speedup"] == pytest.approx(np.median(ratios))
+    assert row["wall_1thread"] == pytest.approx(np.median(row["walls_1thread"]))
+    assert len(row["limit_speedups"]) == 2
+    assert row["limit_speedup"] == pytest.approx(np.median(row["limit_speedups"]))
+    assert row["method_ratio_1thread"] == pytest.approx(row["wall_1thread"]
+                                                        / row["method_floor_1thread"])
+    assert "median of 2 pairs" in (out / "bench.md").read_text()
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(scaling=True, pairs=0), "'pairs' must be an integer >= 1, got 0"),
+    (dict(scaling=True, pairs=True), "'pairs' must be an integer >= 1, got True"),
+    (dict(scaling=True, pairs=1.5), "'pairs' must be an integer >= 1, got 1.5"),
+    (dict(pairs=3), "'pairs' = 3 .* give it with --scaling"),
+])
+def test_bad_pairs_are_refused_before_work(tmp_path, kwargs, match):
+    with pytest.raises(ParameterError, match=match):
+        bench.main(["timeseries"], quick=True, out_dir=str(tmp_path / "x"), threads=2,
+                   **kwargs)
+    assert not os.path.exists(tmp_path / "x")
+
+
 def test_floor_counts_follow_design_section_7():
     # Closed form from DESIGN.md §7 for the NG defaults (all components on, 4 outputs):
     # per read nx*ny white + L (c_pink) + 4 L (u_pink) + 4 * 2 * (L/2) (ACN)
