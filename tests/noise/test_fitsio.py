@@ -198,3 +198,101 @@ def test_bad_arguments_write_nothing(tmp_path, kwargs, name):
     with pytest.raises(ParameterError, match=f"'{name}'"):
         write_noise_fits(tmp_path / "x.fits", _gen(NIRSPEC_DEFAULTS), nframes, **kwargs)
     assert _files(tmp_path) == []
+
+
+# ------------------------------------------------------------------ write-behind
+def _record_advice(monkeypatch, fail=False):
+    """Record (or refuse, with ``fail``) every posix_fadvise call."""
+    calls = []
+
+    def advise(fd, offset, length, advice):
+        calls.append((offset, length, advice))
+        if fail:
+            raise OSError(22, "Invalid argument")
+
+    monkeypatch.setattr(os, "posix_fadvise", advise, raising=False)
+    monkeypatch.setattr(os, "POSIX_FADV_DONTNEED", 4, raising=False)
+    return calls
+
+
+def _expected_advice(pieces, lag):
+    """Each piece (offset, length) advised when written, and again ``lag`` pieces on."""
+    out = []
+    for k, piece in enumerate(pieces):
+        out.append(piece + (4,))
+        if k >= lag:
+            out.append(pieces[k - lag] + (4,))
+    return out
+
+
+def test_write_behind_starts_each_piece_and_drops_the_one_lag_pieces_back(
+        tmp_path, monkeypatch):
+    """After each piece: one call over exactly its new bytes (start its write-back),
+    then one over the piece ``lag`` back (drop it); together they cover the file from
+    the first piece on, each piece dropped once, the last ``lag`` pieces kept."""
+    from noise.fitsio import WriteBehind
+    calls = _record_advice(monkeypatch)
+    sizes = [10, 4096, 3, 70000, 1, 500]
+    with open(tmp_path / "x.bin", "wb", buffering=1 << 16) as f:
+        f.write(b"h" * 2880)                       # a header before the first piece
+        behind = WriteBehind(f, lag=2, min_bytes=0)
+        assert behind.active
+        for n in sizes:
+            f.write(b"d" * n)
+            behind.written()
+        behind.written()                           # nothing new: no call
+    ends = 2880 + np.cumsum(sizes)
+    pieces = [(int(a), int(b - a)) for a, b in zip([2880, *ends[:-1]], ends)]
+    assert calls == _expected_advice(pieces, 2)
+    assert (tmp_path / "x.bin").read_bytes() == b"h" * 2880 + b"d" * sum(sizes)
+
+
+def test_write_behind_is_advice_only(tmp_path, monkeypatch):
+    """A refused advice turns it off without an error; a gzip stream or a missing
+    posix_fadvise leaves it off; the ramp written through it is the generator's."""
+    from noise.fitsio import WriteBehind
+    calls = _record_advice(monkeypatch, fail=True)
+    monkeypatch.setattr(WriteBehind.__init__, "__defaults__", (2, 0))   # every frame
+    path = tmp_path / "ramp.fits"
+    write_noise_fits(str(path), _gen(NIRSPEC_DEFAULTS), 3)
+    assert len(calls) == 1                     # refused once, then off
+    with fits.open(path) as hdul:
+        np.testing.assert_array_equal(hdul[0].data, _gen(NIRSPEC_DEFAULTS).cube(3)[0])
+    import gzip
+    with gzip.open(tmp_path / "x.gz", "wb") as gz:
+        assert not WriteBehind(gz).active
+    monkeypatch.delattr(os, "posix_fadvise")
+    with open(tmp_path / "y.bin", "wb") as f:
+        assert not WriteBehind(f).active
+    with pytest.raises(ParameterError, match="'lag' must be"):
+        WriteBehind(None, lag=0)
+
+
+def test_write_behind_groups_small_pieces(tmp_path, monkeypatch):
+    """Pieces smaller than ``min_bytes`` are handed over together, once enough bytes
+    have been written since the last piece."""
+    from noise.fitsio import WriteBehind
+    calls = _record_advice(monkeypatch)
+    with open(tmp_path / "x.bin", "wb") as f:
+        behind = WriteBehind(f, lag=1, min_bytes=100)
+        for _ in range(7):
+            f.write(b"d" * 40)
+            behind.written()
+    # 40, 80: too few; 120: piece [0, 120); 160, 200: too few; 240: piece [120, 240)
+    assert calls == _expected_advice([(0, 120), (120, 120)], 1)
+
+
+def test_noise_ramp_is_written_behind_frame_by_frame(tmp_path, monkeypatch):
+    """write_noise_fits hands every frame's bytes to the kernel once, in order, and
+    the file holds exactly the ramp (frames of 4 MB and more: one piece each)."""
+    from noise.fitsio import WriteBehind
+    calls = _record_advice(monkeypatch)
+    monkeypatch.setattr(WriteBehind.__init__, "__defaults__", (2, 0))   # every frame
+    path = tmp_path / "ramp.fits"
+    write_noise_fits(str(path), _gen(NIRSPEC_DEFAULTS), 5)
+    frame = 64 * 64 * 4
+    head = calls[0][0]                         # the header's bytes are not handed over
+    assert head > 0 and head % 2880 == 0
+    assert calls == _expected_advice([(head + k * frame, frame) for k in range(5)], 2)
+    with fits.open(path) as hdul:
+        np.testing.assert_array_equal(hdul[0].data, _gen(NIRSPEC_DEFAULTS).cube(5)[0])
