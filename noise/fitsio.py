@@ -356,10 +356,11 @@ class WriteBehind:
 
     Why: a ramp is written once and not read back by the process that writes it, yet
     every byte written through the page cache takes a fresh page there.  Where the
-    kernel must first obtain that page (on the virtual machines measured for
-    BENCHMARKS.md the host hands freed guest memory back and faults it in again), the
-    writing thread spent ~20 ms of kernel CPU per 8 MB frame, against ~1.4 ms into
-    pages freed moments before: with the simulator's threads on every core, that CPU
+    kernel must first obtain that page (on the virtual machine measured for
+    BENCHMARKS.md, most likely because freed guest memory goes back to the host and
+    is faulted in again), the writing thread spent ~20 ms of kernel CPU per 8 MB
+    frame, against ~1.4 ms into pages freed moments before
+    (``tests/tools/write_cost.py`` measures both): with the simulator's threads on every core, that CPU
     is taken from them.  After each piece, :meth:`written` asks the kernel to start
     writing the new bytes to disk (``posix_fadvise(POSIX_FADV_DONTNEED)`` starts
     writeback of dirty pages) and drops the pages of the piece written ``lag`` pieces
