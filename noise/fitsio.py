@@ -59,9 +59,9 @@ from noise.errors import (FileFormatError, OutputError, ParameterError,
                           ParameterTypeError, ScenesimError)
 
 __all__ = ["atomic_path", "atomic_file", "StreamingFITS", "WriteBehind",
-           "package_version", "write_noise_fits", "TEMP_PATTERN", "temp_file", "remove_stale_temps",
-           "check_output_name", "derived_path", "output_error", "input_path",
-           "open_fits"]
+           "package_version", "write_noise_fits", "TEMP_PATTERN", "temp_file",
+           "remove_stale_temps", "check_output_name", "derived_path", "output_error",
+           "input_path", "open_fits"]
 
 _BLOCK = 2880
 
@@ -360,13 +360,14 @@ class WriteBehind:
     BENCHMARKS.md, most likely because freed guest memory goes back to the host and
     is faulted in again), the writing thread spent ~20 ms of kernel CPU per 8 MB
     frame, against ~1.4 ms into pages freed moments before
-    (``tests/tools/write_cost.py`` measures both): with the simulator's threads on every core, that CPU
-    is taken from them.  After each piece, :meth:`written` asks the kernel to start
-    writing the new bytes to disk (``posix_fadvise(POSIX_FADV_DONTNEED)`` starts
-    writeback of dirty pages) and drops the pages of the piece written ``lag`` pieces
-    before, clean by then, so the next pieces reuse them.  The data reach the disk
-    sooner than the kernel's own write-back would send them, and the cache keeps only
-    the last ``lag`` pieces of the file.
+    (``tests/tools/write_cost.py`` measures both): with the simulator's threads on
+    every core, that CPU is taken from them.  After each piece, :meth:`written` asks
+    the kernel to start writing the new bytes to disk
+    (``posix_fadvise(POSIX_FADV_DONTNEED)`` starts write-back of dirty pages) and
+    drops the pages of the piece written ``lag`` pieces before, clean by then, so the
+    next pieces reuse them.  The data reach the disk sooner than the kernel's own
+    write-back would send them, and the cache keeps only the last ``lag`` pieces of
+    the file.
 
     It is advice only: pages still being written are left in place, nothing blocks,
     and where ``posix_fadvise`` is missing or refuses the file (a pipe, some file
