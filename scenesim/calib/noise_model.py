@@ -242,9 +242,30 @@ def _rate0_weights(cov, good):
     idx = np.flatnonzero(good)
     w = np.zeros(n)
     if idx.size:
-        sub = np.linalg.solve(c[np.ix_(idx, idx)], np.ones(idx.size))
+        sub = _solve_tridiagonal(c[np.ix_(idx, idx)], np.ones(idx.size))
         w[idx] = sub / sub.sum()
     return w
+
+
+def _solve_tridiagonal(a, b):
+    """``a^-1 b`` for a symmetric positive-definite tridiagonal ``a`` (n, n).
+
+    Elimination without pivoting (stable for a positive-definite matrix), in a fixed
+    order of scalar operations: the result does not depend on the CPU, as LAPACK's
+    (through BLAS) does in its last bits.
+    """
+    n = b.size
+    diag = np.diag(a).astype(float).tolist()
+    off = np.diag(a, 1).astype(float).tolist() if n > 1 else []
+    rhs = np.asarray(b, dtype=float).tolist()
+    for i in range(1, n):
+        f = off[i - 1] / diag[i - 1]
+        diag[i] -= f * off[i - 1]
+        rhs[i] -= f * rhs[i - 1]
+    x = [0.0] * n
+    for i in range(n - 1, -1, -1):
+        x[i] = (rhs[i] - (off[i] * x[i + 1] if i < n - 1 else 0.0)) / diag[i]
+    return np.array(x)
 
 
 def _check_first_pass_args(resultants, groups, max_rows, read_noise, saturated,

@@ -386,7 +386,8 @@ def irs2_noise_study(detector, params, *, nreads=10, nramps=2, seed=2017,
                  for w in windows]
         for name, c in runs:
             cds = (c[1] - c[0])[reg]
-            slope = np.tensordot(k, c, axes=(0, 0))[reg] / (k ** 2).sum() \
+            kc = (k.reshape((-1,) + (1,) * (c.ndim - 1)) * c).sum(axis=0)
+            slope = kc[reg] / (k ** 2).sum() \
                 / detector.frame_time
             rows.setdefault(name, []).append((np.mean(cds ** 2), np.mean(slope ** 2)))
     out = []

@@ -86,6 +86,7 @@ longest); they are not official Roman MA tables.
 """
 
 import difflib
+import math
 import numbers
 from dataclasses import dataclass
 
@@ -805,6 +806,8 @@ def resultant_moments(read_times):
         m = t.size
         k = np.arange(1, m + 1)
         n[r] = m
-        tbar[r] = np.full(m, 1.0 / m) @ t
-        tau[r] = ((2 * m - 2 * k + 1) / float(m * m)) @ t
+        # exactly rounded sums (math.fsum), not a dot product: BLAS's dot kernels
+        # depend on the CPU, and their last bits differed between two machines
+        tbar[r] = math.fsum(t.tolist()) / m
+        tau[r] = math.fsum(((2 * m - 2 * k + 1) * t).tolist()) / float(m * m)
     return n, tbar, tau

@@ -21,6 +21,8 @@ in e-/s and read times in seconds from reset; variances are in (e-/s)^2.
   ``1 + (V/V_opt - 1)/dof`` for another linear unbiased estimate of variance ``V``.
 """
 
+import math
+
 import numpy as np
 
 from noise.errors import ParameterError
@@ -134,7 +136,8 @@ def ols_variance(rate, read_times, read_noise):
     m = tb[np.minimum.outer(idx, idx)]
     m[idx, idx] = cov.tau
     q_read = float(np.sum(c * c / cov.n))
-    q_pois = float(c @ m @ c)
+    # an exactly rounded sum, not BLAS (whose last bits depend on the CPU)
+    q_pois = math.fsum((np.multiply.outer(c, c) * m).ravel().tolist())
     out = rn ** 2 * q_read + rate * q_pois
     return float(out) if out.ndim == 0 else out
 

@@ -323,7 +323,15 @@ class AiryPSF:
             np.take(table, idx, out=tmp)
             val += tmp                                                # linear interpolation
             val5 = val.reshape(dx0.size, sub_y.size // n, n, sub_x.size // n, n)
-            return np.einsum("asbtc,b,c->ast", val5, weights, weights, optimize=True)
+            # the quadrature sums node by node, in a fixed order (einsum's optimised
+            # path goes through BLAS, whose last bits depend on the CPU)
+            out = val5[:, :, :, :, 0] * weights[0]
+            for c in range(1, n):
+                out += val5[:, :, :, :, c] * weights[c]
+            acc = out[:, :, 0] * weights[0]
+            for b in range(1, n):
+                acc += out[:, :, b] * weights[b]
+            return acc
 
         def stamps(dx0, dy0, radius):
             size = 2 * radius + 1

@@ -33,6 +33,33 @@ def test_moments_against_the_dense_definition_and_closed_forms():
         resultant_moments([np.ones(2), np.array([])])
 
 
+def _ulps(got, exact):
+    """|got - exact| in units of the float64 spacing at ``exact`` (a Fraction)."""
+    from fractions import Fraction
+    return abs(Fraction(got) - exact) / Fraction(float(np.spacing(float(exact))))
+
+
+@pytest.mark.parametrize("readout", [Readout.named("MEDIUM8", 10),
+                                     Readout.from_ma_table(ROMAN_LIKE_TABLE)],
+                         ids=["medium8", "roman"])
+def test_moments_are_exactly_rounded_sums(readout):
+    """t_bar and tau against exact rational arithmetic.  Computed as exactly rounded
+    sums (math.fsum), so no CPU-dependent summation order can enter: t_bar =
+    fl(fl(sum t) / N) is within 1 ulp of the exact mean (two roundings of half an
+    ulp); tau rounds each product (2N - 2k + 1) t_k too (relative 2**-53 each, all
+    terms positive), so the sum is within 1.5 ulp and the quotient within 2 ulp."""
+    from fractions import Fraction
+    t_frame = 10.737
+    n, tbar, tau = resultant_moments(readout.read_times(t_frame))
+    for r, t in enumerate(readout.read_times(t_frame)):
+        m = t.size
+        exact_mean = sum(Fraction(x) for x in t) / m
+        exact_tau = sum((2 * m - 2 * k + 1) * Fraction(x)
+                        for k, x in enumerate(t, start=1)) / (m * m)
+        assert _ulps(tbar[r], exact_mean) <= 1
+        assert _ulps(tau[r], exact_tau) <= 2
+
+
 @pytest.mark.parametrize("readout", [Readout.named("MEDIUM8", 10),
                                      Readout.from_ma_table(ROMAN_LIKE_TABLE),
                                      Readout.from_ma_table(ROMAN_LIKE_SKIP_TABLE),
