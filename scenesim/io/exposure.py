@@ -60,6 +60,7 @@ truncated, not FITS, or another kind of scenesim file: ``FILETYPE``).
 import contextlib
 import io
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,6 +187,10 @@ class ExposureWriter:
     from the engine's run and hands it to :meth:`add`, then calls :meth:`finish` with
     the finished run.  Used as a context manager, an exception (or interrupt) before
     :meth:`finish` removes every temporary file and leaves existing files untouched.
+    The exposure's resultants are written by a writer thread while the engine makes
+    the next one (one write pending at most; a resultant's ``dn`` array is not changed
+    after the engine hands it over): the engine's threads no longer wait while the
+    caller's thread writes.
 
     Parameters
     ----------
@@ -231,6 +236,8 @@ class ExposureWriter:
         self.save_noise = truth_path is not None and save_noise
         self._stack = contextlib.ExitStack()
         self._stream = None
+        self._writer = None                 # the writer thread of the exposure's SCI
+        self._pending = None                # its write in progress
         self._sci = None
         self._raws = {}
         self._rawref = None
@@ -251,6 +258,7 @@ class ExposureWriter:
                     self._stream.end_image()
                     self._stream.begin_image(self.shape, np.uint16,
                                              [("BUNIT", "DN", "raw counts")], name="SCI")
+                self._writer = ThreadPoolExecutor(1, thread_name_prefix="scenesim-write")
                 if self.rawref_shape is not None:
                     self._rawref = _RawCube(path, "RAWREF", ">u2")
             else:
@@ -278,13 +286,36 @@ class ExposureWriter:
                 raise
             raise output_error(self.path, exc) from exc
 
-    def add(self, res):
-        """Write one :class:`scenesim.engine.Resultant` (they come in file order)."""
-        if self._stream is not None:
+    def _wait_write(self):
+        """Wait for the write in progress; its OS error as an OutputError."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
             try:
-                self._stream.write(res.dn)
+                pending.result()
             except OSError as exc:
+                if isinstance(exc, ScenesimError):
+                    raise
                 raise output_error(self.path, exc) from exc
+
+    def _stop_writer(self):
+        """Wait for the writer thread's last write (its error ignored) and end it."""
+        if self._writer is not None:
+            with contextlib.suppress(Exception):
+                self._wait_write()
+            self._writer.shutdown(wait=True)
+            self._writer = None
+
+    def add(self, res):
+        """Write one :class:`scenesim.engine.Resultant` (they come in file order).
+
+        The exposure's part is written by the writer thread after this returns:
+        ``res.dn`` must not be changed until the next :meth:`add` or :meth:`finish`
+        (the engine never changes it).  An error of that write is raised by the next
+        call.
+        """
+        if self._stream is not None:
+            self._wait_write()
+            self._pending = self._writer.submit(self._stream.write, res.dn)
         else:
             self._sci[res.integration, res.index] = res.dn
         if self._rawref is not None:
@@ -312,6 +343,8 @@ class ExposureWriter:
         ro, t_frame = self.engine.readout, self.engine.detector.frame_time
         try:
             if self._stream is not None:
+                self._wait_write()
+                self._stop_writer()
                 with self._writing():
                     self._stream.end_image()
                     if self._rawref is not None:
@@ -337,6 +370,7 @@ class ExposureWriter:
 
     def abort(self):
         """Remove every temporary file; existing files are left as they were."""
+        self._stop_writer()
         self._discard_raws()
         self._stack.__exit__(RuntimeError, RuntimeError("aborted"), None)
 
