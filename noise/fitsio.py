@@ -369,8 +369,9 @@ class WriteBehind:
     write-back would send them, and the cache keeps only the last ``lag`` pieces of
     the file.
 
-    It is advice only: pages still being written are left in place, nothing blocks,
-    and where ``posix_fadvise`` is missing or refuses the file (a pipe, some file
+    It is advice only: pages still being written are left in place, it does not wait
+    for the write-back to finish (it runs in the writer thread, beside the frames'
+    making), and where ``posix_fadvise`` is missing or refuses the file (a pipe, some file
     systems) it does nothing.  A file read right after it was written is then read
     from disk, so it is used only for outputs that no step of the same run reads
     back (:func:`write_noise_fits`).
