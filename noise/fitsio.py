@@ -59,9 +59,9 @@ from noise.errors import (FileFormatError, OutputError, ParameterError,
                           ParameterTypeError, ScenesimError)
 
 __all__ = ["atomic_path", "atomic_file", "StreamingFITS", "WriteBehind",
-           "package_version", "write_noise_fits", "TEMP_PATTERN", "temp_file",
-           "remove_stale_temps", "check_output_name", "derived_path", "output_error",
-           "input_path", "open_fits"]
+           "WriterThread", "package_version", "write_noise_fits", "TEMP_PATTERN",
+           "temp_file", "remove_stale_temps", "check_output_name", "derived_path",
+           "output_error", "input_path", "open_fits"]
 
 _BLOCK = 2880
 
@@ -423,6 +423,40 @@ class WriteBehind:
             self._advise(*self._ranges.pop(0))   # written out by now: drop its pages
 
 
+class WriterThread:
+    """Writes handed to one background thread, in order, one pending at most.
+
+    The streaming writers (:func:`write_noise_fits`, the exposure writer of
+    :mod:`scenesim.io.exposure`) write frame ``k`` here while the caller makes frame
+    ``k + 1``.  A write's exception is raised by the next :meth:`submit` or by
+    :meth:`wait`; :meth:`close` waits for the last write (its exception dropped: the
+    caller is already failing or has waited) and ends the thread.
+    """
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="scenesim-write")
+        self._pending = None
+
+    def submit(self, fn, *args):
+        """Wait for the write in progress, then start ``fn(*args)``."""
+        self.wait()
+        self._pending = self._pool.submit(fn, *args)
+
+    def wait(self):
+        """Wait for the write in progress (its exception raised here)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def close(self):
+        """Wait for the last write and end the thread (idempotent)."""
+        if self._pool is not None:
+            with contextlib.suppress(Exception):
+                self.wait()
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+
 # ---------------------------------------------------------------- reading
 def _one_line(exc, limit=240):
     text = " ".join(str(exc).split()) or type(exc).__name__
@@ -713,18 +747,15 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
             out.write(frame)
             behind.written()
 
-        with ThreadPoolExecutor(1) as writer:
-            pending = None
-            try:
-                for n, (_, _, frame) in enumerate(frames):
-                    if pending is not None:
-                        pending.result()
-                    pending = writer.submit(write, frame)
-                    if progress is not None:
-                        progress(n + 1)
-                if pending is not None:
-                    pending.result()
-            finally:
-                frames.close()
+        writer = WriterThread()
+        try:
+            for n, (_, _, frame) in enumerate(frames):
+                writer.submit(write, frame)
+                if progress is not None:
+                    progress(n + 1)
+            writer.wait()
+        finally:
+            writer.close()
+            frames.close()
         out.end_image()
     return path

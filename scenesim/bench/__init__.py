@@ -130,8 +130,7 @@ def _row(name, case, r, threads, work):
     row["floor"] = floor_seconds(r["n_normal"], r["n_poisson"], r["lam"], threads)
     row["ratio"] = r["wall"] / row["floor"] if row["floor"] > 0 else None
     row["ratio_kind"] = "time / random-number floor"
-    lim = limit_seconds(r["n_normal"], r["n_poisson"], r["lam"], r.get("n_pink", 0),
-                        r.get("output_bytes", 0), threads, directory=work)
+    lim = _limit_of(r, threads, work)
     if r["n_poisson"] or r["n_normal"]:
         row["floor_scenesim"] = lim["draws"]
         row["ratio_scenesim"] = r["wall"] / lim["draws"] if lim["draws"] > 0 else None
@@ -516,7 +515,8 @@ def _spread(values):
 
 
 def _limit_of(row, threads, work):
-    """The limit of a simulation row's counts, measured now on ``threads``."""
+    """The limit of a simulation case's counts (``row``: its result or row), measured
+    now on ``threads``."""
     return limit_seconds(row["n_normal"], row["n_poisson"], row["lam"],
                          row.get("n_pink", 0), row.get("output_bytes", 0), threads,
                          directory=work)

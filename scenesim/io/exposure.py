@@ -60,7 +60,6 @@ truncated, not FITS, or another kind of scenesim file: ``FILETYPE``).
 import contextlib
 import io
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,8 +68,8 @@ from astropy.table import Table
 
 from noise.errors import FileFormatError, ScenesimError
 from noise.validate import check_writable
-from noise.fitsio import (StreamingFITS, atomic_file, check_output_name, derived_path,
-                          input_path, open_fits, output_error, temp_file)
+from noise.fitsio import (StreamingFITS, WriterThread, atomic_file, check_output_name,
+                          derived_path, input_path, open_fits, output_error, temp_file)
 
 from scenesim.io.header import (check_file_kind, exposure_cards, filetype_card,
                                 nextend_card)
@@ -237,7 +236,6 @@ class ExposureWriter:
         self._stack = contextlib.ExitStack()
         self._stream = None
         self._writer = None                 # the writer thread of the exposure's SCI
-        self._pending = None                # its write in progress
         self._sci = None
         self._raws = {}
         self._rawref = None
@@ -258,7 +256,7 @@ class ExposureWriter:
                     self._stream.end_image()
                     self._stream.begin_image(self.shape, np.uint16,
                                              [("BUNIT", "DN", "raw counts")], name="SCI")
-                self._writer = ThreadPoolExecutor(1, thread_name_prefix="scenesim-write")
+                self._writer = WriterThread()
                 if self.rawref_shape is not None:
                     self._rawref = _RawCube(path, "RAWREF", ">u2")
             else:
@@ -287,23 +285,18 @@ class ExposureWriter:
             raise output_error(self.path, exc) from exc
 
     def _wait_write(self):
-        """Wait for the write in progress; its OS error as an OutputError."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            try:
-                pending.result()
-            except OSError as exc:
-                if isinstance(exc, ScenesimError):
-                    raise
-                raise output_error(self.path, exc) from exc
+        """Wait for the SCI write in progress; its OS error as an OutputError."""
+        try:
+            self._writer.wait()
+        except OSError as exc:
+            if isinstance(exc, ScenesimError):
+                raise
+            raise output_error(self.path, exc) from exc
 
     def _stop_writer(self):
         """Wait for the writer thread's last write (its error ignored) and end it."""
         if self._writer is not None:
-            with contextlib.suppress(Exception):
-                self._wait_write()
-            self._writer.shutdown(wait=True)
-            self._writer = None
+            self._writer.close()
 
     def add(self, res):
         """Write one :class:`scenesim.engine.Resultant` (they come in file order).
@@ -315,7 +308,7 @@ class ExposureWriter:
         """
         if self._stream is not None:
             self._wait_write()
-            self._pending = self._writer.submit(self._stream.write, res.dn)
+            self._writer.submit(self._stream.write, res.dn)
         else:
             self._sci[res.integration, res.index] = res.dn
         if self._rawref is not None:

@@ -296,3 +296,27 @@ def test_noise_ramp_is_written_behind_frame_by_frame(tmp_path, monkeypatch):
     assert calls == _expected_advice([(head + k * frame, frame) for k in range(5)], 2)
     with fits.open(path) as hdul:
         np.testing.assert_array_equal(hdul[0].data, _gen(NIRSPEC_DEFAULTS).cube(5)[0])
+
+
+def test_writer_thread_keeps_order_and_raises_a_write_error_once():
+    """Writes run in order, one at a time; a failed write's error comes out of the
+    next submit (or wait), once; close waits and may be called again."""
+    from noise.fitsio import WriterThread
+    seen = []
+
+    def write(k):
+        if k == 3:
+            raise OSError(28, "No space left on device")
+        seen.append(k)
+
+    w = WriterThread()
+    for k in range(3):
+        w.submit(write, k)
+    w.submit(write, 3)
+    with pytest.raises(OSError, match="No space"):
+        w.submit(write, 4)
+    w.wait()                                   # the error is not raised twice
+    w.submit(write, 5)
+    w.close()
+    w.close()
+    assert seen == [0, 1, 2, 5]
