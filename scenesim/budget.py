@@ -192,9 +192,6 @@ from noise.fitsio import derived_path
 from noise.params import NoiseParams
 from noise.validate import check_bool, check_choice, check_instance, check_int, check_path
 
-from scenesim.engine import EngineOptions
-from scenesim.scene.schema import Scene
-
 __all__ = ["Budget", "BudgetWarning", "estimate_budget", "check_budget",
            "check_noise_budget", "check_batch_budget", "one_line_warnings", "available_memory", "free_disk",
            "MEMORY_FRACTION", "WARN_FRACTION"]
@@ -563,6 +560,9 @@ def estimate_budget(scene, *, options=None, products=()):
         Pipeline products the command writes after the run (``--uncal``, ``--l1``,
         ``--reffiles``), counted in the output (module notes).
     """
+    # imported here: the noise command's budget needs neither (nor their imports)
+    from scenesim.engine import EngineOptions
+    from scenesim.scene.schema import Scene
     check_instance("scene", scene, Scene, "a scenesim.scene.Scene")
     products = tuple(check_choice("products", p, PRODUCTS) for p in products)
     check_instance("options", options, EngineOptions, "a scenesim.engine.EngineOptions",

@@ -1,5 +1,11 @@
 """The work of each ``scenesim`` subcommand (the parser and the signal handling are
-in :mod:`scenesim.cli`, which imports this module once its handlers are installed)."""
+in :mod:`scenesim.cli`, which imports this module once its handlers are installed).
+
+Each command imports what it uses when it runs: ``scenesim noise`` needs the noise
+generator and the FITS writer, not the scene, engine, fitting and pipeline modules
+(with astropy.table, scipy.special and asdf among their imports), and a user waits for
+the whole process.
+"""
 
 
 import dataclasses
@@ -8,19 +14,7 @@ import shlex
 import sys
 import time
 
-import noise
-from scenesim.adapters.stcal import fit_exposure_stcal
 from noise.errors import ParameterError
-from scenesim.batch.command import pool_command
-from scenesim.bench import main as bench_main
-from scenesim.budget import check_noise_budget, one_line_warnings
-from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
-from scenesim.engine import EngineOptions
-from scenesim.pipelines.command import check_run_products, write_run_products
-from scenesim.outputs import check_outputs, check_plot_dir, clean_stale_temps, fit_path_for
-from scenesim.run import progress_bar, run_scene
-from scenesim.scene import load_scene
-from scenesim.validate.compare import compare_files
 
 __all__ = ["noise_command", "run_command", "fit_command", "compare_command",
            "bench_command"]
@@ -28,6 +22,10 @@ __all__ = ["noise_command", "run_command", "fit_command", "compare_command",
 
 def noise_command(args):
     """``scenesim noise``: write an empty (noise-only) ramp."""
+    import noise
+    from scenesim.budget import check_noise_budget, one_line_warnings
+    from scenesim.outputs import check_outputs, clean_stale_temps
+    from scenesim.progress import progress_bar
     det = noise.preset(args.preset)
     changes = {}
     if args.naxis:
@@ -75,6 +73,11 @@ def noise_command(args):
 
 def run_command(args):
     """``scenesim run``: simulate a scene (then fit and compare)."""
+    from scenesim.budget import one_line_warnings
+    from scenesim.engine import EngineOptions
+    from scenesim.pipelines.command import check_run_products, write_run_products
+    from scenesim.run import run_scene
+    from scenesim.scene import load_scene
     scene = load_scene(args.scene)
     options = EngineOptions(threads=args.threads, gauss_above=args.gauss_above,
                             arrivals=args.arrivals)
@@ -110,6 +113,9 @@ def run_command(args):
 
 def fit_command(args):
     """``scenesim fit``: fit the slopes of an exposure."""
+    from scenesim.adapters.stcal import fit_exposure_stcal
+    from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
+    from scenesim.outputs import check_outputs, clean_stale_temps, fit_path_for
     out = args.output or fit_path_for(args.exposure, args.fitter)
     check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite)
     cleaned = clean_stale_temps([out])          # e.g. a killed fit's prepared cube
@@ -130,6 +136,9 @@ def fit_command(args):
 def compare_command(args):
     """``scenesim compare``: grade a slope file against the truth (or, with
     ``--pool DIR``, print the comparisons of a batch pooled over realisations)."""
+    from scenesim.batch.command import pool_command
+    from scenesim.outputs import check_plot_dir
+    from scenesim.validate.compare import compare_files
     if getattr(args, "pool", None) is not None:
         if args.fit is not None or args.plots or args.exposure:
             raise ParameterError("'--pool' reads the batch directory alone; give no "
@@ -149,6 +158,7 @@ def compare_command(args):
 
 def bench_command(args):
     """``scenesim bench``: run the benchmarks (and, with ``--peers``, their peers)."""
+    from scenesim.bench import main as bench_main
     return bench_main(args.workloads, quick=args.quick, out_dir=args.out,
                       threads=args.threads, peers=args.peers, ng=args.ng,
                       scaling=args.scaling, command=shlex.join(["scenesim"] + sys.argv[1:]),

@@ -32,7 +32,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from noise import streams
 from noise.clock import exposure_slots
@@ -42,6 +41,7 @@ from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import instrument_cards, psf_cards
+from scenesim.progress import progress_bar
 from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps,
                               fit_path_for, scene_inputs)
 from scenesim.validate.compare import compare_files
@@ -66,24 +66,6 @@ class RunResult:
     #: JWST's zero frame of each integration (uint16 DN), kept when the run's
     #: products need it (a NIRCam uncal with NFRAMES > 1), else None
     zero_frame: np.ndarray | None = None
-
-
-def progress_bar(total, unit, desc):
-    """A tqdm bar refreshed by our callbacks, without tqdm's monitor thread.
-
-    The monitor only matters for bars that stop being updated; ours are updated after
-    every read (and drawn at most every 0.1 s).  Without it the process keeps a single
-    thread, so small frames may use the
-    forked helper of :mod:`noise.fast.producer` (which refuses to fork a multi-threaded
-    process).
-    """
-    interval = tqdm.monitor_interval
-    tqdm.monitor_interval = 0
-    try:
-        # miniters=1: no dynamic skipping (which needs the monitor to recover)
-        return tqdm(total=total, unit=unit, desc=desc, leave=False, miniters=1)
-    finally:
-        tqdm.monitor_interval = interval
 
 
 def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
