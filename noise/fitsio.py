@@ -374,7 +374,9 @@ class WriteBehind:
     making), and where ``posix_fadvise`` is missing or refuses the file (a pipe, some file
     systems) it does nothing.  A file read right after it was written is then read
     from disk, so it is used only for outputs that no step of the same run reads
-    back (:func:`write_noise_fits`).
+    back (:func:`write_noise_fits`; the exposure of a ``scenesim run`` or a batch
+    realisation that is not fitted, ``ExposureWriter(write_behind=True)`` of
+    :mod:`scenesim.io.exposure`).
 
     Parameters
     ----------

@@ -70,7 +70,7 @@ class RunResult:
 
 def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False,
                    save_noise=False, sources=None, progress=None, overwrite=False,
-                   zero_frame=False):
+                   zero_frame=False, write_behind=False):
     """Run ``engine`` and write what it makes: the exposure and the truth file.
 
     The loop of every simulation: resultants are pulled from the engine's run
@@ -98,6 +98,9 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
         Replace existing files (default: refuse them).
     zero_frame : bool
         Keep the first read of each integration (``simulate(zero_frame=True)``).
+    write_behind : bool
+        Nothing in this process reads the exposure back: keep it out of the page
+        cache as it is written (see :class:`scenesim.io.exposure.ExposureWriter`).
 
     Returns
     -------
@@ -107,7 +110,7 @@ def write_exposure(engine, path, *, cards=(), truth_path=None, save_charge=False
     """
     with ExposureWriter(engine, path, cards=cards, truth_path=truth_path,
                         save_charge=save_charge, save_noise=save_noise, sources=sources,
-                        overwrite=overwrite) as writer:
+                        overwrite=overwrite, write_behind=write_behind) as writer:
         with engine.simulate(save_charge=writer.save_charge, save_noise=writer.save_noise,
                              progress=progress, zero_frame=zero_frame) as run:
             for resultant in run:
@@ -252,7 +255,10 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
                                  save_charge=out_cfg.save_charge,
                                  save_noise=out_cfg.save_noise, sources=rendered,
-                                 progress=cb, overwrite=overwrite, zero_frame=zero)
+                                 progress=cb, overwrite=overwrite, zero_frame=zero,
+                                 # nothing reads the exposure back: no fit, and no
+                                 # pipeline product made from it afterwards
+                                 write_behind=not out_cfg.fit and not products)
     zero = written.get("zero_frame")
     report = None
     if out_cfg.fit:

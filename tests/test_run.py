@@ -43,3 +43,30 @@ def test_star_field_photometry_recovers_injected_fluxes(tmp_path):
     # aperture correction) would fail.
     assert abs(p["median_ratio"] - 1) < 5 * p["median_ratio_err"], p
     assert p["median_ratio_err"] < 0.01
+
+
+@pytest.mark.parametrize("fit, products, behind", [
+    (None, (), True),            # nothing reads the exposure back
+    ("ols", (), False),          # the fit reads it
+    (None, ("uncal",), False),   # the uncal product is made from it afterwards
+])
+def test_exposure_is_written_behind_only_when_nothing_reads_it_back(
+        tmp_path, monkeypatch, fit, products, behind):
+    import scenesim.run as run_module
+    seen = []
+    real = run_module.write_exposure
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("write_behind"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "write_exposure", spy)
+    scene = parse_scene({
+        "seed": 3, "detector": {"preset": "H2RG", "naxis1": 64, "naxis2": 64},
+        "readout": {"pattern": "RAPID", "ngroups": 3},
+        "sources": {"background": 1.0},
+        "output": {"path": str(tmp_path / "e.fits"), "fit": fit or ""},
+    })
+    run_scene(scene, progress=False, products=products)
+    assert seen == [behind]
+    assert (tmp_path / "e.fits").exists()

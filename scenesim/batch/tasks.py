@@ -166,7 +166,8 @@ def run_task(task, *, grade_only=False):
         cfg = scene.output
         written = write_exposure(engine, exp_path, cards=cards, truth_path=truth_path,
                                  save_charge=cfg.save_charge, save_noise=cfg.save_noise,
-                                 sources=rendered, overwrite=True)
+                                 sources=rendered, overwrite=True,
+                                 write_behind=not task.fitters)
         del engine
         exposure = exp_path if exp_path is not None else written["exposure"]
         del written

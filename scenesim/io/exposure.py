@@ -67,9 +67,10 @@ from astropy.io import fits
 from astropy.table import Table
 
 from noise.errors import FileFormatError, ScenesimError
-from noise.validate import check_writable
-from noise.fitsio import (StreamingFITS, WriterThread, atomic_file, check_output_name,
-                          derived_path, input_path, open_fits, output_error, temp_file)
+from noise.validate import check_bool, check_writable
+from noise.fitsio import (StreamingFITS, WriteBehind, WriterThread, atomic_file,
+                          check_output_name, derived_path, input_path, open_fits,
+                          output_error, temp_file)
 
 from scenesim.io.header import (check_file_kind, exposure_cards, filetype_card,
                                 nextend_card)
@@ -208,6 +209,13 @@ class ExposureWriter:
         Rendered source catalogue for the truth file.
     overwrite : bool
         Replace existing files (default: refuse them).
+    write_behind : bool
+        The exposure is not read again by this process: hand its resultants to the
+        disk as they are written and keep them out of the page cache
+        (:class:`noise.fitsio.WriteBehind`; fresh page-cache pages cost ~20 ms of
+        kernel CPU per 8 MB on the machine of BENCHMARKS.md, taken from the engine's
+        threads).  Leave it off when the run reads the file back (a fit, the
+        pipeline products): the read would then come from disk into fresh pages.
 
     Raises
     ------
@@ -219,7 +227,8 @@ class ExposureWriter:
     """
 
     def __init__(self, engine, path, *, cards=(), truth_path=None, save_charge=False,
-                 save_noise=False, sources=None, overwrite=False):
+                 save_noise=False, sources=None, overwrite=False, write_behind=False):
+        write_behind = check_bool("write_behind", write_behind)
         if path is not None:
             check_writable("output path", path, overwrite=overwrite)
             check_output_name("output path", path)
@@ -236,6 +245,7 @@ class ExposureWriter:
         self._stack = contextlib.ExitStack()
         self._stream = None
         self._writer = None                 # the writer thread of the exposure's SCI
+        self._behind = None                 # its WriteBehind (write_behind=True)
         self._sci = None
         self._raws = {}
         self._rawref = None
@@ -257,6 +267,8 @@ class ExposureWriter:
                     self._stream.begin_image(self.shape, np.uint16,
                                              [("BUNIT", "DN", "raw counts")], name="SCI")
                 self._writer = WriterThread()
+                if write_behind:
+                    self._behind = WriteBehind(fobj)
                 if self.rawref_shape is not None:
                     self._rawref = _RawCube(path, "RAWREF", ">u2")
             else:
@@ -308,7 +320,7 @@ class ExposureWriter:
         """
         if self._stream is not None:
             self._wait_write()
-            self._writer.submit(self._stream.write, res.dn)
+            self._writer.submit(self._write_sci, res.dn)
         else:
             self._sci[res.integration, res.index] = res.dn
         if self._rawref is not None:
@@ -319,6 +331,12 @@ class ExposureWriter:
             self._raws["CHARGE"].write(res.charge)
         if "NOISE" in self._raws:
             self._raws["NOISE"].write(res.noise)
+
+    def _write_sci(self, dn):
+        """One resultant into the SCI cube (in the writer thread)."""
+        self._stream.write(dn)
+        if self._behind is not None:
+            self._behind.written()
 
     def finish(self, run):
         """Complete the files from the finished ``run`` (its ``sat_read`` and

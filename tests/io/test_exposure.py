@@ -262,3 +262,52 @@ def test_read_missing_files(tmp_path):
         read_exposure(str(tmp_path / "none.fits"))
     with pytest.raises(FileFormatError):
         read_truth(str(tmp_path / "none.fits"))
+
+
+# ------------------------------------------------------------------ write-behind
+def _advice_calls(monkeypatch):
+    """Record every posix_fadvise call; make WriteBehind hand over every resultant."""
+    from noise.fitsio import WriteBehind
+    calls = []
+    monkeypatch.setattr(os, "posix_fadvise", lambda fd, off, n, adv: calls.append((off, n)),
+                        raising=False)
+    monkeypatch.setattr(os, "POSIX_FADV_DONTNEED", 4, raising=False)
+    monkeypatch.setattr(WriteBehind.__init__, "__defaults__", (2, 0))
+    return calls
+
+
+def test_write_behind_writes_the_same_files_and_hands_each_resultant_over(
+        tmp_path, monkeypatch):
+    """``write_behind`` changes what the page cache keeps, never the bytes: exposure
+    and truth files are identical with and without it.  With it, the SCI bytes of
+    every resultant are advised once when written and once when dropped (lag 2):
+    2 calls per resultant less the last two drops."""
+    calls = _advice_calls(monkeypatch)
+    det, ro = _det(), _ma_readout(nints=2)
+
+    def run(name, behind):
+        eng = ChargeEngine(det, ro, rate=30.0, noise_params=noise.NoiseParams(), rng=5,
+                           options=EngineOptions(threads=1))
+        path = str(tmp_path / f"{name}.fits")
+        write_exposure(eng, path, truth_path=str(tmp_path / f"{name}_truth.fits"),
+                       save_charge=True, write_behind=behind)
+        return path
+
+    run("plain", False)
+    assert calls == []
+    run("behind", True)
+    n_res = ro.nints * ro.ngroups
+    assert len(calls) == 2 * n_res - 2, calls
+    # order: pieces 0 and 1 written, then (piece k written, piece k - 2 dropped)
+    written = calls[:2] + calls[2::2]
+    dropped = calls[3::2]
+    size = det.ny * det.nx * 2                     # one resultant of uint16 DN
+    assert [n for _, n in written] == [size] * n_res
+    assert [b - a for (a, _), (b, _) in zip(written, written[1:])] == [size] * (n_res - 1)
+    assert dropped == written[:n_res - 2]
+    for a, b in (("plain.fits", "behind.fits"), ("plain_truth.fits", "behind_truth.fits")):
+        assert (tmp_path / a).read_bytes() == (tmp_path / b).read_bytes(), a
+    with pytest.raises(ParameterError, match="'write_behind'"):
+        write_exposure(ChargeEngine(det, ro, rate=1.0, rng=1),
+                       str(tmp_path / "x.fits"), write_behind="yes")
+    assert not (tmp_path / "x.fits").exists()
