@@ -30,19 +30,9 @@ import numpy as np
 import noise
 from noise import pink
 from noise.errors import ParameterError
-from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout
-from astropy.io import fits
 from noise.fitsio import StreamingFITS
 from scenesim.bench.process import peak_rss_self
-from scenesim.engine import ChargeEngine, EngineOptions
-from scenesim.io.cuberows import exposure_rows
-from scenesim.io.header import filetype_card, nextend_card
-from scenesim.rampfit import fit_ramps, optimal_variance
-from scenesim.rampfit.solver import row_chunks
-from scenesim.run import write_exposure
-from scenesim.sky.psf import GaussianPSF, render_point_sources
 from scenesim.bench.floor import floor_counts, typical_lambda
-from scenesim.batch.bench import bench_batch
 from scenesim.bench.limit import pink_samples
 
 __all__ = ['WORKLOADS', 'OPTION_CASES', 'PREPARE', 'FIT_JUMP_SIGMA', 'bench_noise',
@@ -90,6 +80,8 @@ def _run_engine(det, readout, rate, threads, noise_params, *, options=None,
     each :class:`scenesim.engine.Resultant` goes to it).
 
     Returns ``((wall, cpu, output bytes), engine)``."""
+    from scenesim.engine import ChargeEngine, EngineOptions
+    from scenesim.run import write_exposure
     opts = options if options is not None else EngineOptions(threads=threads)
     eng = ChargeEngine(det, readout, noise_params=noise_params, rate=rate, rng=7,
                        options=opts)
@@ -121,6 +113,7 @@ def _engine_result(det, readout, rate, params, timing, detail):
 
 def _star_rates(shape, n, rng, log_flux):
     """Rate map (e-/s) of ``n`` point sources with log10 flux uniform in ``log_flux``."""
+    from scenesim.sky.psf import GaussianPSF, render_point_sources
     ny, nx = shape
     x, y = rng.uniform(0, nx - 1, n), rng.uniform(0, ny - 1, n)
     flux = 10 ** rng.uniform(*log_flux, n)
@@ -129,6 +122,7 @@ def _star_rates(shape, n, rng, log_flux):
 
 def bench_jwst(size, threads):
     """H2RG star field: 1000 stars over 4 decades, RAPID, full noise."""
+    from scenesim.detector.readout import Readout
     quick = not size.startswith("full")
     engine_only = size.endswith("engine")
     det = noise.preset("H2RG", naxis1=512, naxis2=512) if quick else noise.preset("H2RG")
@@ -153,6 +147,7 @@ def roman_scene(size):
     Rates: 1 e-/s everywhere, 0.5 % of the pixels at 100-1000 e-/s (seed 4); the
     reference border collects no charge in the engine.
     """
+    from scenesim.detector.readout import ROMAN_LIKE_TABLE, Readout
     quick = size != "full"
     det = noise.preset("H4RG-10", naxis1=1024, naxis2=1024) if quick \
         else noise.preset("H4RG-10")
@@ -176,6 +171,8 @@ def bench_roman(size, threads):
 
 def bench_timeseries(nints, threads):
     """64x64 window, ``nints`` integrations of RAPID x 5, one star, full noise."""
+    from scenesim.detector.readout import Readout
+    from scenesim.sky.psf import GaussianPSF, render_point_sources
     det = noise.preset("H2RG").window(992, 992, 64, 64, name="BENCH64")
     ro = Readout.named("RAPID", 5, nints=nints)
     rate = 0.51 + render_point_sources(det.shape, 31.5, 31.5, 1e4, GaussianPSF(2.0))[0]
@@ -238,6 +235,9 @@ def write_fit_ramp(path, size, nres):
     1000 DN, rounded to uint16 DN (seed 6; the first ``n`` resultants are the same
     whatever ``nres``).  Only one frame is in memory at a time.
     """
+    from astropy.io import fits
+    from scenesim.detector.readout import Readout
+    from scenesim.io.header import filetype_card, nextend_card
     tf = noise.preset("H2RG").frame_time
     g = np.random.default_rng(6)
     acc = np.zeros((size, size), dtype=np.float32)
@@ -268,6 +268,7 @@ def prepare_fit(spec, directory, cases=()):
     :func:`write_fit_ramp` holding the longest ramp of that size among ``cases``
     (``cube`` = its path).
     """
+    from scenesim.io.cuberows import exposure_rows
     if len(spec) == 3:
         size = spec[0]
         longest = max([c[2] for c in cases if len(c) == 3 and c[0] == size]
@@ -297,6 +298,7 @@ def bench_fit(spec, threads, *, cube=None, out_dir=None):
     stcal peer saves its own.  ``spec`` = ``(size, 'gls', nres)``: a scaling case
     (module notes, :func:`_bench_fit_scaling`); ``cube`` is its exposure file.
     """
+    from scenesim.rampfit import fit_ramps
     if len(spec) == 3:
         return _bench_fit_scaling(spec, threads, cube)
     size, fitter = spec
@@ -329,6 +331,9 @@ def _bench_fit_scaling(spec, threads, path):
     (``read_pass``: file to float32 e-) and ``np.sum`` over each block read
     (``baseline``: the memory-bandwidth time of the cube's float32 values).
     """
+    from scenesim.io.cuberows import exposure_rows
+    from scenesim.rampfit import fit_ramps
+    from scenesim.rampfit.solver import row_chunks
     size, fitter, nres = spec
     if path is None:
         raise ParameterError("the fit's scaling cases need their exposure file "
@@ -367,6 +372,7 @@ OPTION_CASES = ("exact", "gauss_above=1000", "gauss_above=100", "arrivals=2d")
 
 
 def _engine_options(case, threads):
+    from scenesim.engine import EngineOptions
     if case == "exact":
         return EngineOptions(threads=threads)
     key, value = case.split("=")
@@ -377,6 +383,7 @@ def _engine_options(case, threads):
 
 def _options_scene(size):
     """Detector, readout, rate map and white-noise params of the options workload."""
+    from scenesim.detector.readout import Readout
     det = noise.preset("H2RG", naxis1=size, naxis2=size)
     ro = Readout.named("RAPID", 10)
     # 0.1 .. 1e3 e-/s: up to ~2.8e4 e- over 10 reads at 1024^2, below the 16-bit ADC
@@ -402,6 +409,7 @@ def bench_options(case, threads):
     the largest per-pixel slope difference from the exact path (same seed) in units
     of the optimal sigma.
     """
+    from scenesim.rampfit import fit_ramps, optimal_variance
     size = 1024 if case[1] == "full" else 256
     det, ro, rate, params = _options_scene(size)
     out = {}
@@ -477,6 +485,7 @@ def bench_skips(case, threads):
     read) vs a pattern that materialises all 20.  ``no_ramp_file``: the charge
     engine streaming to an exposure file vs keeping only the in-memory resultants.
     """
+    from scenesim.detector.readout import Readout
     what, defeated = case
     det = noise.preset("H2RG")
     ro = Readout.named("RAPID", 5)
@@ -511,6 +520,12 @@ def bench_skips(case, threads):
                           f"{what}: {'skip defeated' if defeated else 'skipped'}")
 
 
+def _bench_batch(case, threads, **kwargs):
+    """:func:`scenesim.batch.bench.bench_batch` (imported when it runs: dask)."""
+    from scenesim.batch.bench import bench_batch
+    return bench_batch(case, threads, **kwargs)
+
+
 #: Workload name -> (function, full cases, quick cases).
 WORKLOADS = {
     "noise": (bench_noise, [10, 40, 88], [1, 5]),
@@ -529,7 +544,7 @@ WORKLOADS = {
                             for d in (False, True)],
               [("zero_amplitude", False), ("zero_amplitude", True)]),
     # exposures per minute on dask (1 and 2 workers) against a loop of runs
-    "batch": (bench_batch, [24], [4]),
+    "batch": (_bench_batch, [24], [4]),
 }
 
 #: Workload name -> function(case, directory, cases) that writes the case's input to
