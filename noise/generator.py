@@ -175,6 +175,34 @@ def _call(task):
     return task()
 
 
+def _column_runs(dst, src):
+    """``dst[:, d] = src[:, s]`` for the paired columns ``(d, s)`` as runs of slices:
+    ``(d0, s0, n, step)`` for ``n`` consecutive ``dst`` columns from ``d0`` whose
+    ``src`` columns go from ``s0`` by ``step`` (+1 or -1).  A raw frame's image part
+    is a few runs (one per output, or one per group of normal samples between
+    interleaved ones); copying them as slices costs a few ms per 4096x4096 frame,
+    the column gather ``dst[:, dst_cols] = src[:, src_cols]`` ~160 ms."""
+    dst, src = np.asarray(dst).tolist(), np.asarray(src).tolist()
+    runs, k = [], 0
+    while k < len(dst):
+        step = 1
+        if k + 1 < len(dst) and dst[k + 1] == dst[k] + 1 and src[k + 1] - src[k] == -1:
+            step = -1
+        e = k + 1
+        while e < len(dst) and dst[e] == dst[e - 1] + 1 and src[e] - src[e - 1] == step:
+            e += 1
+        runs.append((dst[k], src[k], e - k, step))
+        k = e
+    return runs
+
+
+def _copy_columns(dst, src, runs):
+    """``dst[:, d] = src[:, s]`` over the runs of :func:`_column_runs`."""
+    for d0, s0, n, step in runs:
+        stop = s0 + n * step
+        dst[:, d0:d0 + n] = src[:, s0:(stop if stop >= 0 else None):step]
+
+
 def _index_list(name, values, upper):
     """Sorted unique ints in ``[0, upper)`` from ``values``, or a ParameterError."""
     try:
@@ -545,6 +573,14 @@ class NoiseGenerator:
             per_output.append((o, pos, slot[extra[pos]]))
         return extra, normal, image_x[normal], per_output
 
+    @functools.cached_property
+    def _raw_runs(self):
+        """Column runs (:func:`_column_runs`) placing the image's columns and the
+        extra samples' columns in the raw frame."""
+        extra, normal, image_x, _ = self._raw_layout
+        return (_column_runs(normal, image_x),
+                _column_runs(extra, np.arange(extra.size)))
+
     def _frame_line(self, parts, start=None):
         """The sum of the time lines ``parts`` of one frame slot, (ny + nfoh,
         row_samples) float32, added in turn to a copy of ``start`` (a flat line of the
@@ -637,10 +673,10 @@ class NoiseGenerator:
         det = self.detector
         if image is None:
             image = self.frame(slot, integration)
-        extra, normal, image_x, _ = self._raw_layout
+        image_runs, extra_runs = self._raw_runs
         raw = np.empty(det.raw_shape, dtype=np.float32)
-        raw[:, normal] = image[:, image_x]
-        raw[:, extra] = self.extra_samples(slot, integration)
+        _copy_columns(raw, image, image_runs)
+        _copy_columns(raw, self.extra_samples(slot, integration), extra_runs)
         return raw
 
     def _advance_rtn(self, slot):
@@ -861,11 +897,16 @@ class NoiseGenerator:
             with a frame by then (the charge engine: 1; the FITS writer, which writes
             one frame while the next is made: 2).  Saves a fresh frame per read (and
             the kernel's zeroing of its pages).  Default 0: a new array per read.
-        raw : bool, keyword-only
-            Yield raw frames (:meth:`raw_frame`, shape ``detector.raw_shape``): the
-            image pixels and the interleaved reference and reference-output samples;
-            a new array per read (``reuse`` then applies to the image frames made
-            inside).  Only for detectors that write such samples.
+        raw : bool or 'split', keyword-only
+            True: yield raw frames (:meth:`raw_frame`, shape ``detector.raw_shape``):
+            the image pixels and the interleaved reference and reference-output
+            samples; a new array per read (``reuse`` then applies to the image
+            frames made inside).  ``'split'``: yield the raw frame's two parts as
+            ``(image, extra)`` instead, the image frame (ny, nx) and
+            :meth:`extra_samples` (ny, n_extra) in the order of the raw columns
+            that hold them, without assembling the raw layout (the charge engine
+            adds charge to the image and digitises both).  Only for detectors that
+            write such samples.
 
         Returns
         -------
@@ -882,23 +923,31 @@ class NoiseGenerator:
             dn_gain = check_float("dn_gain", dn_gain, minimum=0.0, strict_min=True)
         nbuf = int(reuse) if isinstance(reuse, bool) else check_int("reuse", reuse,
                                                                       minimum=0)
-        if not isinstance(raw, bool):
-            raise ParameterTypeError(f"'raw' must be True or False, got {describe(raw)}")
+        if not isinstance(raw, bool) and raw != "split":
+            raise ParameterTypeError(f"'raw' must be True, False or 'split', got "
+                                     f"{describe(raw)}")
         if raw:
             if not self.detector.has_raw_samples:
                 raise ParameterError(
                     f"'raw'=True: detector {self.detector.name!r} writes no samples "
                     f"besides its image pixels (no 'interleave', no 'ref_output')")
-            return self._raw_frames(nreads, reads, ints, dn_gain, nbuf)
+            return self._raw_frames(nreads, reads, ints, dn_gain, nbuf,
+                                    split=raw == "split")
         return self._frames(nreads, reads, ints, dn_gain, nbuf)
 
-    def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf):
+    def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf, split=False):
         adc = None if dn_gain is None else ADC(dn_gain)
         self._reset_int_raw = None
-        # no lines made ahead: raw_frame reads the slot's 1/f series again
+        # no lines made ahead: the extra samples read the slot's 1/f series again
         for i, k, img in self._frames(nreads, reads, ints, None, nbuf, ahead=False):
-            raw = self.raw_frame(frame_slot(i, k, nreads), i, image=img)
-            yield i, k, (raw if adc is None else adc.to_dn(raw))
+            slot = frame_slot(i, k, nreads)
+            if split:
+                extra = self.extra_samples(slot, i)
+                yield i, k, ((img, extra) if adc is None
+                             else (adc.to_dn(img), adc.to_dn(extra)))
+            else:
+                raw = self.raw_frame(slot, i, image=img)
+                yield i, k, (raw if adc is None else adc.to_dn(raw))
 
     def _frames(self, nreads, reads, ints, dn_gain, nbuf, ahead=True):
         self._rtn_state = self._rtn_slot = None

@@ -753,13 +753,6 @@ class ChargeEngine:
         if save_noise and nframe is not None:
             rr.noise_sum[b] += nframe[b]
 
-    def _raw_split(self):
-        """Raw columns of the image pixels (with their image columns) and of the other
-        samples, for a detector with raw samples."""
-        _, _, image_x = self.detector.raw_columns()
-        normal = np.flatnonzero(image_x >= 0)
-        return normal, image_x[normal], np.flatnonzero(image_x < 0)
-
     def _finish(self, run, i, r_index, rr, save_charge, save_noise):
         """The :class:`Resultant` of a complete DN sum: the rounded mean."""
         if rr.dn_sum.dtype == np.uint16:
@@ -785,11 +778,11 @@ class ChargeEngine:
         if raw:
             # the interleaved / reference-output samples: no charge, digitised as
             # the pixels, averaged into their resultants
-            normal, image_x, extra = self._raw_split()
-            nframe_buf = np.empty(shape, dtype=np.float32)
+            n_extra = int((self.detector.raw_columns()[2] < 0).sum())
         if self.noise is not None:
+            # the raw frame's parts, image and extra samples, never the raw layout
             noise_iter = self.noise.frames(ro.nreads, needed, nints=ro.nints, reuse=True,
-                                           raw=raw)
+                                           raw="split" if raw else False)
         run.finalizers.append(lambda: noise_iter is not None and noise_iter.close())
         q = np.empty(shape, dtype=np.float32) if self._has_charge else None
         done = 0
@@ -808,11 +801,9 @@ class ChargeEngine:
                 extra_f = None
                 if raw:
                     if nframe is not None:
-                        extra_f = nframe[:, extra].astype(np.float64)
-                        nframe_buf[:, image_x] = nframe[:, normal]
-                        nframe = nframe_buf
+                        nframe, extra_f = nframe[0], nframe[1].astype(np.float64)
                     else:
-                        extra_f = np.zeros((shape[0], extra.size))
+                        extra_f = np.zeros((shape[0], n_extra))
                 r_index = read_to_res[k]
                 rr = res[r_index]
                 first = rr.count == 0

@@ -188,3 +188,58 @@ def test_reference_output_without_interleave():
         ref = raw[k][:, :16]
         out0 = raw[k][:, 16:32]                      # output 0, left to right
         np.testing.assert_allclose(ref[:, ::-1], out0, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("det", [DET, preset("H2RG", naxis1=64, naxis2=16, ref_output=True),
+                                 preset("NIRSPEC-IRS2", naxis1=256, naxis2=64,
+                                        ref_output=True)],
+                         ids=["irs2", "ref_output", "irs2+ref_output"])
+def test_split_frames_are_the_raw_frames_parts(det):
+    """``frames(raw='split')`` yields (image, extra): the raw frame's image columns
+    and its other columns, in raw-column order, with the same draws."""
+    p = noise.NoiseParams()
+    _, raw = _raw(p, 3, 21, det=det)
+    gen = noise.NoiseGenerator(det, p, rng=21, threads=1)
+    split = [f for *_, f in gen.frames(3, raw="split")]
+    _, _, image_x = det.raw_columns()
+    normal, extra = np.flatnonzero(image_x >= 0), np.flatnonzero(image_x < 0)
+    for k, (img, ext) in enumerate(split):
+        assert img.shape == det.shape and ext.shape == (det.ny, extra.size)
+        assert np.array_equal(raw[k][:, normal], img[:, image_x[normal]])
+        assert np.array_equal(raw[k][:, extra], ext)
+    dn = [f for *_, f in noise.NoiseGenerator(det, p, rng=21, threads=1).frames(
+        3, raw="split", dn_gain=1.5)]
+    for (img, ext), (dimg, dext) in zip(split, dn):
+        np.testing.assert_array_equal(dimg, noise.adc.to_dn(img, 1.5))
+        np.testing.assert_array_equal(dext, noise.adc.to_dn(ext, 1.5))
+    with pytest.raises(noise.errors.ParameterError, match="'raw' must be"):
+        gen.frames(2, raw="yes")
+
+
+def test_column_runs_copy_any_pairing():
+    """The slice runs that place the image in the raw frame copy exactly what the
+    column gather ``dst[:, d] = src[:, s]`` copies, for runs up, down, of one column
+    and reaching column 0 (seeded random layouts)."""
+    from noise.generator import _column_runs, _copy_columns
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        n = int(rng.integers(1, 40))
+        pieces = []
+        # cut the destination into segments, each from a run of sources up or down
+        cuts = np.sort(rng.choice(np.arange(1, n), size=min(n - 1, int(rng.integers(0, 6))),
+                                  replace=False)) if n > 1 else []
+        start = 0
+        for end in [*cuts, n]:
+            m = end - start
+            s0 = int(rng.integers(0, n - m + 1))
+            seg = np.arange(s0, s0 + m)
+            pieces.append(seg[::-1] if rng.random() < 0.5 else seg)
+            start = end
+        s = np.concatenate(pieces)
+        d = np.sort(rng.choice(np.arange(n + 10), size=n, replace=False))
+        src = rng.standard_normal((3, n)).astype(np.float32)
+        want = np.zeros((3, n + 10), np.float32)
+        want[:, d] = src[:, s]
+        got = np.zeros_like(want)
+        _copy_columns(got, src, _column_runs(d, s))
+        assert np.array_equal(got, want), (d, s)
