@@ -112,7 +112,7 @@ import numpy as np
 
 from noise.validate import check_float, check_int, describe
 from noise.adc import ADC
-from noise.clock import Detector, frame_slot
+from noise.clock import Detector, column_runs, copy_columns, frame_slot
 from noise.errors import ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.pink import PinkSeries
@@ -173,34 +173,6 @@ class Layout:
 
 def _call(task):
     return task()
-
-
-def _column_runs(dst, src):
-    """``dst[:, d] = src[:, s]`` for the paired columns ``(d, s)`` as runs of slices:
-    ``(d0, s0, n, step)`` for ``n`` consecutive ``dst`` columns from ``d0`` whose
-    ``src`` columns go from ``s0`` by ``step`` (+1 or -1).  A raw frame's image part
-    is a few runs (one per output, or one per group of normal samples between
-    interleaved ones); copying them as slices costs a few ms per 4096x4096 frame,
-    the column gather ``dst[:, dst_cols] = src[:, src_cols]`` ~160 ms."""
-    dst, src = np.asarray(dst).tolist(), np.asarray(src).tolist()
-    runs, k = [], 0
-    while k < len(dst):
-        step = 1
-        if k + 1 < len(dst) and dst[k + 1] == dst[k] + 1 and src[k + 1] - src[k] == -1:
-            step = -1
-        e = k + 1
-        while e < len(dst) and dst[e] == dst[e - 1] + 1 and src[e] - src[e - 1] == step:
-            e += 1
-        runs.append((dst[k], src[k], e - k, step))
-        k = e
-    return runs
-
-
-def _copy_columns(dst, src, runs):
-    """``dst[:, d] = src[:, s]`` over the runs of :func:`_column_runs`."""
-    for d0, s0, n, step in runs:
-        stop = s0 + n * step
-        dst[:, d0:d0 + n] = src[:, s0:(stop if stop >= 0 else None):step]
 
 
 def _index_list(name, values, upper):
@@ -575,11 +547,11 @@ class NoiseGenerator:
 
     @functools.cached_property
     def _raw_runs(self):
-        """Column runs (:func:`_column_runs`) placing the image's columns and the
+        """Column runs (:func:`noise.clock.column_runs`) placing the image's columns and the
         extra samples' columns in the raw frame."""
         extra, normal, image_x, _ = self._raw_layout
-        return (_column_runs(normal, image_x),
-                _column_runs(extra, np.arange(extra.size)))
+        return (column_runs(normal, image_x),
+                column_runs(extra, np.arange(extra.size)))
 
     def _frame_line(self, parts, start=None):
         """The sum of the time lines ``parts`` of one frame slot, (ny + nfoh,
@@ -675,8 +647,8 @@ class NoiseGenerator:
             image = self.frame(slot, integration)
         image_runs, extra_runs = self._raw_runs
         raw = np.empty(det.raw_shape, dtype=np.float32)
-        _copy_columns(raw, image, image_runs)
-        _copy_columns(raw, self.extra_samples(slot, integration), extra_runs)
+        copy_columns(raw, image, image_runs)
+        copy_columns(raw, self.extra_samples(slot, integration), extra_runs)
         return raw
 
     def _advance_rtn(self, slot):

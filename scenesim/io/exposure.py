@@ -66,6 +66,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import Table
 
+from noise.clock import column_runs, copy_columns
 from noise.errors import FileFormatError, ScenesimError
 from noise.validate import check_bool, check_writable
 from noise.fitsio import (StreamingFITS, WriteBehind, WriterThread, atomic_file,
@@ -522,8 +523,8 @@ def raw_resultants(exposure, detector):
             f"reference-output samples of {detector.name!r}), got "
             f"{None if rr is None else rr.shape}")
     out = np.empty(exposure.sci.shape[:3] + (detector.raw_nx,), dtype=np.uint16)
-    out[..., normal] = exposure.sci[..., image_x[normal]]
-    out[..., extra] = rr
+    copy_columns(out, exposure.sci, column_runs(normal, image_x[normal]))
+    copy_columns(out, rr, column_runs(extra, np.arange(extra.size)))
     return out
 
 

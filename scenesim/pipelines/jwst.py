@@ -119,7 +119,7 @@ import numpy as np
 from astropy.table import Table
 from astropy.time import Time
 
-from noise.clock import detector_from_header, frame_slot
+from noise.clock import column_runs, copy_columns, detector_from_header, frame_slot
 from noise.errors import FileFormatError, ParameterError
 from noise.fitsio import atomic_path
 from noise.validate import check_writable
@@ -606,9 +606,8 @@ def _raw_layout(det, image, fill):
     (interleaved reference, reference output) ``fill``."""
     _, _, image_x = det.raw_columns()
     out = np.full((image.shape[0], image_x.size), fill, dtype=np.asarray(image).dtype)
-    normal = image_x >= 0
-    out[:, normal] = image[:, image_x[normal]]
-    return out
+    normal = np.flatnonzero(image_x >= 0)
+    return copy_columns(out, image, column_runs(normal, image_x[normal]))
 
 
 def _dark_model(dm, reference, readout, t_frame, orient=lambda a: a):

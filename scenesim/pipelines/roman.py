@@ -121,7 +121,7 @@ import tempfile
 
 import numpy as np
 
-from noise.clock import detector_from_header
+from noise.clock import column_runs, copy_columns, detector_from_header
 from noise.errors import FileFormatError, ParameterError
 from noise.validate import check_writable
 
@@ -178,7 +178,8 @@ def _amp33_reference_output(exp, det):
             f"shape {want}, got {None if rr is None else rr.shape}")
     # without interleave every RAWREF column is the reference output's: time order
     order = np.argsort(slot[extra], kind="stable")
-    return np.ascontiguousarray(np.asarray(rr[0], dtype=np.uint16)[..., order])
+    out = np.empty(rr.shape[1:], dtype=np.uint16)
+    return copy_columns(out, rr[0], column_runs(np.arange(order.size), order))
 
 
 def _amp33(header, readout, t_frame, det, shape, gain, adc_top, rng):

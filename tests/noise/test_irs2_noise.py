@@ -218,9 +218,9 @@ def test_split_frames_are_the_raw_frames_parts(det):
 
 def test_column_runs_copy_any_pairing():
     """The slice runs that place the image in the raw frame copy exactly what the
-    column gather ``dst[:, d] = src[:, s]`` copies, for runs up, down, of one column
-    and reaching column 0 (seeded random layouts)."""
-    from noise.generator import _column_runs, _copy_columns
+    column gather ``out[..., d] = a[..., s]`` copies, for runs up, down, of one
+    column and reaching column 0, pairs in any order (seeded random layouts)."""
+    from noise.clock import column_runs, copy_columns
     rng = np.random.default_rng(4)
     for _ in range(50):
         n = int(rng.integers(1, 40))
@@ -237,9 +237,13 @@ def test_column_runs_copy_any_pairing():
             start = end
         s = np.concatenate(pieces)
         d = np.sort(rng.choice(np.arange(n + 10), size=n, replace=False))
-        src = rng.standard_normal((3, n)).astype(np.float32)
-        want = np.zeros((3, n + 10), np.float32)
-        want[:, d] = src[:, s]
+        if rng.random() < 0.5:                     # mirrored: destination descending
+            d = d[::-1]
+        pairs = rng.permutation(n)                 # the pairs in any order
+        d, s = d[pairs], s[pairs]
+        src = rng.standard_normal((2, 3, n)).astype(np.float32)
+        want = np.zeros((2, 3, n + 10), np.float32)
+        want[..., d] = src[..., s]
         got = np.zeros_like(want)
-        _copy_columns(got, src, _column_runs(d, s))
+        assert copy_columns(got, src, column_runs(d, s)) is got
         assert np.array_equal(got, want), (d, s)
