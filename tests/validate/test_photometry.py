@@ -74,3 +74,25 @@ def test_airy_psf_from_header_gives_the_aperture_correction(tmp_path):
     s = math.sqrt(sigma ** 2 * a_ap + math.pi / 2 * sigma ** 2 / a_ann * a_ap ** 2) / ee / flux
     assert abs(p["median_ratio"] - expected) < 5 * 1.2533 * s / math.sqrt(n) + 2e-3
     assert abs(p["median_ratio"] - 1.0) < 0.02   # without the correction: ~ 1/0.93
+
+
+def test_annulus_medians_are_photutils_aperture_stats_medians():
+    """The background medians equal photutils' ApertureStats(..., mask=bad).median
+    (same 'center' masks): annuli inside, across the edges and off the array, bad
+    and non-finite pixels excluded (seeded image; exact equality)."""
+    import warnings
+    from photutils.aperture import ApertureStats, CircularAnnulus
+    from scenesim.validate.photometry import annulus_medians
+    rng = np.random.default_rng(5)
+    img = rng.normal(3.0, 1.0, (64, 80))
+    bad = rng.random(img.shape) < 0.1
+    img[rng.random(img.shape) < 0.02] = np.nan
+    pos = np.column_stack([rng.uniform(-3, 83, 30), rng.uniform(-3, 67, 30)])
+    pos[0] = (-20.0, -20.0)                        # no pixel at all: NaN
+    ann = CircularAnnulus(pos, r_in=4.0, r_out=7.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")            # photutils warns about the NaNs
+        want = np.asarray(ApertureStats(img, ann, mask=bad).median, dtype=float)
+    got = annulus_medians(img, ann, bad)
+    assert np.isnan(got[0])
+    np.testing.assert_array_equal(got, want)
