@@ -192,6 +192,24 @@ def _raise_interrupted(signum, frame):
     raise Interrupted(signum)
 
 
+def _interrupt_behind(exc):
+    """The interrupt (``KeyboardInterrupt``, :class:`Interrupted`) behind an exception:
+    the exception itself or one it was raised while handling; None if there is none.
+
+    A signal's exception is raised wherever the main thread happens to be.  Landing
+    inside a lock's wait (``threading.Condition.wait``, e.g. in ``Future.result``), it
+    can be replaced by another one while that wait unwinds ("cannot release un-acquired
+    lock"): the interrupt then survives only as the new exception's context, and it
+    still decides how the command ends."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__context__
+    return None
+
+
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
     # First thing: a SIGTERM or SIGHUP from now on ends the command in one line.
@@ -218,24 +236,37 @@ def main(argv=None):
             signal.pthread_sigmask(signal.SIG_UNBLOCK, blocked)
         keep_freed_memory()        # process-wide malloc policy: see noise.fast.memory
         return command(args)
-    except ScenesimError as exc:
-        print(f"scenesim {args.command}: error: {exc}", file=sys.stderr)
+    except BaseException as exc:
+        code = _ending(args.command, exc)
+        if code is None:
+            raise
+        return code
+
+
+def _ending(command, exc):
+    """The exit status of a command that raised ``exc``, its one line printed; None for
+    an exception that is a bug (its traceback is shown)."""
+    interrupt = _interrupt_behind(exc)
+    if interrupt is not None:
+        # the interrupt decides, whatever exception it turned into on the way out
+        return _interrupted(f" {command}", interrupt)
+    if isinstance(exc, ScenesimError):
+        print(f"scenesim {command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as exc:
-        return _interrupted(f" {args.command}", exc)
-    except MemoryError:
+    if isinstance(exc, MemoryError):
         # Reached only past the size check (scenesim.budget), e.g. with --force or
         # when other processes took the memory; the temporary files are already gone.
-        print(f"scenesim {args.command}: error: out of memory; no partial output was "
+        print(f"scenesim {command}: error: out of memory; no partial output was "
               f"left (see the size estimate: run without --force, or on a smaller "
               f"array)", file=sys.stderr)
         return 1
-    except BrokenPipeError:
+    if isinstance(exc, BrokenPipeError):
         # stdout closed early (``scenesim ... | head``): not an error of the command.
         # Point stdout at /dev/null so that Python's exit flush does not fail again.
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 128 + int(signal.SIGPIPE)
+    return None
 
 
 def _interrupted(command, exc):

@@ -320,3 +320,50 @@ def test_sigkill_leftovers_are_removed_by_the_next_run(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "removed" in res.stdout and all(n in res.stdout for n in left)
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]
+
+
+#: Runs ``scenesim noise`` with its command replaced: the replacement sends the process
+#: ``SIG`` (if ``SEND``) and, if ``TURN`` is set, raises a RuntimeError while handling the interrupt,
+#: as ``threading.Condition.wait`` does when the signal lands between its lock's
+#: release and its ``try`` ("cannot release un-acquired lock", seen in CI in
+#: ``Future.result`` of the exposure's write-behind).
+_TURNED = """
+import os, signal, sys, time
+import scenesim.commands as commands
+from scenesim.cli import main
+
+def command(args):
+    try:
+        if {send}:
+            os.kill(os.getpid(), signal.{sig})
+            time.sleep(30)               # the handler raises before this ends
+    except KeyboardInterrupt:
+        if {turn}:
+            raise RuntimeError("cannot release un-acquired lock")
+        raise
+    if {bug}:
+        raise RuntimeError("a bug")
+
+commands.noise_command = command
+sys.exit(main(["noise", "-q", "-o", "n.fits"]))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize("turn", [False, True])
+def test_an_interrupt_ends_the_command_whatever_it_turned_into(tmp_path, sig, turn):
+    code = _TURNED.format(sig=signal.Signals(sig).name, send=True, turn=turn, bug=False)
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, text=True,
+                         capture_output=True, timeout=60, preexec_fn=_default_signals)
+    assert res.returncode == 128 + sig, res.stderr
+    _one_line(res.stderr, "interrupted", signal.Signals(sig).name)
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
+    # the rule above must not swallow real errors: no signal, a traceback, status 1
+    code = _TURNED.format(sig="SIGTERM", send=False, turn=True, bug=True)
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, text=True,
+                         capture_output=True, timeout=60)
+    assert res.returncode == 1
+    assert "Traceback" in res.stderr and "RuntimeError: a bug" in res.stderr
