@@ -120,7 +120,10 @@ def _parser():
                    help="workloads (default: all); 'peers' = noise, roman and fit with "
                         "their peers")
     b.add_argument("--quick", action="store_true")
-    b.add_argument("--out", default="bench_out")
+    b.add_argument("--out", default="bench_out",
+                   help="directory for bench.json, bench.md (and bench.png)")
+    b.add_argument("--overwrite", action="store_true",
+                   help="replace the report files of an earlier run in --out")
     b.add_argument("--threads", type=int, default=None)
     b.add_argument("--peers", action="store_true",
                    help="time each case's peers (NG, romanisim, stcal) in their own "

@@ -164,7 +164,7 @@ def bench_command(args):
                       scaling=args.scaling, command=shlex.join(["scenesim"] + sys.argv[1:]),
                       fit_sizes=_int_list("--fit-sizes", args.fit_sizes),
                       fit_resultants=_int_list("--fit-resultants", args.fit_resultants),
-                      pairs=args.pairs)
+                      pairs=args.pairs, overwrite=args.overwrite)
 
 
 def _int_list(option, text):

@@ -37,6 +37,7 @@ in this run is printed as "not measured".  This package holds no timing of any o
 program (a test scans it).
 """
 
+import io
 import json
 import os
 import pickle
@@ -48,6 +49,8 @@ import time
 import numpy as np
 
 from noise.errors import ParameterError
+from noise.fitsio import atomic_file, atomic_path
+from scenesim.outputs import check_outputs
 from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
 from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
@@ -308,13 +311,14 @@ def _plot(rows, path):
     ax.set_yscale("log")
     ax.set_title("run time against error (one point per option)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path, overwrite=True) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)
 
 
 def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=False,
          ng=None, scaling=False, command=None, fit_sizes=None, fit_resultants=None,
-         pairs=1):
+         pairs=1, overwrite=False):
     """Run the named workloads (all if empty), write ``bench.json``/``.md``/``.png``.
 
     Parameters
@@ -325,7 +329,10 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
     quick : bool
         Small sizes (seconds instead of minutes).
     out_dir : str
-        Output directory (created).
+        Output directory (created; its parent must exist).  Its ``bench.json``,
+        ``bench.md`` (and ``bench.png`` with the ``options`` or ``pink`` workload)
+        are checked before any work: an existing one is replaced only with
+        ``overwrite``.  They are rewritten, each atomically, after every case.
     threads : int or None
         Threads for the workloads, floors and limits (default: all cores).
     peers : bool
@@ -339,6 +346,8 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
         >= 1; the speed-ups printed are medians over the pairs (:func:`_scaling`).
     command : str or None
         The command line, recorded in the outputs.
+    overwrite : bool
+        Replace the report files of an earlier run in ``out_dir``.
     fit_sizes, fit_resultants : sequence of int or None
         The fit's scaling grid (:func:`scenesim.bench.workloads.fit_scaling_cases`):
         given either, the ``fit`` workload runs only that grid (the default of the
@@ -376,6 +385,7 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
     if grid and "fit" not in names:
         raise ParameterError("'fit_sizes'/'fit_resultants' set the fit workload's "
                              f"scaling grid: add the 'fit' workload (got {names})")
+    _check_out_dir(out_dir, names, overwrite)
     os.makedirs(out_dir, exist_ok=True)
     meta = dict(command=command or f"scenesim.bench.main({names!r}, quick={quick}, "
                                    f"threads={threads}, peers={peers}, ng={ng!r}, "
@@ -399,6 +409,32 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0
+
+
+def _report_files(names):
+    """The files a run of the workloads ``names`` writes into its output directory."""
+    plot = any(n in ("options", "pink") for n in names)
+    return ("bench.json", "bench.md") + (("bench.png",) if plot else ())
+
+
+def _check_out_dir(out_dir, names, overwrite):
+    """Refuse, before any work, an output directory that is a file, whose parent is
+    missing, or that holds an earlier run's report files (without ``overwrite``)."""
+    out_dir = os.fspath(out_dir)
+    files = _report_files(names)
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise ParameterError(f"'--out' {out_dir!r} is a file; expected a directory for "
+                             f"{', '.join(files)}")
+    parent = os.path.dirname(os.path.abspath(out_dir))
+    if not os.path.isdir(parent):
+        raise ParameterError(f"'--out': the directory {parent!r} that would hold "
+                             f"{out_dir!r} does not exist")
+    if os.path.isdir(out_dir):
+        check_outputs({f"bench report {f}": os.path.join(out_dir, f) for f in files},
+                      overwrite=overwrite)
+    elif not os.access(parent, os.W_OK):
+        raise ParameterError(f"'--out': the directory {parent!r} that would hold "
+                             f"{out_dir!r} is not writable")
 
 
 def _fit_grid(sizes, nres):
@@ -540,8 +576,9 @@ def _write(rows, out_dir, meta):
     """Write ``bench.json`` (with the end time and load), ``bench.md`` and the plot."""
     meta = dict(meta, load_average_end=load_average(),
                 end=time.strftime("%Y-%m-%d %H:%M:%S"))
-    with open(os.path.join(out_dir, "bench.json"), "w") as f:
-        json.dump(dict(meta=meta, rows=rows), f, indent=1)
+    text = json.dumps(dict(meta=meta, rows=rows), indent=1)
+    with atomic_file(os.path.join(out_dir, "bench.json"), overwrite=True) as f:
+        f.write(text.encode())
     write_report(rows, out_dir, meta)
 
 
@@ -549,7 +586,8 @@ def write_report(rows, out_dir, meta):
     """Write ``bench.md`` (and ``bench.png``) from the rows and metadata of a run, as
     ``bench.json`` holds them (nothing is measured here)."""
     peer_table = _peer_markdown(rows)
-    with open(os.path.join(out_dir, "bench.md"), "w") as f:
+    with atomic_file(os.path.join(out_dir, "bench.md"), overwrite=True) as raw, \
+            io.TextIOWrapper(raw, encoding="utf-8") as f:
         f.write(f"Benchmarks ({meta['date']} - {meta['end']}, {meta['threads']} threads, "
                 f"{'quick' if meta['quick'] else 'full'}; load average "
                 f"{'/'.join(map(str, meta['load_average_start']))} at the start, "

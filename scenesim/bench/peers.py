@@ -58,9 +58,20 @@ def check_ng_path(path):
     if path is None:
         return None
     path = os.path.abspath(os.fspath(path))
+    what = "'--ng' must be the path of NG's nghxrg.py (a Python file defining HXRGNoise)"
     if not os.path.isfile(path):
-        raise ParameterError(f"'--ng' must be the path of NG's nghxrg.py, got {path!r}, "
-                             f"which is not a file")
+        raise ParameterError(f"{what}, got {path!r}, which is not a file")
+    if not path.endswith(".py"):
+        # the peer script imports it as a module: Python loads only .py sources so
+        raise ParameterError(f"{what}, got {path!r}, which does not end in .py")
+    try:
+        with open(path, "rb") as f:
+            text = f.read()
+    except OSError as exc:
+        raise ParameterError(f"{what}, got {path!r}, which cannot be read "
+                             f"({exc.strerror})") from None
+    if b"class HXRGNoise" not in text:
+        raise ParameterError(f"{what}, got {path!r}, which defines no class HXRGNoise")
     return path
 
 

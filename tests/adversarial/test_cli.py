@@ -101,6 +101,30 @@ def _exposure(workdir):
 
 
 # ----------------------------------------------------------------- targets
+@pytest.mark.parametrize("case", ["exists", "read-only", "file", "no-directory"])
+def test_bench_report_targets_are_refused_before_any_work(tmp_path, case):
+    # bench writes a directory of reports: an earlier report, a read-only one (even
+    # with --overwrite), a file given as the directory, a missing parent
+    argv = ["bench", "timeseries", "--quick", "--threads", "1", "--out", "b"]
+    named = "b"
+    if case in ("exists", "read-only"):
+        (tmp_path / "b").mkdir()
+        (tmp_path / "b" / "bench.md").write_text("precious")
+        named = "bench.md"
+        if case == "read-only":
+            (tmp_path / "b" / "bench.md").chmod(stat.S_IRUSR | stat.S_IRGRP)
+            argv += ["--overwrite"]
+    elif case == "file":
+        (tmp_path / "b").write_text("precious")
+    else:
+        argv[-1] = named = "missing/b"
+    before = _snapshot(tmp_path)
+    res = _cli(argv, tmp_path)
+    assert res.returncode == 2
+    _one_line(res.stderr, named, "'--out'" if case in ("file", "no-directory") else "")
+    assert _snapshot(tmp_path) == before
+
+
 def _commands(workdir):
     """Each command with its main output: ``(argv, output name)``."""
     _exposure(workdir)

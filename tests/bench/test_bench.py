@@ -167,3 +167,43 @@ def test_kernel_probe_times_every_kernel_and_refuses_unknown_names():
         kernels.run_kernels("fft_4x32768")
     with pytest.raises(ParameterError, match="'repeats'"):
         kernels.run_kernels(["streams"], repeats=0)
+
+
+def test_report_files_are_checked_before_any_work(tmp_path, monkeypatch):
+    # no case may run before the output directory is accepted
+    ran = []
+    monkeypatch.setattr(bench, "_run_one", lambda *a, **k: ran.append(a) or {})
+    afile = tmp_path / "f"
+    afile.write_text("mine")
+    with pytest.raises(ParameterError, match=r"'--out' .*/f' is a file; expected a "
+                                             r"directory for bench.json, bench.md"):
+        bench.main(["timeseries"], quick=True, out_dir=str(afile))
+    with pytest.raises(ParameterError, match="does not exist"):
+        bench.main(["timeseries"], quick=True, out_dir=str(tmp_path / "no" / "b"))
+    # an earlier run's report is replaced only with overwrite (json, md; the png only
+    # for the workloads that plot)
+    for name in ("bench.json", "bench.md", "bench.png"):
+        d = tmp_path / name.replace(".", "_")
+        d.mkdir()
+        (d / name).write_text("earlier")
+        workloads = ["pink"] if name == "bench.png" else ["timeseries"]
+        with pytest.raises(ParameterError, match=rf"bench report {name} .*exists; pass "
+                                                 rf"--overwrite"):
+            bench.main(workloads, quick=True, out_dir=str(d))
+        assert (d / name).read_text() == "earlier"
+    assert ran == []
+    monkeypatch.undo()
+    d = tmp_path / "bench_png"          # timeseries writes no png: it is not in the way
+    assert bench.main(["timeseries"], quick=True, out_dir=str(d), threads=1) == 0
+    assert (d / "bench.png").read_text() == "earlier"
+    assert json.loads((d / "bench.json").read_text())["rows"][0]["case"] == "30"
+
+
+def test_overwrite_replaces_the_report_atomically(tmp_path):
+    d = tmp_path / "b"
+    d.mkdir()
+    (d / "bench.json").write_text("earlier")
+    assert bench.main(["timeseries"], quick=True, out_dir=str(d), threads=1,
+                      overwrite=True) == 0
+    assert json.loads((d / "bench.json").read_text())["rows"][0]["case"] == "30"
+    assert sorted(os.listdir(d)) == ["bench.json", "bench.md"]   # no temporary left

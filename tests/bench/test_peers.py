@@ -129,6 +129,24 @@ def test_ng_peak_estimate_grows_with_frames():
         peers.check_ng_path("/nonexistent/nghxrg.py")
 
 
+@pytest.mark.parametrize("name, text, why", [
+    ("nghxrg.txt", "class HXRGNoise:\n    pass\n", "does not end in .py"),
+    ("nghxrg.py", "print('not NG')\n", "defines no class HXRGNoise"),
+    ("nghxrg.py", None, "not a file"),
+])
+def test_ng_path_that_cannot_be_ng_is_refused_before_work(tmp_path, name, text, why):
+    # refused by name: a file Python cannot import as a module, one that does not
+    # define NG's class, a directory
+    path = tmp_path / name
+    if text is None:
+        path.mkdir()
+    else:
+        path.write_text(text)
+    with pytest.raises(ParameterError, match=rf"'--ng' must be the path of NG's "
+                                             rf"nghxrg.py .*{why}"):
+        peers.check_ng_path(str(path))
+
+
 _FAKE_NG = '''
 import numpy as np
 from astropy.io import fits
