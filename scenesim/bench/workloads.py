@@ -341,7 +341,7 @@ def _bench_fit_scaling(spec, threads, path):
     src = exposure_rows(path, nres=nres)
     tf = noise.preset("H2RG").frame_time
     times = [np.array([(k + 1) * tf]) for k in range(nres)]
-    bounds = row_chunks(size, size, nres)
+    bounds = row_chunks(size, size, nres, threads=threads)   # the fit's own blocks
     t_read = t_sum = 0.0
     for y0, y1 in bounds:
         t0 = time.perf_counter()

@@ -229,9 +229,10 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         for the weights and the variance: optimal and calibrated.
     block_rows : int or None
         Rows per block (>= 1) read and solved at once; None: about
-        :data:`scenesim.rampfit.solver.CHUNK_PIXELS` pixels per block (fewer for
-        ramps above 256 resultants).  The result does not depend on it, to the
-        last bit.
+        :data:`scenesim.rampfit.solver.CHUNK_PIXELS` pixels per block on one thread,
+        up to :data:`~scenesim.rampfit.solver.CHUNK_PIXELS_THREADED` on more
+        (:func:`scenesim.rampfit.solver.chunk_pixels`; fewer for ramps above 256
+        resultants).  The result does not depend on it, to the last bit.
 
     Returns
     -------
@@ -259,7 +260,7 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         "threads", threads, minimum=1)
     if block_rows is not None:
         block_rows = check_int("block_rows", block_rows, minimum=1)
-    bounds = row_chunks(ny, nx, nints * nres, rows=block_rows)
+    bounds = row_chunks(ny, nx, nints * nres, rows=block_rows, threads=threads)
     _check_finite(src, sat, bounds)
 
     cov = RampCovariance(times)

@@ -27,7 +27,9 @@ grew the cost per difference, time ~ nres^1.3).  16384 pixels is where a call's
 overhead (~1 us) is small against its loop and its (pixels,) vectors (64 kB) still
 sit in the 2 MB per-core L2 cache (measured: 512^2 x 200, one thread, 1.31 s at
 16384 pixels against 1.77 s at 4096 and 1.69 s at 65536).  numpy releases the GIL
-in its loops, so chunks run in parallel on a thread pool.  No pixel's result
+in its loops, so chunks run in parallel on a thread pool; there, chunks of up to
+:data:`CHUNK_PIXELS_THREADED` pixels keep the threads from queueing for the GIL
+between calls (see there).  No pixel's result
 depends on the chunking.
 
 What bounds the solves: the number of numpy passes per difference (27 forward, 2 more
@@ -40,7 +42,8 @@ fit, 512 x 512 x 20 and x 200, one thread).
 
 import numpy as np
 
-__all__ = ["CHUNK_ELEMS", "CHUNK_PIXELS", "CHUNK_VALUES", "TINY", "chunk_pixels",
+__all__ = ["CHUNK_ELEMS", "CHUNK_PIXELS", "CHUNK_PIXELS_THREADED", "CHUNK_VALUES", "TINY",
+           "chunk_pixels",
            "ldl_pass", "quad_form", "row_chunks"]
 
 #: Target number of float32 values per chunk array of the pixel-only steps (the
@@ -49,6 +52,16 @@ CHUNK_ELEMS = 1 << 19
 
 #: Pixels per chunk of the ramp solves, whatever the ramp length (module notes).
 CHUNK_PIXELS = 1 << 14
+
+#: Pixels per chunk when the chunks run on two or more threads (at most; at least
+#: :data:`CHUNK_PIXELS`, and small arrays keep about four chunks per thread).  Each
+#: numpy call on a 16384-pixel vector takes ~3 us, and between two calls a thread
+#: takes the GIL back: with a second thread doing the same, those hand-offs, not the
+#: loops, set the pace, and the second thread bought 0.6-1.05x (BENCHMARKS.md, issue
+#: 16).  Four times longer vectors halve the hand-offs per pixel for a few percent
+#: of cache locality: the fit on two threads took 0.53-0.61 s instead of 0.69-0.72 s
+#: (2048^2 x 20), 0.67-0.71 s instead of 1.04-1.73 s (4096^2 x 5).
+CHUNK_PIXELS_THREADED = 1 << 16
 
 #: At most this many values per (nints, nres, pixels) chunk array: ramps longer
 #: than 256 resultants get fewer pixels per chunk, so that a chunk's work arrays
@@ -61,20 +74,29 @@ TINY = 1e-30
 _F32 = np.float32
 
 
-def chunk_pixels(values_per_pixel):
+def chunk_pixels(values_per_pixel, *, threads=1, pixels=None):
     """Pixels per chunk for ``values_per_pixel`` values (nints x nres) per pixel:
-    :data:`CHUNK_PIXELS`, fewer where that would exceed :data:`CHUNK_VALUES`."""
-    return max(1, min(CHUNK_PIXELS, CHUNK_VALUES // max(1, int(values_per_pixel))))
+    :data:`CHUNK_PIXELS` on one thread; on ``threads`` > 1, up to
+    :data:`CHUNK_PIXELS_THREADED`, keeping about four chunks per thread of an array
+    of ``pixels`` pixels (if given) but never below :data:`CHUNK_PIXELS`; fewer
+    where a chunk would exceed :data:`CHUNK_VALUES` values."""
+    target = CHUNK_PIXELS
+    if threads > 1:
+        share = CHUNK_PIXELS_THREADED if pixels is None else int(pixels) // (4 * threads)
+        target = max(CHUNK_PIXELS, min(CHUNK_PIXELS_THREADED, share))
+    return max(1, min(target, CHUNK_VALUES // max(1, int(values_per_pixel))))
 
 
-def row_chunks(ny, nx, values_per_pixel, *, rows=None):
+def row_chunks(ny, nx, values_per_pixel, *, rows=None, threads=1):
     """``[(y0, y1), ...]`` row ranges covering ``ny`` rows of ``nx`` pixels.
 
     Each holds ``rows`` rows, or (``rows=None``) about :func:`chunk_pixels`
-    pixels (at least one row) for ``values_per_pixel`` values per pixel.
+    pixels (at least one row) for ``values_per_pixel`` values per pixel, run on
+    ``threads`` threads.
     """
     if rows is None:
-        rows = max(1, chunk_pixels(values_per_pixel) // max(1, nx))
+        per = chunk_pixels(values_per_pixel, threads=threads, pixels=ny * nx)
+        rows = max(1, per // max(1, nx))
     return [(y, min(y + rows, ny)) for y in range(0, ny, rows)]
 
 

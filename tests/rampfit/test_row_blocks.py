@@ -106,6 +106,16 @@ def test_block_size_independence_of_every_fitter(fitter, variance_rate):
                                          **kw))
 
 
+def test_default_blocks_on_one_and_two_threads_give_the_same_bytes():
+    # two threads take longer blocks by default (solver.CHUNK_PIXELS_THREADED):
+    # 512 x 512 pixels are 32 blocks of 16 rows on one thread, 8 of 64 on two
+    times = jwst_times(5)
+    res, sat = mixed_scene(times, shape=(512, 512), nints=1, seed=7)
+    kw = dict(read_noise=3.0, saturated=sat[0], jump_threshold=4.0)
+    ref = fit_ramps(res[0], times, threads=1, **kw)
+    assert_same_bytes(ref, fit_ramps(res[0], times, threads=2, **kw))
+
+
 class CountingRows:
     """A row source over an array that records every block asked for."""
 

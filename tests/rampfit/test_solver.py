@@ -5,8 +5,8 @@ import pytest
 
 from ramp_sim import jwst_times, roman_times
 from scenesim.rampfit.covariance import RampCovariance
-from scenesim.rampfit.solver import (CHUNK_PIXELS, CHUNK_VALUES, chunk_pixels, ldl_pass,
-                                     row_chunks)
+from scenesim.rampfit.solver import (CHUNK_PIXELS, CHUNK_PIXELS_THREADED, CHUNK_VALUES,
+                                     chunk_pixels, ldl_pass, row_chunks)
 
 
 def dense_pass(d, valid, fref, s2, f, A, B):
@@ -79,3 +79,19 @@ def test_blocks_hold_a_fixed_number_of_pixels_until_the_value_cap():
     assert row_chunks(10, 4096, 200) == [(y, min(y + 4, 10)) for y in range(0, 10, 4)]
     assert row_chunks(10, 1 << 20, 200) == [(y, y + 1) for y in range(10)]
     assert row_chunks(7, 5, 3, rows=3) == [(0, 3), (3, 6), (6, 7)]
+
+
+def test_blocks_on_threads_are_longer_but_keep_four_per_thread():
+    # on two or more threads: up to CHUNK_PIXELS_THREADED pixels, about four blocks
+    # per thread on small arrays, never fewer pixels than on one thread, and the
+    # value cap still applies
+    assert chunk_pixels(20, threads=1, pixels=4096 ** 2) == CHUNK_PIXELS
+    assert chunk_pixels(20, threads=2, pixels=4096 ** 2) == CHUNK_PIXELS_THREADED
+    assert chunk_pixels(20, threads=2) == CHUNK_PIXELS_THREADED
+    assert chunk_pixels(20, threads=2, pixels=512 ** 2) == 512 ** 2 // 8
+    assert chunk_pixels(20, threads=2, pixels=256 ** 2) == CHUNK_PIXELS
+    assert chunk_pixels(20, threads=8, pixels=1024 ** 2) == 1024 ** 2 // 32
+    assert chunk_pixels(1000, threads=2) == CHUNK_VALUES // 1000
+    blocks = row_chunks(2048, 2048, 20, threads=2)
+    assert len(blocks) == 2048 * 2048 // CHUNK_PIXELS_THREADED
+    assert blocks[0] == (0, CHUNK_PIXELS_THREADED // 2048) and blocks[-1][1] == 2048
