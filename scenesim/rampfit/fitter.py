@@ -142,7 +142,7 @@ from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_
                                   SATURATED)
 from scenesim.io.fitfile import FitResult
 from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
-from scenesim.rampfit.jumps import flag_jumps
+from scenesim.rampfit.jumps import flag_jumps, jump_block
 from scenesim.rampfit.local_rate import local_rates, uses_neighbours
 from scenesim.rampfit.solver import TINY, ldl_pass, quad_form, row_chunks
 from scenesim.rampfit.times import check_read_times
@@ -267,7 +267,7 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     s2 = float(read_noise) ** 2 if np.isscalar(read_noise) else \
         (read_noise ** 2).astype(_F32)
     setup = _Setup(src, sat, s2, cov, fitter, thr, n_iter, zero_point, shift, bounds,
-                   _WINDOW * threads)
+                   _WINDOW * threads, jump_block(nres - 1, threads))
     pool = ThreadPoolExecutor(max_workers=threads) \
         if threads > 1 and len(bounds) > 1 else None
     with pool if pool is not None else contextlib.nullcontext():
@@ -434,6 +434,7 @@ class _Setup:
     shift: object
     bounds: list               # the row blocks [(y0, y1), ...]
     window: int                # row blocks in flight on the pool
+    jump_block: int            # pixels per block of the jumps' first pass
 
     def chunk(self, y0, y1):
         """Arguments of :func:`_fit_block` for rows ``y0:y1``, pixels flattened
@@ -489,7 +490,8 @@ def _fit_chunks(setup, pool):
     def work(bound):
         y0, y1 = bound
         shp = (y1 - y0, nx)
-        for key, val in _fit_block(*setup.chunk(y0, y1)).items():
+        for key, val in _fit_block(*setup.chunk(y0, y1),
+                                   jump_pixels=setup.jump_block).items():
             if key not in out:
                 continue
             if val.ndim == 2:
@@ -559,7 +561,8 @@ def _refit_at_rate(setup, out, rate, refit, pool):
         got = _fit_block(*args[:6], 1, None, None,
                          frate=rate[y0:y1].reshape(-1),
                          fstart=out["slope"][y0:y1].reshape(-1),
-                         jumped=jumped[y0:y1].reshape(-1))
+                         jumped=jumped[y0:y1].reshape(-1),
+                         jump_pixels=setup.jump_block)
         y, x = np.divmod(np.arange((y1 - y0) * nx), nx)
         keep(y + y0, x, got, got["by_diff"] & refit[y0:y1].reshape(-1))
 
@@ -568,7 +571,7 @@ def _refit_at_rate(setup, out, rate, refit, pool):
         s2 = setup.s2 if np.isscalar(setup.s2) else setup.s2[y, x]
         got = _fit_block(res, sat, s2, setup.cov, "gls", setup.thr, 1, None, None,
                          frate=rate[y, x], fstart=out["slope"][y, x],
-                         jumped=jumped[y, x])
+                         jumped=jumped[y, x], jump_pixels=setup.jump_block)
         keep(y, x, got, got["by_diff"])
 
     _run(pool, _refit_items(setup, refit, fit_rows, fit_pixels), setup.window)
@@ -632,12 +635,14 @@ class _Block:
 
 
 def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None,
-               fstart=None, jumped=None):
+               fstart=None, jumped=None, jump_pixels=None):
     """Fit one chunk: ``res`` (nints, nres, P); returns a dict of (P,)/(nints, P) arrays.
 
     ``frate`` (P,): GLS weights at this rate (one solve from ``fstart``) instead of
     the iteration from the CDS slope; ``jumped`` (P,) bool: run the jump detection
-    on these pixels only (the others are known to have none).
+    on these pixels only (the others are known to have none); ``jump_pixels``: its
+    first pass's block (:func:`scenesim.rampfit.jumps.jump_block`; default: one
+    thread's).
     """
     nints, nres, npix = res.shape
     nuse, anysat = _usable_resultants(res, sat)
@@ -646,7 +651,8 @@ def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None
     if nres >= 2:
         d, valid = _rate_estimates(res, sat, nuse, cov)
         if thr is not None and nres >= 3:
-            blk.n_jumps = _flag_jumps_of(d, valid, s2, cov, thr, jumped)
+            blk.n_jumps = _flag_jumps_of(d, valid, s2, cov, thr, jumped,
+                                         jump_pixels or jump_block(nres - 1))
         diffs = _Differences(d, valid, s2, cov)
         if fitter == "gls":
             chi2_raw = _fit_gls(diffs, n_iter, blk, frate, fstart)
@@ -674,16 +680,16 @@ def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None
             "pcoef_ints": blk.pcoef_ints, "n_jumps": blk.n_jumps, "by_diff": by_diff}
 
 
-def _flag_jumps_of(d, valid, s2, cov, thr, jumped):
+def _flag_jumps_of(d, valid, s2, cov, thr, jumped, block):
     """:func:`flag_jumps` on every pixel, or on the pixels ``jumped`` only."""
     if jumped is None:
-        return flag_jumps(d, valid, s2, cov, thr)
+        return flag_jumps(d, valid, s2, cov, thr, block=block)
     counts = np.zeros(d.shape[2], np.int32)
     j = np.flatnonzero(jumped)
     if j.size:
         vj = valid[:, :, j]
         counts[j] = flag_jumps(d[:, :, j], vj, s2 if np.isscalar(s2) else s2[j], cov,
-                               thr)
+                               thr, block=block)
         valid[:, :, j] = vj
     return counts
 

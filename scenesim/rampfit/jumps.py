@@ -64,7 +64,8 @@ Where the read noise is 0 the covariance uses a rate of at least
 4096 pixels, which keeps the (n_diff, pixels) work arrays in cache; the later
 passes and the look-aheads, on the few pixels that need them, run on all the
 caller's pixels at once (per block they cost ~0.4 ms of numpy overhead each; at
-once, a 512 x 512 x 20 RAPID fit with jump detection went from 0.45 to 0.40 s).
+once, a 512 x 512 x 20 RAPID fit with jump detection went from 0.45 to 0.40 s).  On
+two or more threads the first pass takes longer blocks (:func:`jump_block`).
 """
 
 import numpy as np
@@ -72,16 +73,32 @@ import numpy as np
 from scenesim.rampfit.covariance import RATE_FLOOR
 from scenesim.rampfit.solver import TINY
 
-__all__ = ["flag_jumps", "jump_statistics"]
+__all__ = ["flag_jumps", "jump_block", "jump_statistics"]
 
 _F32 = np.float32
 _JUMP_BLOCK = 4096
+#: On two or more threads the first pass takes blocks of up to this many pixels, at
+#: most :data:`_JUMP_VALUES` differences: its numpy calls on 4096 pixels last 1-2 us,
+#: and between calls the threads queued for the GIL (2048^2 x 20 GLS with jumps, two
+#: threads: 2.01-2.02 s with 4096-pixel blocks, 1.66-1.72 s with 65536; one thread
+#: 2.67-2.77 s whatever the block; at 1024^2 x 100 one thread is 13 % slower with
+#: 16384-pixel blocks, whose arrays leave the cache, so it keeps 4096).
+_JUMP_BLOCK_THREADED = 65536
+_JUMP_VALUES = 1 << 20
+
+
+def jump_block(n_diff, threads=1):
+    """Pixels per block of the first detection pass for ``n_diff`` differences
+    per pixel on ``threads`` threads (see :data:`_JUMP_BLOCK_THREADED`)."""
+    if threads <= 1:
+        return _JUMP_BLOCK
+    return max(_JUMP_BLOCK, min(_JUMP_BLOCK_THREADED, _JUMP_VALUES // max(1, n_diff)))
 #: Pixels whose strongest statistic exceeds this fraction of the threshold get the
 #: look-ahead test for two hits masking each other (module notes).
 _LOOKAHEAD = 0.5
 
 
-def flag_jumps(d, valid, s2, cov, threshold):
+def flag_jumps(d, valid, s2, cov, threshold, *, block=_JUMP_BLOCK):
     """Flag jumps in every integration; ``valid`` is updated in place.
 
     Parameters
@@ -95,6 +112,9 @@ def flag_jumps(d, valid, s2, cov, threshold):
     cov : scenesim.rampfit.covariance.RampCovariance
     threshold : float
         Detection threshold, sigma (> 0).
+    block : int, keyword-only
+        Pixels per block of the first pass (:func:`jump_block`); the flags do not
+        depend on it.
 
     Returns
     -------
@@ -104,12 +124,12 @@ def flag_jumps(d, valid, s2, cov, threshold):
     nints, _, npix = d.shape
     counts = np.zeros(npix, np.int32)
     for k in range(nints):
-        counts += _detect_jumps(d[k], valid[k], s2, cov, threshold).sum(
+        counts += _detect_jumps(d[k], valid[k], s2, cov, threshold, block).sum(
             axis=0, dtype=np.int32)
     return counts
 
 
-def _detect_jumps(d, valid, s2, cov, thr):
+def _detect_jumps(d, valid, s2, cov, thr, block=_JUMP_BLOCK):
     """Flag jumps in one integration; ``valid`` (nd, P) is updated in place.
 
     Returns the (nd, P) bool array of flagged differences (module notes).
@@ -122,7 +142,8 @@ def _detect_jumps(d, valid, s2, cov, thr):
     for _ in range(nd - 1):
         if idx.size == 0:
             break
-        zmax, first, last, pair = _strongest_blocks(d, valid[:, idx], s2, idx, cov)
+        zmax, first, last, pair = _strongest_blocks(d, valid[:, idx], s2, idx, cov,
+                                                    block)
         hit = zmax > thr
         # Look-ahead: two hits can mask each other (each pulls the common rate
         # toward itself); a pixel whose strongest statistic is within a factor
@@ -134,7 +155,7 @@ def _detect_jumps(d, valid, s2, cov, thr):
             vt = valid[:, il].copy()
             rows = np.arange(nd)[:, None]
             vt &= ~((rows >= first[look]) & (rows <= last[look]))
-            z2, f2, l2, p2 = _strongest_blocks(d, vt, s2, il, cov)
+            z2, f2, l2, p2 = _strongest_blocks(d, vt, s2, il, cov, block)
             ok = z2 > thr
             sel = np.flatnonzero(look)[ok]
             hit[sel] = True
@@ -156,15 +177,16 @@ def _detect_jumps(d, valid, s2, cov, thr):
     return jumps
 
 
-def _strongest_blocks(d, vv, s2, idx, cov):
+def _strongest_blocks(d, vv, s2, idx, cov, block=_JUMP_BLOCK):
     """:func:`_strongest` of the pixels ``idx`` (usable differences ``vv``, (nd,
-    len(idx))) in blocks of :data:`_JUMP_BLOCK` pixels, which keep the work arrays
-    in cache; the later passes and look-aheads, on few pixels, run in one call."""
-    if idx.size <= _JUMP_BLOCK:
+    len(idx))) in blocks of ``block`` pixels (:func:`jump_block`), which keep the
+    work arrays in cache; the later passes and look-aheads, on few pixels, run in
+    one call."""
+    if idx.size <= block:
         return _strongest(d[:, idx], vv, s2, idx, cov)
-    parts = [_strongest(d[:, idx[c:c + _JUMP_BLOCK]], vv[:, c:c + _JUMP_BLOCK], s2,
-                        idx[c:c + _JUMP_BLOCK], cov)
-             for c in range(0, idx.size, _JUMP_BLOCK)]
+    parts = [_strongest(d[:, idx[c:c + block]], vv[:, c:c + block], s2,
+                        idx[c:c + block], cov)
+             for c in range(0, idx.size, block)]
     return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
 
 

@@ -103,3 +103,31 @@ def test_jump_excludes_the_difference_with_the_hit():
     # Noise-free ramp: the remaining segments give the rate exactly.
     assert g.slope[0, 0] == pytest.approx(3.0, rel=1e-5)
     assert g.dof[0, 0] == 5 and g.dof[0, 1] == 6
+
+
+def test_first_pass_blocks_are_longer_on_threads_and_change_no_flag():
+    from scenesim.rampfit import jumps
+    # one thread keeps the cache-sized block; more threads take up to 65536 pixels,
+    # at most 2^20 differences, never fewer pixels than one thread
+    assert jumps.jump_block(19) == jumps.jump_block(199) == 4096
+    assert jumps.jump_block(19, threads=2) == (1 << 20) // 19
+    assert jumps.jump_block(4, threads=2) == 65536
+    assert jumps.jump_block(999, threads=4) == 4096
+    # the flags, and the usable differences left, do not depend on the block
+    times = jwst_times(10)
+    tb = np.array([t.mean() for t in times])
+    rng = np.random.default_rng(21)
+    npix = 9000
+    res = (2.0 * tb)[:, None] + rng.normal(0.0, 3.0, (10, npix))
+    hit = rng.random(npix) < 0.2
+    at = rng.integers(1, 10, npix)
+    res += np.where((np.arange(10)[:, None] >= at) & hit, rng.uniform(5, 60, npix), 0)
+    cov = RampCovariance(times)
+    d = (np.diff(res, axis=0) / np.diff(tb)[:, None]).astype(np.float32)[None]
+    got = []
+    for block in (4096, 65536, 777):
+        valid = np.ones(d.shape, bool)
+        counts = jumps.flag_jumps(d, valid, 9.0, cov, 4.0, block=block)
+        got.append((counts.tobytes(), valid.tobytes()))
+    assert got[0] == got[1] == got[2]
+    assert np.frombuffer(got[0][0], np.int32)[hit].mean() > 0.5   # hits were found
