@@ -50,6 +50,7 @@ import numpy as np
 
 from noise.errors import ParameterError
 from noise.fitsio import atomic_file, atomic_path
+from noise.validate import check_writable
 from scenesim.outputs import check_outputs
 from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
@@ -425,16 +426,11 @@ def _check_out_dir(out_dir, names, overwrite):
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ParameterError(f"'--out' {out_dir!r} is a file; expected a directory for "
                              f"{', '.join(files)}")
-    parent = os.path.dirname(os.path.abspath(out_dir))
-    if not os.path.isdir(parent):
-        raise ParameterError(f"'--out': the directory {parent!r} that would hold "
-                             f"{out_dir!r} does not exist")
     if os.path.isdir(out_dir):
         check_outputs({f"bench report {f}": os.path.join(out_dir, f) for f in files},
                       overwrite=overwrite)
-    elif not os.access(parent, os.W_OK):
-        raise ParameterError(f"'--out': the directory {parent!r} that would hold "
-                             f"{out_dir!r} is not writable")
+    else:                       # to be created: its parent exists and is writable
+        check_writable("--out", out_dir, overwrite=False)
 
 
 def _fit_grid(sizes, nres):

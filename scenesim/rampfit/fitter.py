@@ -635,14 +635,13 @@ class _Block:
 
 
 def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None,
-               fstart=None, jumped=None, jump_pixels=None):
+               fstart=None, jumped=None, jump_pixels):
     """Fit one chunk: ``res`` (nints, nres, P); returns a dict of (P,)/(nints, P) arrays.
 
     ``frate`` (P,): GLS weights at this rate (one solve from ``fstart``) instead of
     the iteration from the CDS slope; ``jumped`` (P,) bool: run the jump detection
     on these pixels only (the others are known to have none); ``jump_pixels``: its
-    first pass's block (:func:`scenesim.rampfit.jumps.jump_block`; default: one
-    thread's).
+    first pass's block (:func:`scenesim.rampfit.jumps.jump_block`).
     """
     nints, nres, npix = res.shape
     nuse, anysat = _usable_resultants(res, sat)
@@ -651,8 +650,7 @@ def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None
     if nres >= 2:
         d, valid = _rate_estimates(res, sat, nuse, cov)
         if thr is not None and nres >= 3:
-            blk.n_jumps = _flag_jumps_of(d, valid, s2, cov, thr, jumped,
-                                         jump_pixels or jump_block(nres - 1))
+            blk.n_jumps = _flag_jumps_of(d, valid, s2, cov, thr, jumped, jump_pixels)
         diffs = _Differences(d, valid, s2, cov)
         if fitter == "gls":
             chi2_raw = _fit_gls(diffs, n_iter, blk, frate, fstart)

@@ -93,6 +93,8 @@ def jump_block(n_diff, threads=1):
     if threads <= 1:
         return _JUMP_BLOCK
     return max(_JUMP_BLOCK, min(_JUMP_BLOCK_THREADED, _JUMP_VALUES // max(1, n_diff)))
+
+
 #: Pixels whose strongest statistic exceeds this fraction of the threshold get the
 #: look-ahead test for two hits masking each other (module notes).
 _LOOKAHEAD = 0.5
@@ -129,7 +131,7 @@ def flag_jumps(d, valid, s2, cov, threshold, *, block=_JUMP_BLOCK):
     return counts
 
 
-def _detect_jumps(d, valid, s2, cov, thr, block=_JUMP_BLOCK):
+def _detect_jumps(d, valid, s2, cov, thr, block):
     """Flag jumps in one integration; ``valid`` (nd, P) is updated in place.
 
     Returns the (nd, P) bool array of flagged differences (module notes).
@@ -177,7 +179,7 @@ def _detect_jumps(d, valid, s2, cov, thr, block=_JUMP_BLOCK):
     return jumps
 
 
-def _strongest_blocks(d, vv, s2, idx, cov, block=_JUMP_BLOCK):
+def _strongest_blocks(d, vv, s2, idx, cov, block):
     """:func:`_strongest` of the pixels ``idx`` (usable differences ``vv``, (nd,
     len(idx))) in blocks of ``block`` pixels (:func:`jump_block`), which keep the
     work arrays in cache; the later passes and look-aheads, on few pixels, run in

@@ -43,8 +43,7 @@ fit, 512 x 512 x 20 and x 200, one thread).
 import numpy as np
 
 __all__ = ["CHUNK_ELEMS", "CHUNK_PIXELS", "CHUNK_PIXELS_THREADED", "CHUNK_VALUES", "TINY",
-           "chunk_pixels",
-           "ldl_pass", "quad_form", "row_chunks"]
+           "chunk_pixels", "ldl_pass", "quad_form", "row_chunks"]
 
 #: Target number of float32 values per chunk array of the pixel-only steps (the
 #: neighbourhood sorts of :mod:`scenesim.rampfit.local_rate`).
