@@ -184,40 +184,54 @@ _FORCE = ("run even when the estimated memory or output exceeds what the machine
 
 class Interrupted(KeyboardInterrupt):
     """A termination signal (SIGTERM, SIGHUP) turned into an exception in the main
-    thread, so the ``with`` blocks that own temporary files remove them."""
+    thread, so the ``with`` blocks that own temporary files remove them; also the
+    recorded signal (SIGINT too) when its exception surfaced as another one."""
 
     def __init__(self, signum):
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
 
 
+#: Signals delivered to the command, in order (its handlers record them).
+_RECEIVED = []
+
+
 def _raise_interrupted(signum, frame):
+    _RECEIVED.append(signum)
     raise Interrupted(signum)
 
 
-def _interrupt_behind(exc):
-    """The interrupt (``KeyboardInterrupt``, :class:`Interrupted`) behind an exception:
-    the exception itself or one it was raised while handling; None if there is none.
+def _record_int(signum, frame):
+    """SIGINT: recorded, then Python's own KeyboardInterrupt."""
+    _RECEIVED.append(signum)
+    signal.default_int_handler(signum, frame)
 
-    A signal's exception is raised wherever the main thread happens to be.  Landing
-    inside a lock's wait (``threading.Condition.wait``, e.g. in ``Future.result``), it
-    can be replaced by another one while that wait unwinds ("cannot release un-acquired
-    lock"): the interrupt then survives only as the new exception's context, and it
-    still decides how the command ends."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__context__
+
+def _interrupt_of(exc):
+    """The interrupt that ends the command, or None.
+
+    A signal's exception is raised wherever the main thread happens to be, and
+    there it can be replaced by another one: inside a lock's wait
+    (``threading.Condition.wait`` in ``Future.result``) it came out as "cannot
+    release un-acquired lock"; inside the import of a compiled extension as an
+    ImportError that does not even keep it as context.  So the handlers record the
+    signal, and a recorded signal decides how the command ends, whatever exception
+    reached :func:`main`."""
+    if isinstance(exc, KeyboardInterrupt):
+        return exc
+    if _RECEIVED:
+        return Interrupted(_RECEIVED[0])
     return None
 
 
 def main(argv=None):
     """Entry point of the ``scenesim`` console command."""
     # First thing: a SIGTERM or SIGHUP from now on ends the command in one line.
+    _RECEIVED.clear()
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _raise_interrupted)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _record_int)     # (an ignored SIGINT stays so)
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:2] == ["noise", "calibrate"]:       # the same command, under 'noise'
         argv = argv[1:]
@@ -249,7 +263,7 @@ def main(argv=None):
 def _ending(command, exc):
     """The exit status of a command that raised ``exc``, its one line printed; None for
     an exception that is a bug (its traceback is shown)."""
-    interrupt = _interrupt_behind(exc)
+    interrupt = _interrupt_of(exc)
     if interrupt is not None:
         # the interrupt decides, whatever exception it turned into on the way out
         return _interrupted(f" {command}", interrupt)

@@ -347,24 +347,32 @@ def test_sigkill_leftovers_are_removed_by_the_next_run(tmp_path):
 
 
 #: Runs ``scenesim noise`` with its command replaced: the replacement sends the process
-#: ``SIG`` (if ``SEND``) and, if ``TURN`` is set, raises a RuntimeError while handling the interrupt,
-#: as ``threading.Condition.wait`` does when the signal lands between its lock's
-#: release and its ``try`` ("cannot release un-acquired lock", seen in CI in
-#: ``Future.result`` of the exposure's write-behind).
+#: ``SIG`` (if ``SEND``) and turns the interrupt into another exception: with ``TURN``
+#: = "context", a RuntimeError raised while handling it, as ``threading.Condition.wait``
+#: does when the signal lands between its lock's release and its ``try`` ("cannot
+#: release un-acquired lock", seen in CI in ``Future.result`` of the exposure's
+#: write-behind); with ``TURN`` = "lost", an ImportError that does not keep it as
+#: context, as numpy's import did when the signal landed inside it (seen in CI:
+#: 'PyCapsule_Import could not import module "datetime"').
 _TURNED = """
 import os, signal, sys, time
 import scenesim.commands as commands
 from scenesim.cli import main
 
 def command(args):
+    lost = False
     try:
         if {send}:
             os.kill(os.getpid(), signal.{sig})
             time.sleep(30)               # the handler raises before this ends
     except KeyboardInterrupt:
-        if {turn}:
+        if {turn} == "context":
             raise RuntimeError("cannot release un-acquired lock")
-        raise
+        if not {turn}:
+            raise
+        lost = True
+    if lost:                             # outside the handler: no context kept
+        raise ImportError('PyCapsule_Import could not import module "datetime"')
     if {bug}:
         raise RuntimeError("a bug")
 
@@ -374,9 +382,10 @@ sys.exit(main(["noise", "-q", "-o", "n.fits"]))
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
-@pytest.mark.parametrize("turn", [False, True])
+@pytest.mark.parametrize("turn", [False, "context", "lost"])
 def test_an_interrupt_ends_the_command_whatever_it_turned_into(tmp_path, sig, turn):
-    code = _TURNED.format(sig=signal.Signals(sig).name, send=True, turn=turn, bug=False)
+    code = _TURNED.format(sig=signal.Signals(sig).name, send=True, turn=repr(turn),
+                          bug=False)
     res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, text=True,
                          capture_output=True, timeout=60, preexec_fn=_default_signals)
     assert res.returncode == 128 + sig, res.stderr
@@ -386,7 +395,7 @@ def test_an_interrupt_ends_the_command_whatever_it_turned_into(tmp_path, sig, tu
 
 def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
     # the rule above must not swallow real errors: no signal, a traceback, status 1
-    code = _TURNED.format(sig="SIGTERM", send=False, turn=True, bug=True)
+    code = _TURNED.format(sig="SIGTERM", send=False, turn=repr("lost"), bug=True)
     res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, text=True,
                          capture_output=True, timeout=60)
     assert res.returncode == 1
