@@ -46,6 +46,15 @@ The lines of the next frame's first band are made with the rows of this frame's 
 band (:meth:`NoiseGenerator.frames`), so the threads have row tasks to fill their gaps
 at every barrier; the band buffer sets alternate across frames as within one.
 
+A long run of large frames (``Layout.fork_min_pixels`` pixels in all, 16.8 million by
+default: four 2048^2 frames) on two or more threads, in a process running no other
+thread, makes its 1/f lines in forked helper processes instead (:class:`_ForkedLines`:
+the series groups dealt to up to ``threads`` helpers, each writing its lines band by
+band, up to two bands ahead, into shared memory), and the parent assembles the rows
+from them with the threads left.  In one interpreter, every hand-over of the GIL
+between the line and row tasks costs a futex wake-up: 88 H2RG frames on two threads
+ran 1.46x as fast as on one, 1.62x with the helpers (BENCHMARKS.md).  Same bytes.
+
 Small frames (fewer than ``Layout.pool_min_pixels`` pixels: windows, time series) are made
 without the thread pool, ``K`` requested frames at a time (``K * ny * nx <=
 batch_pixels``, ``K <= batch_frames``), because there the per-frame Python overhead
@@ -105,6 +114,7 @@ import functools
 import math
 import numbers
 import os
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -130,6 +140,7 @@ _NSETS = 2            # band buffer sets (the lines of band k+1 while the rows o
 _PED_BLOCK = 1024          # pedestal: slots per stream
 _AHEAD = 2                # small frames: batches whose 1/f lines are made ahead
 _FORK_MIN_BATCHES = 4     # ... by a forked process, if at least this many batches
+_FORK_DEPTH = 3           # large frames: band results per 1/f line helper (2 ahead)
 
 
 @dataclass(frozen=True)
@@ -153,6 +164,12 @@ class Layout:
         batched draws and FFTs are larger numpy calls, which hold the GIL less and
         cost less per sample (a 32-output H4RG: 8 per task made its 1/f lines 1.2x
         faster on one thread and 1.3x on two than one per task).
+    fork_min_pixels : int
+        On two or more threads, the 1/f lines of a run of large frames whose frames
+        hold at least this many pixels in all are made by forked helper processes
+        (:class:`_ForkedLines`), when the process runs a single thread; shorter runs
+        (forking costs tens of ms) and processes running other threads make them on
+        the thread pool.
     """
 
     pool_min_pixels: int = 1 << 16
@@ -160,11 +177,13 @@ class Layout:
     batch_pixels: int = 1 << 17
     batch_frames: int = 64
     series_per_task: int = 8
+    fork_min_pixels: int = 1 << 24
 
     def __post_init__(self):
         for name in ("pool_min_pixels", "batch_pixels", "batch_frames",
-                     "series_per_task"):
-            check_int(name, getattr(self, name), minimum=0 if name[0] == "p" else 1)
+                     "series_per_task", "fork_min_pixels"):
+            check_int(name, getattr(self, name),
+                      minimum=0 if name[0] in "pf" else 1)
         check_int("band_rows", self.band_rows, minimum=_WHITE_ROWS)
         if self.band_rows % _WHITE_ROWS:
             raise ParameterError(f"'band_rows' must be a multiple of {_WHITE_ROWS}, got "
@@ -380,34 +399,53 @@ class NoiseGenerator:
         """
         if self._lines is not None:
             return self._lines
-        det = self.detector
-        L, ncol, rs = self._L, det.ncols_out, det.row_samples
-        rows = min(self.layout.band_rows, det.ny)
+        jobs = self._line_jobs()
+        nlines = sum(len(owners) for *_, owners in jobs)
+        # one allocation for every buffer (large enough for huge pages: fewer faults)
+        store = np.zeros((_NSETS, max(nlines, 1), self._band_line_size()),
+                         dtype=np.float32)
+        sets = []
+        for set_store in store:
+            parts, r = [], 0
+            for *_, owners in jobs:
+                parts.append(set_store[r:r + len(owners)])
+                r += len(owners)
+            sets.append(self._line_set(parts))
+        self._lines = (jobs, sets)
+        return self._lines
+
+    def _line_jobs(self):
+        """``(series, samples per row, samples per frame, owners)`` of each group of 1/f
+        series that makes full-rate lines (see :meth:`_line_buffers`)."""
+        L, rs = self._L, self.detector.row_samples
         jobs = []
         if self._common is not None:
             jobs.append((self._common, rs, L, (None,)))
         jobs += [(series, rs, L, outs) for series, outs in self._u_groups]
         jobs += [(series, rs // 2, L // 2, outs) for series, outs in self._acn_groups]
-        nlines = sum(len(owners) for *_, owners in jobs)
-        # one allocation for every buffer (large enough for huge pages: fewer faults)
-        store = np.zeros((_NSETS, max(nlines, 1), rows * rs), dtype=np.float32)
-        sets = []
-        for set_store in store:
-            outs, views = [], [[] for _ in range(det.n_out_active)]
-            r = 0
-            for series, per_row, _, owners in jobs:
-                lines = set_store[r:r + len(owners)]
-                r += len(owners)
-                outs.append(self._dest(lines, per_row, rows * per_row))
-                for o, line in zip(owners, lines):
-                    view = line.reshape(rows, rs)
-                    view = view[:, :ncol] if self._gather is None else view
-                    for out in (range(det.n_out_active) if o is None else [o]):
-                        views[out].append(view)
-            sets.append((outs, views))
+        return jobs
+
+    def _band_line_size(self):
+        """Samples of one full-rate line of a band."""
+        return min(self.layout.band_rows, self.detector.ny) * self.detector.row_samples
+
+    def _line_set(self, parts):
+        """``(outs, views)`` of one band buffer set whose job ``j`` (in
+        :meth:`_line_jobs` order) writes the lines ``parts[j]`` (one row of
+        :meth:`_band_line_size` samples per owner)."""
+        det = self.detector
+        ncol, rs = det.ncols_out, det.row_samples
+        rows = min(self.layout.band_rows, det.ny)
+        outs, views = [], [[] for _ in range(det.n_out_active)]
+        for (series, per_row, _, owners), lines in zip(self._line_jobs(), parts):
+            outs.append(self._dest(lines, per_row, rows * per_row))
+            for o, line in zip(owners, lines):
+                view = line.reshape(rows, rs)
+                view = view[:, :ncol] if self._gather is None else view
+                for out in (range(det.n_out_active) if o is None else [o]):
+                    views[out].append(view)
         # each output's lines in scan order: correlated, uncorrelated, ACN (jobs order)
-        self._lines = (jobs, sets)
-        return self._lines
+        return outs, views
 
     def _dest(self, lines, per_row, n):
         """:meth:`PinkSeries.plan`'s destination for ``n`` samples per series in
@@ -772,20 +810,8 @@ class NoiseGenerator:
         """:meth:`frame`; with ``next_slot``, the 1/f lines of that slot's first band
         are made too, with this frame's last rows (they fill the threads' gaps at the
         frame's last barrier; the next frame then starts at its second band)."""
-        det, p = self.detector, self.params
-        if self._level_map and self._reset_int != integration:
-            self._reset_level = self._make_reset_level(integration, pool)
-            self._reset_int = integration
-        scalar = np.float32(self.pedestal(slot)
-                            + (0.0 if self._level_map else p.bias_offset))
-        pf = None
-        if self._pf is not None:
-            pf = self._pf.get(slot * (det.ny + det.nfoh), det.ny)[0]
-        if self._rtn_idx is not None:
-            self._advance_rtn(slot)
+        img, bands, rows = self._frame_start(slot, integration, pool, dn_gain, out)
         jobs, sets = self._line_buffers()
-        band = self.layout.band_rows
-        bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
 
         # band k's lines go to buffer set (first + k) % _NSETS: consecutive bands, in
         # this frame and across frames, alternate (the next frame's first band is
@@ -803,26 +829,6 @@ class NoiseGenerator:
                 tasks.append((-series.nseries, len(tasks), task))
             return [task for *_, task in sorted(tasks)]
 
-        dtype = np.float32 if dn_gain is None else np.uint16
-        if out is not None and (out.shape != det.shape or out.dtype != dtype
-                                or not out.flags.c_contiguous):
-            raise ParameterError(f"'out' must be a C-contiguous {np.dtype(dtype).name} "
-                                 f"array of shape {det.shape}, got {out.dtype} "
-                                 f"{out.shape}")
-        img = np.empty(det.shape, dtype=dtype) if out is None else out
-        adc = None if dn_gain is None else ADC(dn_gain)
-
-        rngs = (self._white_streams.generators(slot, np.arange(-(-det.ny // _WHITE_ROWS)))
-                if self._sig_runs else None)
-
-        def rows(k):
-            ra, rb = bands[k]
-            return [functools.partial(self._rows_task, img,
-                                      rngs[c0 // _WHITE_ROWS] if rngs else None, c0,
-                                      min(c0 + _WHITE_ROWS, rb), scalar, pf,
-                                      sets[(first + k) % _NSETS][1], ra, adc)
-                    for c0 in range(ra, rb, _WHITE_ROWS)]
-
         # the rows of band k are assembled while the lines of band k + 1 are made (the
         # larger line tasks first, so the row chunks fill the gaps)
         self._ahead = made = None
@@ -836,9 +842,60 @@ class NoiseGenerator:
                 extra = lines(0, *made)
             else:
                 extra = []
-            self._run(pool, extra + rows(k))
+            self._run(pool, extra + rows(k, sets[(first + k) % _NSETS][1]))
         self._ahead = made                       # only once its tasks have all run
         return img
+
+    def _frame_forked(self, slot, integration, pool, dn_gain, out, forked, n):
+        """:meth:`frame` of the ``n``-th frame of a run whose 1/f lines are made by
+        ``forked`` (:class:`_ForkedLines`): each band's rows are assembled from the
+        helpers' lines, on ``pool``."""
+        img, bands, rows = self._frame_start(slot, integration, pool, dn_gain, out)
+        for k in range(len(bands)):
+            j = n * len(bands) + k
+            views = forked.get(j)
+            self._run(pool, rows(k, views))
+            forked.release(j)
+        return img
+
+    def _frame_start(self, slot, integration, pool, dn_gain, out):
+        """What every band of frame ``slot`` shares: the frame array, its bands and
+        ``rows(k, views)``, the row tasks of band ``k`` given the band's 1/f line
+        views (see :meth:`_line_set`)."""
+        det, p = self.detector, self.params
+        if self._level_map and self._reset_int != integration:
+            self._reset_level = self._make_reset_level(integration, pool)
+            self._reset_int = integration
+        scalar = np.float32(self.pedestal(slot)
+                            + (0.0 if self._level_map else p.bias_offset))
+        pf = None
+        if self._pf is not None:
+            pf = self._pf.get(slot * (det.ny + det.nfoh), det.ny)[0]
+        if self._rtn_idx is not None:
+            self._advance_rtn(slot)
+        band = self.layout.band_rows
+        bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
+        dtype = np.float32 if dn_gain is None else np.uint16
+        if out is not None and (out.shape != det.shape or out.dtype != dtype
+                                or not out.flags.c_contiguous):
+            raise ParameterError(f"'out' must be a C-contiguous {np.dtype(dtype).name} "
+                                 f"array of shape {det.shape}, got {out.dtype} "
+                                 f"{out.shape}")
+        img = np.empty(det.shape, dtype=dtype) if out is None else out
+        adc = None if dn_gain is None else ADC(dn_gain)
+
+        rngs = (self._white_streams.generators(slot, np.arange(-(-det.ny // _WHITE_ROWS)))
+                if self._sig_runs else None)
+
+        def rows(k, views):
+            ra, rb = bands[k]
+            return [functools.partial(self._rows_task, img,
+                                      rngs[c0 // _WHITE_ROWS] if rngs else None, c0,
+                                      min(c0 + _WHITE_ROWS, rb), scalar, pf, views, ra,
+                                      adc)
+                    for c0 in range(ra, rb, _WHITE_ROWS)]
+
+        return img, bands, rows
 
     def frames(self, nreads, reads=None, *, nints=1, integrations=None, dn_gain=None,
                reuse=False, raw=False):
@@ -905,7 +962,24 @@ class NoiseGenerator:
                     f"besides its image pixels (no 'interleave', no 'ref_output')")
             return self._raw_frames(nreads, reads, ints, dn_gain, nbuf,
                                     split=raw == "split")
-        return self._frames(nreads, reads, ints, dn_gain, nbuf)
+        # the helpers are forked now, before the caller starts any thread
+        forked = self._fork_lines([frame_slot(i, k, nreads) for i in ints for k in reads])
+        return self._frames(nreads, reads, ints, dn_gain, nbuf, forked=forked)
+
+    def _fork_lines(self, slots):
+        """A :class:`_ForkedLines` making the 1/f lines of the large frames ``slots``,
+        or None where the thread pool makes them (see :attr:`Layout.fork_min_pixels`).
+        """
+        det = self.detector
+        pixels = det.ny * det.nx
+        if (self.threads < 2 or pixels < self.layout.pool_min_pixels
+                or len(slots) * pixels < self.layout.fork_min_pixels
+                or not self._line_jobs() or not producer_available()):
+            return None
+        try:
+            return _ForkedLines(self, slots)
+        except OSError:                    # no fork here (process limit, memory)
+            return None
 
     def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf, split=False):
         adc = None if dn_gain is None else ADC(dn_gain)
@@ -921,7 +995,7 @@ class NoiseGenerator:
                 raw = self.raw_frame(slot, i, image=img)
                 yield i, k, (raw if adc is None else adc.to_dn(raw))
 
-    def _frames(self, nreads, reads, ints, dn_gain, nbuf, ahead=True):
+    def _frames(self, nreads, reads, ints, dn_gain, nbuf, ahead=True, forked=None):
         self._rtn_state = self._rtn_slot = None
         self._reset_int = None
         # small frames (windows) run inline: dispatching their tiny tasks to threads
@@ -931,21 +1005,28 @@ class NoiseGenerator:
         if not big:
             yield from self._frames_small(nreads, reads, ints, dn_gain, nbuf)
             return
-        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 and big else None
+        # with forked helpers making the lines, the threads left assemble the rows
+        workers = self.threads - (forked.nhelpers if forked is not None else 0)
+        pool = ThreadPoolExecutor(workers) if workers > 1 else None
         order = [(i, k) for i in ints for k in reads]
         bufs = []
         try:
             for n, (i, k) in enumerate(order):
                 slot = frame_slot(i, k, nreads)
                 buf = bufs[n % nbuf] if nbuf and len(bufs) == nbuf else None
-                nxt = frame_slot(*order[n + 1], nreads) if ahead and n + 1 < len(order) \
-                    else None
-                img = self._frame(slot, i, pool, dn_gain, buf, nxt)
+                if forked is not None:
+                    img = self._frame_forked(slot, i, pool, dn_gain, buf, forked, n)
+                else:
+                    nxt = frame_slot(*order[n + 1], nreads) \
+                        if ahead and n + 1 < len(order) else None
+                    img = self._frame(slot, i, pool, dn_gain, buf, nxt)
                 if nbuf and buf is None:
                     bufs.append(img)
                 yield i, k, img
         finally:
             self._ahead = None
+            if forked is not None:
+                forked.close()
             if pool is not None:
                 pool.shutdown()
 
@@ -1228,3 +1309,100 @@ class NoiseGenerator:
         for i, k, frame in self.frames(nframes, nints=nints):
             out[i, k] = frame
         return out
+
+
+class _ForkedLines:
+    """The 1/f lines of a run of large frames, made band by band by forked helpers.
+
+    Why: made on the thread pool, the line tasks and the row tasks of a band share
+    one interpreter, and every hand-over of the GIL between the cores costs a futex
+    wake-up; with two threads a task took 10-25 % longer than alone, and a run of
+    88 H2RG frames used 1.46x one thread's speed (BENCHMARKS.md, 2026-11-27).  In
+    forked processes the line synthesis (most of a noise frame's work: the draws
+    and FFTs of every 1/f series) shares nothing with the parent but the result
+    buffers.
+
+    The series groups of :meth:`NoiseGenerator._line_jobs` are dealt to up to
+    ``threads`` helpers, the largest first, each to the helper with the fewest lines
+    so far.  Helper ``h`` is a :class:`noise.fast.producer.ForkedProducer` whose
+    result ``j = n * nbands + k`` is band ``k`` of the ``n``-th frame of the run: its
+    groups' lines, written exactly as the thread pool writes them
+    (``PinkSeries.plan`` into :meth:`NoiseGenerator._line_set`'s destinations), so
+    the frames are the same bytes.  The helpers run up to ``_FORK_DEPTH - 1`` bands
+    ahead of the parent.  Each works on its own copy of its series (the parent's
+    objects are never advanced; a sample depends only on its index, see
+    :mod:`noise.pink`).
+    """
+
+    def __init__(self, gen, slots):
+        det = gen.detector
+        jobs = gen._line_jobs()
+        band = gen.layout.band_rows
+        self.bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
+        nb = len(self.bands)
+        self.nhelpers = min(gen.threads, len(jobs))
+        parts, load = [[] for _ in range(self.nhelpers)], [0] * self.nhelpers
+        for j in sorted(range(len(jobs)), key=lambda j: -len(jobs[j][3])):
+            h = load.index(min(load))
+            parts[h].append(j)
+            load[h] += len(jobs[j][3])
+        parts = [sorted(part) for part in parts]
+        size = gen._band_line_size()
+        self._producers = []
+        self._views = []
+        finalizer = weakref.finalize(self, _close_all, self._producers)
+        try:
+            for part in parts:
+                nlines = sum(len(jobs[j][3]) for j in part)
+                self._producers.append(ForkedProducer(
+                    functools.partial(_make_band_lines, gen, jobs, part, slots,
+                                      self.bands),
+                    len(slots) * nb, [(nlines, size)], _FORK_DEPTH))
+            # the row tasks' views of each result slot, in the parent
+            for d in range(_FORK_DEPTH):
+                lines = [None] * len(jobs)
+                for part, producer in zip(parts, self._producers):
+                    store, r = producer.slot(d)[0], 0
+                    for j in part:
+                        lines[j] = store[r:r + len(jobs[j][3])]
+                        r += len(jobs[j][3])
+                self._views.append(gen._line_set(lines)[1])
+        except BaseException:
+            finalizer()
+            raise
+        self._finalizer = finalizer
+
+    def get(self, j):
+        """Band result ``j`` (in order): per output, the views of its lines."""
+        for producer in self._producers:
+            producer.get(j)
+        return self._views[j % _FORK_DEPTH]
+
+    def release(self, j):
+        """The rows of band result ``j`` are made: its slots may be reused."""
+        for producer in self._producers:
+            producer.release(j)
+
+    def close(self):
+        """Stop and reap the helpers (idempotent)."""
+        self._finalizer()
+
+
+def _close_all(producers):
+    for producer in producers:
+        producer.close()
+
+
+def _make_band_lines(gen, jobs, part, slots, bands, j, outs):
+    """In a helper of :class:`_ForkedLines`: band result ``j`` of the groups
+    ``part`` (indices into ``jobs``) into its slot ``outs``."""
+    n, k = divmod(j, len(bands))
+    ra, rb = bands[k]
+    store, r = outs[0], 0
+    for idx in part:
+        series, per_row, nfr, owners = jobs[idx]
+        lines = store[r:r + len(owners)]
+        r += len(owners)
+        m = (rb - ra) * per_row
+        series.plan(slots[n] * nfr + ra * per_row, m,
+                    gen._dest(lines, per_row, m)[..., :m])()

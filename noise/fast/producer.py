@@ -132,6 +132,11 @@ class ForkedProducer:
         """Process id of the helper, or None once it has been reaped."""
         return self._pid
 
+    def slot(self, k):
+        """The arrays of result slot ``k`` (``0 <= k < depth``; result ``j`` uses slot
+        ``j % depth``), e.g. to build views of them before any result is ready."""
+        return self._slots[k]
+
     def get(self, j):
         """Wait for result ``j`` (in order: 0, 1, ...) and return its arrays (views).
 
