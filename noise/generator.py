@@ -425,6 +425,11 @@ class NoiseGenerator:
         jobs += [(series, rs // 2, L // 2, outs) for series, outs in self._acn_groups]
         return jobs
 
+    def _bands(self):
+        """``(first row, end row)`` of each band of a large frame."""
+        band, ny = self.layout.band_rows, self.detector.ny
+        return [(ra, min(ra + band, ny)) for ra in range(0, ny, band)]
+
     def _band_line_size(self):
         """Samples of one full-rate line of a band."""
         return min(self.layout.band_rows, self.detector.ny) * self.detector.row_samples
@@ -873,8 +878,7 @@ class NoiseGenerator:
             pf = self._pf.get(slot * (det.ny + det.nfoh), det.ny)[0]
         if self._rtn_idx is not None:
             self._advance_rtn(slot)
-        band = self.layout.band_rows
-        bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
+        bands = self._bands()
         dtype = np.float32 if dn_gain is None else np.uint16
         if out is not None and (out.shape != det.shape or out.dtype != dtype
                                 or not out.flags.c_contiguous):
@@ -955,15 +959,21 @@ class NoiseGenerator:
         if not isinstance(raw, bool) and raw != "split":
             raise ParameterTypeError(f"'raw' must be True, False or 'split', got "
                                      f"{describe(raw)}")
+        if raw and not self.detector.has_raw_samples:
+            raise ParameterError(
+                f"'raw'=True: detector {self.detector.name!r} writes no samples "
+                f"besides its image pixels (no 'interleave', no 'ref_output')")
+        # the helpers are forked now, before the caller starts any thread; not for
+        # interleaved raw samples, which read every output's series of the slot again
+        # (the reference output has its own series: only the correlated one is read
+        # again, a line per frame)
+        forked = None
+        if not raw or self.detector.interleave is None:
+            forked = self._fork_lines([frame_slot(i, k, nreads)
+                                       for i in ints for k in reads])
         if raw:
-            if not self.detector.has_raw_samples:
-                raise ParameterError(
-                    f"'raw'=True: detector {self.detector.name!r} writes no samples "
-                    f"besides its image pixels (no 'interleave', no 'ref_output')")
             return self._raw_frames(nreads, reads, ints, dn_gain, nbuf,
-                                    split=raw == "split")
-        # the helpers are forked now, before the caller starts any thread
-        forked = self._fork_lines([frame_slot(i, k, nreads) for i in ints for k in reads])
+                                    split=raw == "split", forked=forked)
         return self._frames(nreads, reads, ints, dn_gain, nbuf, forked=forked)
 
     def _fork_lines(self, slots):
@@ -981,11 +991,12 @@ class NoiseGenerator:
         except OSError:                    # no fork here (process limit, memory)
             return None
 
-    def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf, split=False):
+    def _raw_frames(self, nreads, reads, ints, dn_gain, nbuf, split=False, forked=None):
         adc = None if dn_gain is None else ADC(dn_gain)
         self._reset_int_raw = None
         # no lines made ahead: the extra samples read the slot's 1/f series again
-        for i, k, img in self._frames(nreads, reads, ints, None, nbuf, ahead=False):
+        for i, k, img in self._frames(nreads, reads, ints, None, nbuf, ahead=False,
+                                      forked=forked):
             slot = frame_slot(i, k, nreads)
             if split:
                 extra = self.extra_samples(slot, i)
@@ -1335,10 +1346,8 @@ class _ForkedLines:
     """
 
     def __init__(self, gen, slots):
-        det = gen.detector
         jobs = gen._line_jobs()
-        band = gen.layout.band_rows
-        self.bands = [(ra, min(ra + band, det.ny)) for ra in range(0, det.ny, band)]
+        self.bands = gen._bands()
         nb = len(self.bands)
         self.nhelpers = min(gen.threads, len(jobs))
         parts, load = [[] for _ in range(self.nhelpers)], [0] * self.nhelpers

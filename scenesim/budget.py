@@ -84,9 +84,11 @@ cosmic rays                    ``1700 E``: 9 deposits per hit, through the draw 
 noise generator                frames: ``4 P`` for the noise frame, ``+ 4 P`` for the
                                reset level (``ktc`` or ``bias_amp``), ``+ 4 P`` for the
                                template (``pca0`` or ``bias_amp``); the 1/f line buffers
-                               ``2 * njobs * min(512, ny) * row_samples * 4`` (``njobs``:
+                               ``s * njobs * min(512, ny) * row_samples * 4`` (``njobs``:
                                the correlated series, and one per output with ``u_pink``,
-                               with ``acn``); the 1/f synthesis: 36 MB once, 12 MB per
+                               with ``acn``; ``s = 3`` sets for frames of at least
+                               :data:`LARGE_FRAME_PIXELS`, whose lines forked helpers may
+                               make, else 2); the 1/f synthesis: 36 MB once, 12 MB per
                                distinct sample rate (pixel rate, half of it for ACN, row
                                rate for ``pca0``) and 3 MB per series (ACN: 2 per
                                output; a reference output has its own ``u_pink`` and
@@ -147,7 +149,11 @@ peak: Roman references of a 4096 x 4096 WFI frame (no noise) 1897 MB (2800 MB), 
 of 512 x 512 72 MB (100 MB); the uncal of 1024 x 1024 RAPID x 10 246 MB (281 MB).
 Pages of zeros that are never written (zero dq and error arrays, a zero bias or read
 noise without noise) and the allocator's reuse of freed memory on small arrays make
-the products' measured peaks 1.2 to 1.5 times below the estimate.
+the products' measured peaks 1.2 to 1.5 times below the estimate.  The estimates in
+parentheses were made with two 1/f line sets; frames of 65536 pixels or more now count
+a third (the forked helpers' result slots, 2026-11-27): with the paper's noise 2.5 MB
+more at 512 x 512, 4.7 MB at 1024 x 1024, 9.2 MB at 2048 x 2048 and 18.8 MB at 4096 x
+4096 with 32 outputs.
 ``tests/test_budget.py`` checks the formula against hand-computed values and against
 measured runs.
 
@@ -420,7 +426,10 @@ def _noise_parts(det, p):
         series += (u_on > 0) + 2 * (acn_on > 0)
     jobs = (p.c_pink > 0) + (0 if merged else u_on) + acn_on
     rates = (p.c_pink > 0 or u_on > 0) + (acn_on > 0) + (p.pca0 > 0)
-    lines = 2.0 * jobs * min(512, det.ny) * det.row_samples * 4
+    # band buffers: two sets on the thread pool; large frames may have their lines
+    # made by forked helpers, into three result slots (noise.generator._ForkedLines)
+    sets = 3 if P >= LARGE_FRAME_PIXELS else 2
+    lines = float(sets) * jobs * min(512, det.ny) * det.row_samples * 4
     pink = (_PINK_FIXED + _PINK_RATE * rates + _PINK_SERIES * series) if series else 0.0
     template = 0.0
     if p.pca0 > 0 or p.bias_amp > 0:
@@ -434,6 +443,11 @@ def _noise_parts(det, p):
             ("the bias template ([noise] pca0, bias_amp, pca0_file; [detector] naxis1, "
              "naxis2)", template)]
 
+
+#: Frames of at least this many pixels are made in bands (the default
+#: ``noise.generator.Layout().pool_min_pixels``; not imported here: the budget is
+#: checked before the heavy imports).
+LARGE_FRAME_PIXELS = 1 << 16
 
 #: Pipeline products of ``scenesim run`` counted in the output estimate.
 PRODUCTS = ("uncal", "l1", "reffiles")

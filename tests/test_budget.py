@@ -143,6 +143,20 @@ def test_noise_ramp_by_hand(tmp_path):
     assert b.output == 2 * 5 * P * 2 + HEADERS          # uint16 DN
 
 
+def test_large_frames_count_the_forked_helpers_third_line_set(tmp_path):
+    from noise.generator import Layout
+    assert budget_module.LARGE_FRAME_PIXELS == Layout().pool_min_pixels
+    det = noise.preset("H2RG", naxis1=256, naxis2=256)       # 4 outputs of 64 columns
+    b = check_noise_budget(det, noise.ZERO_NOISE.replace(c_pink=3.0), 5,
+                           unit="DN", path=tmp_path / "n.fits")
+    P = 256 * 256
+    # the writer's frames 16 P, the noise frame 4 P; 65536 pixels make a large frame:
+    # 3 sets (forked helpers' result slots) x 1 job (c_pink) x 256 rows x (64 columns
+    # + 12 overhead) x 4 bytes; the synthesis 36 MB + 12 MB (one rate) + 3 MB (one
+    # series)
+    assert b.memory == 16 * P + 4 * P + 3 * 1 * 256 * 76 * 4 + 36 * MB + 12 * MB + 3 * MB
+
+
 def test_noise_naxis_400000_is_refused_in_milliseconds(tmp_path):
     # before: `scenesim noise --naxis 400000` ended in a MemoryError traceback
     det = noise.preset("H2RG", naxis1=400000, naxis2=400000)

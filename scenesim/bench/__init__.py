@@ -55,7 +55,8 @@ from scenesim.outputs import check_outputs
 from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
 from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
-from scenesim.bench.process import load_average, peak_rss_self, run_process, tail
+from scenesim.bench.process import (load_average, peak_memory, peak_rss_self,
+                                     run_process, tail)
 from scenesim.bench.workloads import (FIT_SCALING_NRES, FIT_SCALING_SIZES, OPTION_CASES,
                                       PREPARE, WORKLOADS, fit_scaling_cases)
 
@@ -82,8 +83,11 @@ def run_case(name, case, threads, **kwargs):
 
 def _run_child(name, case, threads, work, kwargs):
     """One case in a fresh process: its in-process result plus the process's own
-    measurement (``process_wall``, ``process_cpu``, loads) and ``peak_rss_mb``, the
-    process's own high-water mark at its end (reported by the child)."""
+    measurement (``process_wall``, ``process_cpu``, loads) and ``peak_rss_mb``: the
+    process's own high-water mark at its end (reported by the child,
+    ``own_peak_rss_mb``) or, if larger, the sampled peak of its process tree
+    (``tree_pss_peak_mb``: the 1/f line helpers included;
+    :mod:`scenesim.bench.process`)."""
     tag = f"{name}_{_slug(case)}_{threads}t"
     result = os.path.join(work, tag + ".pickle")
     argv = [sys.executable, "-m", "scenesim.bench.child", name, repr(case), str(threads),
@@ -100,8 +104,10 @@ def _run_child(name, case, threads, work, kwargs):
         raise RuntimeError(f"workload {name} {case!r} failed: {value}")
     os.unlink(result)
     value["inprocess_peak_rss_mb"] = value.pop("peak_rss_mb")
+    own = value.pop("process_peak_rss_mb")
     value.update(process_wall=m["wall"], process_cpu=m["cpu"],
-                 peak_rss_mb=value.pop("process_peak_rss_mb"),
+                 peak_rss_mb=peak_memory(own, m["tree_pss_peak_mb"]), own_peak_rss_mb=own,
+                 tree_pss_peak_mb=m["tree_pss_peak_mb"],
                  rusage_maxrss_mb=m["rusage_maxrss_mb"], load_before=m["load_before"],
                  load_after=m["load_after"])
     return value

@@ -36,7 +36,7 @@ import sys
 import numpy as np
 
 from noise.errors import ParameterError
-from scenesim.bench.process import run_process, tail
+from scenesim.bench.process import peak_memory, run_process, tail
 
 __all__ = ["NOT_MEASURED", "peer_plan", "prepare_peer_input", "run_peer", "check_ng_path",
            "ng_peak_bytes"]
@@ -216,7 +216,8 @@ def run_peer(plan, name, case, directory, *, ng_path=None):
     dict
         ``plan`` plus, when the peer ran: ``status = 'measured'``, ``wall``,
         ``cpu``, ``load_before``, ``load_after`` (whole process), ``peak_rss_mb``
-        (the process's own high-water mark, reported by it),
+        (the process's own high-water mark, reported by it as ``own_peak_rss_mb``,
+        or its process tree's sampled peak if larger: :mod:`scenesim.bench.process`),
         ``inprocess`` (the peer's own work, s), ``version`` and ``detail``; when it
         failed: ``status`` = :data:`NOT_MEASURED` and the ``reason`` (the end of its
         error output).
@@ -248,6 +249,9 @@ def run_peer(plan, name, case, directory, *, ng_path=None):
     with open(spec["result"]) as f:
         res = json.load(f)
     out.update(m, status="measured", **res)
+    # as scenesim's: the peer's own high-water mark, or its tree's if it forks
+    out.update(own_peak_rss_mb=res["peak_rss_mb"],
+               peak_rss_mb=peak_memory(res["peak_rss_mb"], m["tree_pss_peak_mb"]))
     return out
 
 

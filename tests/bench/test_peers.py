@@ -22,7 +22,7 @@ import noise
 from noise.errors import ParameterError
 from scenesim import bench
 from scenesim.bench import limit, peers, workloads
-from scenesim.bench.process import run_process
+from scenesim.bench.process import peak_memory, run_process
 
 BENCH_DIR = Path(bench.__file__).parent
 
@@ -236,6 +236,33 @@ def test_peak_memory_is_the_processs_own(tmp_path):
     # an interpreter that imports only os, subprocess and time: ~10-20 MB
     assert 0 < own < 100
     del held
+
+
+_FORKS_200MB = '''
+import os, time
+import numpy as np
+pid = os.fork()
+if pid == 0:
+    held = np.ones(200 * 2**20 // 8)      # 200 MB, touched, in the child only
+    time.sleep(1.0)
+    os._exit(0)
+os.waitpid(pid, 0)
+from scenesim.bench.process import peak_rss_self
+print(peak_rss_self())
+'''
+
+
+def test_peak_memory_counts_a_forked_helper(tmp_path):
+    """A process whose forked child holds 200 MB for 1 s: its own VmHWM misses it,
+    the sampled tree (every 0.1 s, ~10 samples while it is held) does not."""
+    m = run_process([sys.executable, "-c", _FORKS_200MB], cwd=str(tmp_path),
+                    stdout_path=str(tmp_path / "o"), stderr_path=str(tmp_path / "e"))
+    assert m["returncode"] == 0, (tmp_path / "e").read_text()
+    own = float((tmp_path / "o").read_text())
+    assert own < 150                          # the interpreter and numpy: ~30-60 MB
+    assert m["tree_pss_peak_mb"] >= 200       # the child's 200 MB, plus its share
+    assert peak_memory(own, m["tree_pss_peak_mb"]) == m["tree_pss_peak_mb"]
+    assert peak_memory(own, 0.0) == own
 
 
 def test_pink_samples_follow_the_floor_definition():

@@ -4,7 +4,8 @@
   component, series grouping, reads subset, integration subset, DN output, reused
   buffers, interleaved detector and thread count, and the helpers really ran;
 * only runs of at least ``Layout.fork_min_pixels`` pixels fork, never while another
-  thread runs, never for raw frames (their extra samples read the series again);
+  thread runs, never for the raw frames of an interleaved detector (their extra
+  samples read every output's series again);
 * no helper outlives its iterator: run to the end, closed early, never started and
   dropped; a helper's failure is one clear error in the parent.
 """
@@ -44,7 +45,8 @@ def _spy(monkeypatch):
 
 def _frames(det, params, threads, layout, **kw):
     gen = NoiseGenerator(det, params, rng=23, threads=threads, layout=layout)
-    return [(i, k, f.copy()) for i, k, f in gen.frames(4, **kw)]
+    return [(i, k, tuple(p.copy() for p in f) if isinstance(f, tuple) else f.copy())
+            for i, k, f in gen.frames(4, **kw)]
 
 
 def _children():
@@ -68,6 +70,8 @@ def _assert_same(got, ref):
          det=preset("H2RG", naxis1=256, naxis2=256, n_out=8)),  # short last groups
     dict(det=preset("H2RG", naxis1=256, naxis2=256, n_out=1)),  # one merged series
     dict(det=preset("NIRSPEC-IRS2").stripe(0, 32, "S32")),   # interleaved slots
+    dict(det=preset("WFI", ref_output=True).stripe(0, 16, "S16"), raw=True),  # + reference output
+    dict(det=preset("WFI", ref_output=True).stripe(0, 16, "S16"), raw="split", dn_gain=1.3),
 ])
 def test_forked_lines_give_one_threads_frames(monkeypatch, case):
     case = dict(case)
@@ -78,14 +82,17 @@ def test_forked_lines_give_one_threads_frames(monkeypatch, case):
     made = _spy(monkeypatch)
     got = _frames(det, ALL_ON, threads, layout, **case)
     assert len(made) == 1 and made[0].nhelpers >= 1
+    if case.get("raw") == "split":                           # (image, extra samples)
+        got = [(i, k, np.hstack(f)) for i, k, f in got]
+        ref = [(i, k, np.hstack(f)) for i, k, f in ref]
     _assert_same(got, ref)
     assert len({float(f.std()) for *_, f in ref}) == len(ref)   # frames differ
 
 
 def test_only_long_runs_fork(monkeypatch):
     """Default layout: forking costs tens of ms, so a run forks from
-    ``fork_min_pixels`` pixels in all (here 3 frames of 256^2) and not below, nor
-    on one thread, nor for raw frames."""
+    ``fork_min_pixels`` pixels in all (here 4 frames of 256^2) and not below, nor
+    for the raw frames of an interleaved detector."""
     made = _spy(monkeypatch)
     ref = _frames(DET, ALL_ON, 1, Layout())
     _assert_same(_frames(DET, ALL_ON, 2, Layout()), ref)                  # 2^24 px
