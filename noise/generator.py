@@ -51,7 +51,7 @@ default: four 2048^2 frames) on two or more threads, in a process running no oth
 thread, makes its 1/f lines in forked helper processes instead (:class:`_ForkedLines`:
 the series groups dealt to up to ``threads`` helpers, each writing its lines band by
 band, up to two bands ahead, into shared memory), and the parent assembles the rows
-from them with the threads left.  In one interpreter, every hand-over of the GIL
+from them on its threads.  In one interpreter, every hand-over of the GIL
 between the line and row tasks costs a futex wake-up: 88 H2RG frames on two threads
 ran 1.46x as fast as on one, 1.62x with the helpers (BENCHMARKS.md).  Same bytes.
 
@@ -1016,9 +1016,10 @@ class NoiseGenerator:
         if not big:
             yield from self._frames_small(nreads, reads, ints, dn_gain, nbuf)
             return
-        # with forked helpers making the lines, the threads left assemble the rows
-        workers = self.threads - (forked.nhelpers if forked is not None else 0)
-        pool = ThreadPoolExecutor(workers) if workers > 1 else None
+        # with forked helpers making the lines, the threads still assemble the rows
+        # (the parent's other work, the charge engine's, shares the cores too:
+        # roman_wfi 13.1-13.4 s against 13.2-14.6 with the rows on one thread)
+        pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         order = [(i, k) for i in ints for k in reads]
         bufs = []
         try:

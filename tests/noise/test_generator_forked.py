@@ -65,7 +65,7 @@ def _assert_same(got, ref):
     dict(),                                                  # 4 outputs, 3 groups
     dict(nints=3, integrations=[0, 2], reads=[1, 3]),        # skipped slots
     dict(dn_gain=1.7, reuse=2),                              # DN, reused buffers
-    dict(threads=3),                                         # 3 helpers, 1 row thread
+    dict(threads=3),                                         # 3 helpers, 3 row threads
     dict(layout=Layout(fork_min_pixels=0, series_per_task=3, band_rows=64),
          det=preset("H2RG", naxis1=256, naxis2=256, n_out=8)),  # short last groups
     dict(det=preset("H2RG", naxis1=256, naxis2=256, n_out=1)),  # one merged series
