@@ -52,8 +52,10 @@ thread, makes its 1/f lines in forked helper processes instead (:class:`_ForkedL
 the series groups dealt to up to ``threads`` helpers, each writing its lines band by
 band, up to two bands ahead, into shared memory), and the parent assembles the rows
 from them on its threads.  In one interpreter, every hand-over of the GIL
-between the line and row tasks costs a futex wake-up: 88 H2RG frames on two threads
-ran 1.46x as fast as on one, 1.62x with the helpers (BENCHMARKS.md).  Same bytes.
+between the line and row tasks costs a futex wake-up: 88 H2RG frames written as the
+``noise`` benchmark writes them took 4.87-5.47 s (median 4.91) with the helpers
+against 5.11-6.25 s (median 5.40) on the thread pool, five alternating pairs on two
+cores (BENCHMARKS.md, 2026-11-27).  Same bytes.
 
 Small frames (fewer than ``Layout.pool_min_pixels`` pixels: windows, time series) are made
 without the thread pool, ``K`` requested frames at a time (``K * ny * nx <=
@@ -1328,11 +1330,11 @@ class _ForkedLines:
 
     Why: made on the thread pool, the line tasks and the row tasks of a band share
     one interpreter, and every hand-over of the GIL between the cores costs a futex
-    wake-up; with two threads a task took 10-25 % longer than alone, and a run of
-    88 H2RG frames used 1.46x one thread's speed (BENCHMARKS.md, 2026-11-27).  In
-    forked processes the line synthesis (most of a noise frame's work: the draws
-    and FFTs of every 1/f series) shares nothing with the parent but the result
-    buffers.
+    wake-up (a run of 88 H2RG frames on two threads: 27-38 thousand voluntary
+    context switches, 6-8 thousand with the helpers; the timings are in the module
+    notes).  In forked processes the line synthesis (most of a noise frame's work:
+    the draws and FFTs of every 1/f series) shares nothing with the parent but the
+    result buffers.
 
     The series groups of :meth:`NoiseGenerator._line_jobs` are dealt to up to
     ``threads`` helpers, the largest first, each to the helper with the fewest lines
