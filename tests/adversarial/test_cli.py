@@ -316,11 +316,14 @@ def test_signals_leave_nothing_behind(tmp_path, sig, when, job):
     elif job == "series":            # forked 1/f helper (2 threads, small frames)
         (tmp_path / "scene.toml").write_text(SERIES.format(nints=3000))
         argv = ["run", "scene.toml", "-q", "--threads", "2"]
-    else:
-        argv = ["noise", "--naxis", "1024", "--frames", "40", "-q", "-o", "n.fits"]
+    else:                            # forked 1/f line helpers (large frames, 2^25 px)
+        argv = ["noise", "--naxis", "1024", "--frames", "40", "-q", "-o", "n.fits",
+                "--threads", "2"]
     before = _snapshot(tmp_path)
     code, err, children = _interrupt(argv, tmp_path, sig, when)
     assert code == 128 + sig, err          # the jobs last far longer than the wait
+    if when == "writing" and job != "run":
+        assert children                    # the helpers ran when the signal came
     _one_line(err, "interrupted", signal.Signals(sig).name)
     assert _snapshot(tmp_path) == before
     time.sleep(0.2)
