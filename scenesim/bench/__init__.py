@@ -198,7 +198,7 @@ def _notes(r):
 
 def _markdown(rows):
     """The table of the scenesim cases."""
-    head = ("| workload | case | in-process s | process s | CPU s | peak RSS MB | "
+    head = ("| workload | case | in-process s | process s | CPU s | peak memory MB | "
             "floor s | ratio | own-sampler floor s | ratio | limit s | wall / limit | "
             "method floor s | wall / method floor | "
             "1 thread s | speed-up | limit's speed-up | load | notes |\n"
@@ -235,7 +235,7 @@ def _scaling_markdown(rows):
     cases = [r for r in rows if r["workload"] == "fit" and "nres" in r]
     if not cases:
         return ""
-    head = ("| size | resultants | in-process s | CPU s | process s | peak RSS MB | cube "
+    head = ("| size | resultants | in-process s | CPU s | process s | peak memory MB | cube "
             "MB (float32) | peak / cube | peak / peak at fewest resultants | ns per "
             "pixel x resultant (CPU) | CPU per resultant / at fewest | read pass s | "
             "np.sum s | wall / np.sum | load |\n"
@@ -260,15 +260,15 @@ def _scaling_markdown(rows):
             for sel in (rs, [r for r in rs if r["nres"] >= 20])) + " |")
     return (head + "\n".join(lines) + "\n\nExponents (least squares of log against "
             "log resultants; all the size's cases, then those with >= 20 resultants):"
-            "\n\n| size | wall, all | wall, >= 20 | CPU, all | CPU, >= 20 | peak RSS, "
-            "all | peak RSS, >= 20 |\n|---|---|---|---|---|---|---|\n"
+            "\n\n| size | wall, all | wall, >= 20 | CPU, all | CPU, >= 20 | peak memory, "
+            "all | peak memory, >= 20 |\n|---|---|---|---|---|---|---|\n"
             + "\n".join(fits) + "\n")
 
 
 def _peer_markdown(rows):
     """Process against process: each peer beside the scenesim case of the same input."""
-    head = ("| workload | case | scenesim process s | scenesim CPU s | scenesim peak RSS "
-            "MB | peer | peer process s | peer CPU s | peer in-process s | peer peak RSS "
+    head = ("| workload | case | scenesim process s | scenesim CPU s | scenesim peak memory "
+            "MB | peer | peer process s | peer CPU s | peer in-process s | peer peak memory "
             "MB | time: peer / scenesim | CPU: peer / scenesim | memory: peer / scenesim "
             "| load before / after | notes |\n"
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
@@ -594,7 +594,10 @@ def write_report(rows, out_dir, meta):
                 f"{'quick' if meta['quick'] else 'full'}; load average "
                 f"{'/'.join(map(str, meta['load_average_start']))} at the start, "
                 f"{'/'.join(map(str, meta['load_average_end']))} at the end)\n\n"
-                f"    {meta['command']}\n\n" + _markdown(rows))
+                f"    {meta['command']}\n\n"
+                "Peak memory: a process's own high-water mark (VmHWM) or, if larger, "
+                "the peak of its process tree's summed Pss (forked helpers included), "
+                "sampled every 0.1 s.\n\n" + _markdown(rows))
         scaling = _scaling_markdown(rows)
         if scaling:
             f.write("\nThe fit's scaling (cube read by row blocks from its file; "
