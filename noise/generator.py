@@ -412,7 +412,7 @@ class NoiseGenerator:
             for *_, owners in jobs:
                 parts.append(set_store[r:r + len(owners)])
                 r += len(owners)
-            sets.append(self._line_set(parts))
+            sets.append(self._line_set(jobs, parts))
         self._lines = (jobs, sets)
         return self._lines
 
@@ -436,15 +436,15 @@ class NoiseGenerator:
         """Samples of one full-rate line of a band."""
         return min(self.layout.band_rows, self.detector.ny) * self.detector.row_samples
 
-    def _line_set(self, parts):
-        """``(outs, views)`` of one band buffer set whose job ``j`` (in
-        :meth:`_line_jobs` order) writes the lines ``parts[j]`` (one row of
+    def _line_set(self, jobs, parts):
+        """``(outs, views)`` of one band buffer set whose job ``jobs[j]`` (of
+        :meth:`_line_jobs`) writes the lines ``parts[j]`` (one row of
         :meth:`_band_line_size` samples per owner)."""
         det = self.detector
         ncol, rs = det.ncols_out, det.row_samples
         rows = min(self.layout.band_rows, det.ny)
         outs, views = [], [[] for _ in range(det.n_out_active)]
-        for (series, per_row, _, owners), lines in zip(self._line_jobs(), parts):
+        for (series, per_row, _, owners), lines in zip(jobs, parts):
             outs.append(self._dest(lines, per_row, rows * per_row))
             for o, line in zip(owners, lines):
                 view = line.reshape(rows, rs)
@@ -1378,7 +1378,7 @@ class _ForkedLines:
                     for j in part:
                         lines[j] = store[r:r + len(jobs[j][3])]
                         r += len(jobs[j][3])
-                self._views.append(gen._line_set(lines)[1])
+                self._views.append(gen._line_set(jobs, lines)[1])
         except BaseException:
             finalizer()
             raise

@@ -21,6 +21,8 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
+from forks import children_of
+
 SCENE = """seed = 5
 [detector]
 preset = "H2RG"
@@ -228,19 +230,6 @@ def test_fit_of_a_one_group_file_is_refused(workdir):
 
 
 # ------------------------------------------------------------------ signals
-def _children(pid):
-    """Pids of the children of ``pid`` (Linux /proc)."""
-    out = set()
-    task_dir = f"/proc/{pid}/task"
-    try:
-        for tid in os.listdir(task_dir):
-            with open(f"{task_dir}/{tid}/children") as f:
-                out |= {int(p) for p in f.read().split()}
-    except OSError:
-        pass
-    return out
-
-
 def _alive(pid):
     try:
         with open(f"/proc/{pid}/stat") as f:
@@ -287,13 +276,13 @@ def _interrupt(argv, cwd, sig, when):
     children = set()
     t0 = time.monotonic()
     while time.monotonic() - t0 < 60:
-        children |= _children(proc.pid)
+        children |= children_of(proc.pid)
         new = set(os.listdir(cwd)) - before
         if when == "start" and _catches(proc.pid, signal.SIGTERM):
             break
         if when == "writing" and any(n.startswith(".") for n in new):
             time.sleep(0.3)
-            children |= _children(proc.pid)
+            children |= children_of(proc.pid)
             break
         if proc.poll() is not None:
             break

@@ -11,7 +11,6 @@
 """
 
 import gc
-import os
 import threading
 
 import numpy as np
@@ -23,6 +22,8 @@ from noise.errors import HelperProcessError
 from noise.fast.producer import available
 from noise.generator import Layout
 
+from forks import children_of, record_made
+
 pytestmark = pytest.mark.skipif(not available(), reason="needs POSIX fork (Linux)")
 
 ALL_ON = NIRSPEC_DEFAULTS.replace(rtn_fraction=0.02)     # every component, RTN too
@@ -32,27 +33,13 @@ DET = preset("H2RG", naxis1=256, naxis2=256, n_out=4)     # 65536 px: the banded
 
 def _spy(monkeypatch):
     """Record every ``_ForkedLines`` made by the generator module."""
-    made = []
-    real = generator_module._ForkedLines
-
-    def spy(*args, **kwargs):
-        made.append(real(*args, **kwargs))
-        return made[-1]
-
-    monkeypatch.setattr(generator_module, "_ForkedLines", spy)
-    return made
+    return record_made(monkeypatch, generator_module, "_ForkedLines")
 
 
 def _frames(det, params, threads, layout, **kw):
     gen = NoiseGenerator(det, params, rng=23, threads=threads, layout=layout)
     return [(i, k, tuple(p.copy() for p in f) if isinstance(f, tuple) else f.copy())
             for i, k, f in gen.frames(4, **kw)]
-
-
-def _children():
-    pid = os.getpid()
-    with open(f"/proc/{pid}/task/{pid}/children") as f:
-        return {int(p) for p in f.read().split()}
 
 
 def _assert_same(got, ref):
@@ -122,21 +109,21 @@ def test_no_fork_while_another_thread_runs(monkeypatch):
 
 def test_helpers_never_outlive_their_iterator(monkeypatch):
     made = _spy(monkeypatch)
-    before = _children()
+    before = children_of()
     gen = NoiseGenerator(DET, ALL_ON, rng=3, threads=2, layout=FORK)
     list(gen.frames(3))                                      # to the end
-    assert _children() == before
+    assert children_of() == before
     it = gen.frames(50)                                      # closed early
     next(it)
-    assert _children() - before
+    assert children_of() - before
     it.close()
-    assert _children() == before
+    assert children_of() == before
     it = gen.frames(50)                                      # never started, dropped
-    assert _children() - before and len(made) == 3
+    assert children_of() - before and len(made) == 3
     made.clear()                                             # the spy's reference
     del it
     gc.collect()
-    assert _children() == before
+    assert children_of() == before
 
 
 def _fail(*args):
@@ -145,9 +132,9 @@ def _fail(*args):
 
 def test_a_helper_failure_is_one_clear_error(monkeypatch):
     monkeypatch.setattr(generator_module, "_make_band_lines", _fail)
-    before = _children()
+    before = children_of()
     it = NoiseGenerator(DET, ALL_ON, rng=3, threads=2, layout=FORK).frames(4)
     with pytest.raises(HelperProcessError, match="MemoryError: no room for the lines"):
         next(it)
     it.close()
-    assert _children() == before
+    assert children_of() == before

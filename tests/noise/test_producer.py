@@ -25,6 +25,8 @@ from noise.clock import Detector
 from noise.errors import HelperProcessError, ParameterError, ScenesimError
 from noise.fast.producer import ForkedProducer, available
 
+from forks import children_of, record_made
+
 pytestmark = pytest.mark.skipif(not available(), reason="needs POSIX fork (Linux)")
 
 
@@ -93,15 +95,7 @@ WINDOW = preset("H2RG", naxis1=256, naxis2=256).window(40, 60, 32, 24)
 
 def _count_forks(monkeypatch):
     """Record the producers the generator makes (a list of them)."""
-    made = []
-    real = generator_module.ForkedProducer
-
-    def spy(*args, **kwargs):
-        made.append(real(*args, **kwargs))
-        return made[-1]
-
-    monkeypatch.setattr(generator_module, "ForkedProducer", spy)
-    return made
+    return record_made(monkeypatch, generator_module, "ForkedProducer")
 
 
 @pytest.mark.parametrize("kwargs", [dict(nints=100), dict(nints=130, reads=[0, 3]),
@@ -289,12 +283,6 @@ def _before_fork():
 os.register_at_fork(before=_before_fork)
 
 
-def _children_of_this_process():
-    pid = os.getpid()
-    with open(f"/proc/{pid}/task/{pid}/children") as f:
-        return {int(p) for p in f.read().split()}
-
-
 def test_an_interrupt_during_fork_is_raised_after_it_not_lost():
     # Old behaviour: a SIGTERM landing while os.fork ran its at-fork handlers was
     # raised inside them, printed as "Exception ignored" and lost; the run went on
@@ -304,7 +292,7 @@ def test_an_interrupt_during_fork_is_raised_after_it_not_lost():
     def stop(signum, frame):
         raise _Stop(signum)
 
-    before = _children_of_this_process()
+    before = children_of()
     old = signal.signal(signal.SIGTERM, stop)
     _FORK_HOOK.update(armed=True, masks=[])
     try:
@@ -317,4 +305,4 @@ def test_an_interrupt_during_fork_is_raised_after_it_not_lost():
     assert {signal.SIGINT, signal.SIGTERM, signal.SIGHUP} <= blocked
     assert not {signal.SIGINT, signal.SIGTERM, signal.SIGHUP} & \
         signal.pthread_sigmask(signal.SIG_BLOCK, [])
-    assert _children_of_this_process() == before           # the child was reaped
+    assert children_of() == before           # the child was reaped
