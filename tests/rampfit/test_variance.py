@@ -203,3 +203,21 @@ def test_bad_input_theory_functions():
         rauscher2007_variance(1.0, 1, 1, 0, T_JWST, 1.0)
     with pytest.raises(ParameterError, match="t_frame"):
         rauscher2007_variance(1.0, 5, 1, 0, 0.0, 1.0)
+
+
+@pytest.mark.parametrize("sigma, quoted", [(5.0, 1.06), (2.0, 1.18), (0.5, 1.8)])
+def test_fit_rate_variance_is_too_large_at_rate_zero(sigma, quoted):
+    """variance_rate='fit' at rate 0 reports a variance too large (never too small),
+    by the factor its docstring quotes (about 1.06, 1.18 and 1.8 at 5, 2 and 0.5 e-):
+    the Poisson part is evaluated at max(slope, 0), biased up at rate 0.
+
+    Estimator: r = mean(reported variance) / mean(slope^2) over n = 8192 pixels with a
+    true slope of 0.  mean(slope^2) of Gaussian slopes has relative sd sqrt(2 / n) =
+    1.6 %; the reported variance's mean is far more precise.  5 sigma = 7.8 % of r:
+    r must be within 8 % of the quoted factor."""
+    times = [np.array([(k + 1) * 10.0]) for k in range(10)]
+    rng = np.random.default_rng(2026)
+    res = simulate(rng, 0.0, times, sigma, (64, 128))
+    g = fit_ramps(res, times, read_noise=sigma, threads=1, variance_rate="fit")
+    r = np.mean(g.var_read + g.var_poisson) / np.mean(np.square(g.slope, dtype=float))
+    assert abs(r / quoted - 1.0) < 0.08, r
