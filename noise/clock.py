@@ -184,6 +184,7 @@ class Subarray:
             check_int(f"subarray.{field}", getattr(self, field), minimum=0)
         for field in ("nx", "ny"):
             check_int(f"subarray.{field}", getattr(self, field), minimum=1)
+        check_str("subarray.name", self.name, label=True)
 
 
 @dataclass(frozen=True)
@@ -306,7 +307,7 @@ class Detector:
         check_int("ref_border", self.ref_border, minimum=0)
         check_float("dt", self.dt, minimum=0.0, strict_min=True)
         check_float("pixel_pitch", self.pixel_pitch, minimum=0.0, strict_min=True)
-        check_str("name", self.name)
+        check_str("name", self.name, label=True)
         check_bool("reverse_scan", self.reverse_scan)
         check_instance("subarray", self.subarray, Subarray, "a noise.clock.Subarray",
                        allow_none=True)
@@ -727,17 +728,25 @@ PRESETS = {
 }
 
 
-def preset(name, **changes):
-    """Return the preset detector ``name`` with optional field ``changes``.
+def preset(preset_name, /, **changes):
+    """Return the preset detector ``preset_name`` with optional field ``changes``
+    (any :class:`Detector` field, ``name`` included).
 
     Examples
     --------
     >>> preset("H2RG", naxis1=256, naxis2=256).frame_time  # doctest: +SKIP
     """
-    key = check_str("preset", name).upper()
+    key = check_str("preset", preset_name).upper()
     if key not in PRESETS:
         close = difflib.get_close_matches(key, PRESETS, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else ""
         raise ParameterError(
-            f"'preset' must be one of {sorted(PRESETS)}, got {name!r}{hint}")
+            f"'preset' must be one of {sorted(PRESETS)}, got {preset_name!r}{hint}")
+    fields = [f.name for f in dataclasses.fields(Detector)]
+    for k in changes:
+        if k not in fields:
+            close = difflib.get_close_matches(k, fields, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ParameterError(f"unknown detector field {k!r}: the fields are "
+                                 f"{', '.join(fields)}{hint}")
     return dataclasses.replace(PRESETS[key], **changes) if changes else PRESETS[key]

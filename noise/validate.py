@@ -133,12 +133,22 @@ def check_bool(name, value):
     return bool(value)
 
 
-def check_str(name, value, *, nonempty=False):
-    """``value`` if it is a string (non-empty with ``nonempty``)."""
+def check_str(name, value, *, nonempty=False, label=False):
+    """``value`` if it is a string (non-empty with ``nonempty``).
+
+    ``label``: a name written into FITS headers and tables, which hold printable
+    ASCII only (characters 32-126: no accents, tabs or line breaks)."""
     if not isinstance(value, str) or (nonempty and not value):
         what = "a non-empty string" if nonempty else "a string"
         cls = ParameterError if isinstance(value, str) else ParameterTypeError
         raise cls(f"{name!r} must be {what}, got {describe(value)}")
+    if label:
+        bad = [(i, c) for i, c in enumerate(value) if not " " <= c <= "~"]
+        if bad:
+            i, c = bad[0]
+            raise ParameterError(
+                f"{name!r} must be printable ASCII (characters 32-126: it is written "
+                f"to FITS headers), got {value!r}: {c!r} at position {i}")
     return value
 
 

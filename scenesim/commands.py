@@ -9,7 +9,6 @@ the whole process.
 
 
 import dataclasses
-import os
 import shlex
 import sys
 import time
@@ -137,7 +136,7 @@ def compare_command(args):
     """``scenesim compare``: grade a slope file against the truth (or, with
     ``--pool DIR``, print the comparisons of a batch pooled over realisations)."""
     from scenesim.batch.command import pool_command
-    from scenesim.outputs import check_plot_dir
+    from scenesim.outputs import check_plot_dir, plot_dir
     from scenesim.validate.compare import compare_files
     if getattr(args, "pool", None) is not None:
         if args.fit is not None or args.plots or args.exposure:
@@ -147,11 +146,13 @@ def compare_command(args):
     if args.fit is None or args.truth is None:
         raise ParameterError("compare needs a slope file and a truth file (FIT TRUTH), "
                              "or --pool DIR for a batch")
-    if args.plots:
-        check_plot_dir(args.plots, overwrite=args.overwrite)
-        os.makedirs(args.plots, exist_ok=True)
-    report = compare_files(args.fit, args.truth, plots=args.plots,
-                           exposure=args.exposure)
+    plots = args.plots or None
+    if plots:
+        inputs = [p for p in (args.fit, args.truth, args.exposure) if p is not None]
+        check_plot_dir(plots, inputs=inputs, overwrite=args.overwrite)
+    with plot_dir(plots):
+        report = compare_files(args.fit, args.truth, plots=plots,
+                               exposure=args.exposure)
     print(report.format())
     return 0
 

@@ -16,6 +16,7 @@ place when complete (:func:`noise.fitsio.atomic_path`), so an interrupted run le
 partial file either.
 """
 
+import contextlib
 import os
 
 from noise.errors import ParameterError
@@ -120,8 +121,10 @@ def check_outputs(outputs, *, inputs=(), overwrite=False):
     return checked
 
 
-def check_plot_dir(directory, *, overwrite=False):
-    """The figures ``compare`` would write into ``directory``, checked like outputs.
+def check_plot_dir(directory, *, inputs=(), overwrite=False):
+    """The figures ``compare`` would write into ``directory``, checked like outputs
+    (:func:`check_outputs`: a figure that would replace one of ``inputs``, the files
+    the run reads, is refused even with ``overwrite``).
 
     ``directory`` may not exist yet (it is created when the figures are written) but
     must not be a file.  Returns ``{name: path}`` of the figures.
@@ -138,4 +141,22 @@ def check_plot_dir(directory, *, overwrite=False):
     if not os.path.isdir(directory):
         return {name: os.path.join(directory, name) for name in PLOT_FILES}
     return check_outputs({f"figure {name}": os.path.join(directory, name)
-                          for name in PLOT_FILES}, overwrite=overwrite)
+                          for name in PLOT_FILES}, inputs=inputs, overwrite=overwrite)
+
+
+@contextlib.contextmanager
+def plot_dir(directory):
+    """Create ``directory`` for the figures if it is missing, and remove it again
+    (if still empty) when the block fails: a refused command leaves nothing."""
+    made = directory is not None and not os.path.isdir(directory)
+    if made:
+        os.makedirs(directory)
+    try:
+        yield directory
+    except BaseException:
+        if made:
+            try:
+                os.rmdir(directory)
+            except OSError:                # not empty: a figure was written
+                pass
+        raise

@@ -42,7 +42,7 @@ from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import instrument_cards, psf_cards
 from scenesim.progress import progress_bar
-from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps,
+from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps, plot_dir,
                               fit_path_for, scene_inputs)
 from scenesim.validate.compare import compare_files
 from scenesim.sky.maps import load_map
@@ -178,7 +178,7 @@ def _output_paths(scene, cfg, *, overwrite, plots):
     check_outputs({"exposure": exp_path, "truth file": truth_path, "fit file": fit_path},
                   inputs=scene_inputs(scene), overwrite=overwrite)
     if plots is not None:
-        check_plot_dir(plots, overwrite=overwrite)
+        check_plot_dir(plots, inputs=scene_inputs(scene), overwrite=overwrite)
     return exp_path, truth_path, fit_path
 
 
@@ -269,9 +269,9 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
                           options=PrepareOptions(refpix=out_cfg.refpix))
         del exposure
         if out_cfg.compare and truth_path is not None:
-            if plots is not None:
-                os.makedirs(plots, exist_ok=True)
-            report = compare_files(fit_path, truth_path, plots=plots, exposure=exp_path)
+            with plot_dir(plots):
+                report = compare_files(fit_path, truth_path, plots=plots,
+                                       exposure=exp_path)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,
                      engine, cleaned, zero)
 

@@ -358,7 +358,7 @@ def _grid_points(batch, where):
     for i, d in enumerate(dets):
         d = dict(d)
         name = check_str(f"{where} [[detectors]] #{i} 'name'", d.pop("name", f"det{i}"),
-                         nonempty=True)
+                         nonempty=True, label=True)
         if name in names:
             raise ParameterError(f"{where} [[detectors]] name {name!r} appears twice")
         names.append(name)

@@ -150,7 +150,7 @@ def _check_reset_mode(value):
 
 
 def _check_name(value):
-    return check_str("name", value, nonempty=True)
+    return check_str("name", value, nonempty=True, label=True)
 
 
 def _check_t_frame(value):

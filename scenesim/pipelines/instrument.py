@@ -68,7 +68,7 @@ class InstrumentConfig:
 
     def __post_init__(self):
         for key in ("name", "detector", "exp_type", "subarray"):
-            object.__setattr__(self, key, check_str(key, getattr(self, key)).upper())
+            object.__setattr__(self, key, check_str(key, getattr(self, key), label=True).upper())
         if self.name and self.name not in INSTRUMENTS:
             raise ParameterError(
                 f"'name' must be one of {sorted(INSTRUMENTS)} (JWST instruments with "

@@ -24,7 +24,7 @@ from noise.params import NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseParams
 from noise.validate import (check_bool, check_choice, check_existing_file, check_int,
                             check_path, check_str, describe, is_real, suggest)
 
-from scenesim.scene.schema import (LIGHT_CURVE_OPTIONAL, LIGHT_CURVE_REQUIRED,
+from scenesim.scene.schema import (LIGHT_CURVE_OPTIONAL, LIGHT_CURVE_REQUIRED, curve_table,
                                    PSF_COMMON_KEYS, PSF_KEYS, READOUT_FORMS,
                                    check_nonlinearity_range,
                                    EffectsConfig, LightCurveConfig, OutputConfig,
@@ -102,7 +102,7 @@ def _parse_detector(tab):
     with _section(where):
         name = check_str("preset", tab.get("preset", "H2RG"))
         if "name" in tab:
-            check_str("name", tab["name"])
+            check_str("name", tab["name"], label=True)
         if "reverse_scan" in tab:
             check_bool("reverse_scan", tab["reverse_scan"])
         changes = {k: tab[k] for k in _DETECTOR_FIELDS if k in tab}
@@ -121,7 +121,7 @@ def _parse_detector(tab):
             nx = check_int("nx", sub.get("nx", det.naxis1 if kind == "stripe" else None),
                            minimum=1)
             ny = check_int("ny", sub["ny"], minimum=1)
-            subarray = Subarray(kind, x0, y0, nx, ny, check_str("name", sub.get("name", "")))
+            subarray = Subarray(kind, x0, y0, nx, ny, check_str("name", sub.get("name", ""), label=True))
             det = dataclasses.replace(det, subarray=subarray)
     return det
 
@@ -186,7 +186,7 @@ def _parse_light_curves(tab, base_dir):
     all_keys = {"kind"}.union(*LIGHT_CURVE_REQUIRED.values(),
                               *LIGHT_CURVE_OPTIONAL.values())
     for name, spec in tab.items():
-        where = f"[sources.light_curves.{name}]"
+        where = curve_table(name)
         spec = _table(where, spec)
         _check_keys(spec, all_keys, where)
         with _section(where):
@@ -307,7 +307,7 @@ def check_files(scene):
             src.star_table()
     for curve in src.light_curves:
         if curve.kind == "file":
-            with _section(f"[sources.light_curves.{curve.name}]"):
+            with _section(curve_table(curve.name)):
                 curve.build()
     if src.psf.kind == "image":
         with _section("[sources.psf]"):

@@ -14,8 +14,10 @@ docstring.
 """
 
 import dataclasses
+import json
 import math
 import os
+import re
 import secrets
 from dataclasses import dataclass, field
 
@@ -60,6 +62,15 @@ __all__ = [
 
 #: Largest seed: fits a signed 64-bit integer (TOML and FITS).
 MAX_SEED = 2 ** 63 - 1
+
+
+def curve_table(name):
+    """The TOML table of light curve ``name`` as a message shows it:
+    ``[sources.light_curves.tr]``, or with the name quoted (and escaped) where it is
+    not a bare key: ``[sources.light_curves."SN 1"]``."""
+    if re.fullmatch(r"[A-Za-z0-9_-]+", name):
+        return f"[sources.light_curves.{name}]"
+    return f"[sources.light_curves.{json.dumps(name)}]"
 
 
 def _rate_or_map(name, value, *, allow_zero=True, allow_none=False):
@@ -178,7 +189,7 @@ class StarConfig:
         object.__setattr__(self, "y", check_float("y", self.y))
         object.__setattr__(self, "flux", check_float("flux", self.flux, minimum=0.0))
         if self.light_curve is not None:
-            check_str("light_curve", self.light_curve)
+            check_str("light_curve", self.light_curve, label=True)
 
 
 # ================================================================ light curves
@@ -270,7 +281,7 @@ class LightCurveConfig:
     file: str | None = None
 
     def __post_init__(self):
-        check_str("name", self.name)
+        check_str("name", self.name, label=True)
         kind = check_choice("kind", self.kind, tuple(LIGHT_CURVE_REQUIRED))
         used = set(LIGHT_CURVE_REQUIRED[kind]) | set(LIGHT_CURVE_OPTIONAL[kind])
         for f in dataclasses.fields(self):
@@ -584,7 +595,7 @@ class ReadoutConfig:
             raise ParameterError(
                 f"'groupgap' and 'nskip' apply only to the 'nframes' form, not {form!r}")
         if self.name is not None:
-            check_str("name", self.name)
+            check_str("name", self.name, label=True)
             if form == "pattern":
                 raise ParameterError("'name' is not used with 'pattern' (the pattern "
                                      "is its own name)")
@@ -970,7 +981,7 @@ class Scene:
                 value, key = src.light_curve(star.light_curve).peak()
                 if value is not None:
                     peak = value
-                    curve = (f" x [sources.light_curves.{star.light_curve}] {key!r} "
+                    curve = (f" x {curve_table(star.light_curve)} {key!r} "
                              f"peak {value!r}")
             if flat is not None:
                 check(f"[[sources.stars]] #{i}", "flux", star.flux * peak * flat,

@@ -50,6 +50,7 @@ from scenesim.io.header import (exposure_read_noise, exposure_settings,
                                 readout_from_header, readout_from_table)
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.io.fitfile import fit_arrays, read_slopes
+from scenesim.outputs import check_plot_dir
 from scenesim.pipelines.products import (fit_header, subtract_dark,
                                         subtracted_dark_rate)
 from scenesim.rampfit import check_read_times, ols_variance
@@ -547,6 +548,9 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     truth_path = check_path("truth_path", truth_path)
     if exposure is not None:
         exposure = check_path("exposure", exposure)
+    if plots is not None:                  # a figure never replaces a compared file
+        check_plot_dir(plots, inputs=[p for p in (fit_path, truth_path, exposure)
+                                      if p is not None], overwrite=True)
     truth = read_truth(truth_path)
     try:
         settings = check_truth_header(truth, readout=exposure is None)

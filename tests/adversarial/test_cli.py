@@ -192,6 +192,47 @@ def test_compare_plots_on_a_file_is_refused(workdir):
     assert _snapshot(workdir) == before
 
 
+@pytest.mark.parametrize("figure, target", [("slope.png", "out_gls.fits"),
+                                              ("residuals.png", "out_truth.fits")])
+def test_compare_figures_never_replace_an_input(workdir, figure, target):
+    """A figure's name that is one of compare's inputs is refused, even with
+    --overwrite, and nothing changes."""
+    res = _cli(["run", "scene.toml", "-q", "--fit", "gls"], workdir)
+    assert res.returncode == 0, res.stderr
+    (workdir / "plots").mkdir()
+    os.replace(workdir / target, workdir / "plots" / figure)
+    before = _snapshot(workdir / "plots")
+    args = ["plots/slope.png" if target == "out_gls.fits" else "out_gls.fits",
+            "plots/residuals.png" if target == "out_truth.fits" else "out_truth.fits"]
+    res = _cli(["compare", *args, "--plots", "plots", "--overwrite"], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, figure, "reads")
+    assert _snapshot(workdir / "plots") == before
+
+
+def test_run_figures_never_replace_the_scene_file(workdir):
+    (workdir / "plots").mkdir()
+    os.replace(workdir / "scene.toml", workdir / "plots" / "slope.png")
+    before = _snapshot(workdir / "plots")
+    res = _cli(["run", "plots/slope.png", "-q", "--fit", "gls", "--compare", "--plots",
+                "plots", "--overwrite"], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, "slope.png", "reads")
+    assert _snapshot(workdir / "plots") == before
+    assert sorted(os.listdir(workdir)) == ["plots"]
+
+
+@pytest.mark.parametrize("truth", ["missing.fits", "garbage.fits"])
+def test_a_refused_compare_makes_no_plot_directory(workdir, truth):
+    _cli(["run", "scene.toml", "-q", "--fit", "gls"], workdir)
+    (workdir / "garbage.fits").write_text("not FITS")
+    before = _snapshot(workdir)
+    res = _cli(["compare", "out_gls.fits", truth, "--plots", "new_plots"], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, truth)
+    assert _snapshot(workdir) == before
+
+
 def test_overwrite_replaces_and_keeps_the_umask_mode(workdir):
     _exposure(workdir)
     (workdir / "out.fits").write_bytes(b"old")

@@ -520,3 +520,49 @@ def test_psf_and_map_file_errors_name_the_file(tmp_path):
         with pytest.raises(FileFormatError) as info:
             parse_scene(_small(sources={"dark_current": path}), base_dir=tmp_path)
         assert "'dark_current'" in str(info.value) and path in str(info.value)
+
+
+#: Scene strings written into FITS headers or tables (labels): ``(table, key,
+#: context)``.  The light-curve names are the keys of [sources.light_curves].
+LABEL_KEYS = [
+    (("detector",), "name", ""),
+    (("detector", "subarray"), "name", ""),
+    (("readout",), "name", "resultants"),
+    (("sources", "stars", 0), "light_curve", ""),
+    (("instrument",), "detector", ""),
+    (("instrument",), "exp_type", ""),
+    (("instrument",), "subarray", ""),
+]
+
+
+@pytest.mark.parametrize("value", ["é", "SCA\n01", "tab\there", "\x7f"])
+@pytest.mark.parametrize("table, key, ctx", LABEL_KEYS + [
+    (("sources", "light_curves"), None, "")])
+def test_labels_are_printable_ascii(table, key, ctx, value, scene_dir):
+    """A label that FITS cannot hold (before, it passed the parser and failed with a
+    traceback while the files were written, for a light curve after the whole run) is
+    refused by the parser, naming the key."""
+    m = _base(ctx)
+    if key is None:                                  # a light curve named ``value``
+        curves = m["sources"]["light_curves"]
+        curves[value] = curves.pop("tr")
+        m["sources"]["stars"][0]["light_curve"] = value
+    else:
+        m.setdefault(table[0], {})
+        _get(m, table)[key] = value
+    with pytest.raises(ParameterError, match="printable ASCII") as err:
+        _parse(m, scene_dir)
+    assert "\n" not in str(err.value).replace(repr(value), "")
+    assert key is None or repr(key) in str(err.value)
+
+
+@pytest.mark.parametrize("table, key, ctx", LABEL_KEYS)
+def test_printable_labels_are_accepted(table, key, ctx, scene_dir):
+    m = _base(ctx)
+    if key == "light_curve":
+        m["sources"]["light_curves"]["SN 2026-ab (R)"] = m["sources"]["light_curves"]["tr"]
+    value = {"exp_type": "NRS_DARK", "detector": "NRS1", "subarray": "SUB2048"}.get(
+        key, "SN 2026-ab (R)")
+    m.setdefault(table[0], {})
+    _get(m, table)[key] = value
+    _parse(m, scene_dir)

@@ -199,6 +199,16 @@ def test_preset_unknown_name_suggests():
         preset("H2RGX")
 
 
+def test_preset_takes_every_detector_field_and_names_an_unknown_one():
+    # 'name' is a Detector field like the others (it collided with the preset's own
+    # argument: TypeError)
+    assert preset("H2RG", name="SCA01").name == "SCA01"
+    with pytest.raises(ParameterError, match=r"unknown detector field 'naxis'.*naxis1"):
+        preset("H2RG", naxis=64)
+    with pytest.raises(ParameterError, match=r"'name' must be printable ASCII.*'é'"):
+        preset("H2RG", name="é")
+
+
 # ------------------------------------------------------------------ value object
 def test_detector_is_frozen_hashable_picklable():
     det = preset("H2RG").window(8, 8, 32, 32, name="W")
