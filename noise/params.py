@@ -285,7 +285,9 @@ class NoiseParams:
         notes): ``bias_offset`` must lie in ``[5 s, range - 5 s]`` e-, ``s`` the
         components' rms spread (:meth:`spread`), ``range = gain * (2**adc_bits - 1)``.
         The error names ``bias_offset``, or the largest amplitude when ``10 s``
-        exceeds the range (no bias fits)."""
+        exceeds the range (no bias fits), or ``gain`` when one ADC step exceeds
+        ``bias_offset + 5 s`` (every read without charge would be code 0; a noise-free
+        detector with no bias, ``bias_offset + 5 s = 0``, takes any gain)."""
         top = 2 ** int(adc_bits) - 1
         adc_range = float(gain) * top
         adc = (f"the ADC range [0, {adc_range:.6g}] e- ('gain' {float(gain):g} e-/DN x "
@@ -304,6 +306,14 @@ class NoiseParams:
                 f"amplitudes, {name!r} the largest at {value:.6g} e-) must fit "
                 f"{2 * k:g} times in {adc}, i.e. s <= "
                 f"{adc_range / (2 * k):.6g} e-, or the ADC clips it")
+        dark_top = self.bias_offset + k * spread
+        if 0 < dark_top < float(gain):
+            raise ParameterError(
+                f"'gain' = {float(gain):g} e-/DN is coarser than the reads of a pixel "
+                f"without charge: 'bias_offset' {self.bias_offset!r} e- + {k:g} x the "
+                f"noise's rms spread s = {spread:.6g} e- is {dark_top:.6g} e-, less than "
+                f"one ADC step, so every such read is code 0; 'gain' must be <= "
+                f"{dark_top:.6g} e-/DN")
         lo, hi = k * spread, adc_range - k * spread
         if not lo <= self.bias_offset <= hi:
             below = self.bias_offset < lo

@@ -53,7 +53,8 @@ def _parser():
                    help="paper defaults (all components) or white read noise only "
                         "(the paper's 5.2 e- per read on its 5000 e- bias)")
     q.add_argument("--unit", choices=("e", "DN"), default="e")
-    q.add_argument("--gain", type=float, default=1.0, help="e-/DN for --unit DN")
+    q.add_argument("--gain", type=float, default=None,
+                   help="e-/DN for --unit DN (default 1)")
     q.add_argument("--seed", type=int, default=None)
     q.add_argument("--threads", type=int, default=None)
     q.add_argument("-o", "--output", required=True)

@@ -25,18 +25,37 @@ def noise_command(args):
     from scenesim.budget import check_noise_budget, one_line_warnings
     from scenesim.outputs import check_outputs, clean_stale_temps
     from scenesim.progress import progress_bar
+    from noise.validate import check_float, check_int
+    # the options by the names the user typed, before any work
+    check_int("--frames", args.frames, minimum=1)
+    check_int("--nints", args.nints, minimum=1)
+    if args.threads is not None:
+        check_int("--threads", args.threads, minimum=1)
+    if args.seed is not None:
+        check_int("--seed", args.seed, minimum=0)
+    if args.gain is not None:
+        check_float("--gain", args.gain, minimum=0.0, strict_min=True)
+        if args.unit != "DN":
+            raise ParameterError(f"'--gain' {args.gain:g} applies only with '--unit DN' "
+                                 f"(the frames are in electrons with '--unit e')")
+    gain = 1.0 if args.gain is None else args.gain
     det = noise.preset(args.preset)
-    changes = {}
-    if args.naxis:
-        changes.update(naxis1=args.naxis, naxis2=args.naxis)
-    if args.n_out:
-        changes["n_out"] = args.n_out
-    if changes:
-        det = dataclasses.replace(det, **changes)
+    for opt, value, fields in (("--naxis", args.naxis, ("naxis1", "naxis2")),
+                               ("--n-out", args.n_out, ("n_out",))):
+        if value:                                  # 0: the preset's own
+            try:
+                det = dataclasses.replace(det, **{f: value for f in fields})
+            except ParameterError as exc:
+                raise type(exc)(f"'{opt}' {value}: {exc}") from exc
     # white: the paper's read noise on its bias, which keeps the DN file off code 0
     nominal = noise.NoiseParams()
     params = nominal if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
         rd_noise=nominal.rd_noise, bias_offset=nominal.bias_offset)
+    if args.unit == "DN":                  # no noise clipped or lost at the 16-bit ADC
+        try:
+            params.check_adc(gain, 16)
+        except ParameterError as exc:
+            raise type(exc)(f"'--unit DN' (16-bit ADC): {exc}") from exc
     check_outputs({"output": args.output}, overwrite=args.overwrite)
     budget = check_noise_budget(det, params, args.frames, nints=args.nints,
                                 unit=args.unit, path=args.output, force=args.force)
@@ -57,7 +76,7 @@ def noise_command(args):
             bar.update(n - bar.n)          # drawn at most every 0.1 s
     try:
         noise.write_noise_fits(args.output, gen, args.frames, nints=args.nints,
-                               unit=args.unit, gain=args.gain, progress=cb,
+                               unit=args.unit, gain=gain, progress=cb,
                                overwrite=args.overwrite)
     finally:
         if bar is not None:

@@ -935,7 +935,8 @@ class Scene:
             self.noise.check_detector(self.detector, where="[detector]")
             self.noise.check_adc(eff.gain, eff.adc_bits)
         except ParameterError as exc:
-            raise type(exc)(f"[noise] {exc}") from exc
+            table = "[effects]" if str(exc).startswith("'gain'") else "[noise]"
+            raise type(exc)(f"{table} {exc}") from exc
         if self.output.refpix == "irs2" and self.detector.interleave is None:
             raise ParameterError(
                 f"[output] 'refpix' = 'irs2' needs interleaved reference samples, but "

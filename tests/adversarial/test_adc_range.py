@@ -253,5 +253,57 @@ def test_noise_command_refuses_a_gain_that_clips_every_pixel(tmp_path):
                 "1e-5", "-q", "-o", "n.fits"], tmp_path)
     assert res.returncode == 2, res.stderr
     _one_line(res.stderr, "'bias_amp'", "too large for the ADC", "'gain' 1e-05",
-              "unit='DN'")
+              "'--unit DN'")
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("preset, amps", [("nirspec", {}),
+                                          ("none", {"bias_offset": 100.0}),
+                                          ("none", {"rd_noise": 5.0, "bias_offset": 40.0})])
+def test_an_adc_step_above_the_dark_reads_is_refused(preset, amps, tmp_path):
+    """One ADC step coarser than bias_offset + 5 s puts every read of a pixel without
+    charge at code 0 (before, 'gain' = 1e30 wrote an all-zero ramp and slopes without
+    a word).  Just below is accepted, just above refused, by the scene, the library's
+    DN writer and both commands, naming 'gain' (a scene: in [effects]).  A noise-free
+    detector without bias has nothing to resolve and takes any gain."""
+    p = (noise.NIRSPEC_DEFAULTS if preset == "nirspec" else noise.ZERO_NOISE).replace(
+        **amps)
+    top = p.bias_offset + 5 * _spread(p)
+    inside, outside = top * (1 - 1e-6), top * (1 + 1e-6)
+
+    def mapping(gain):
+        m = _mapping("bias_offset", p.bias_offset)
+        m["noise"] = {"preset": preset, **amps}
+        m["effects"] = {"gain": gain, "adc_bits": 16}
+        return m
+
+    assert parse_scene(mapping(inside)).effects.gain == inside
+    for gain in (outside, 1e30):
+        with pytest.raises(ParameterError) as info:
+            parse_scene(mapping(gain))
+        _check(str(info.value), "gain")
+        assert str(info.value).startswith("[effects] 'gain'")
+        assert "code 0" in str(info.value)
+    det = noise.preset("H2RG", naxis1=16, naxis2=16)
+    gen = noise.NoiseGenerator(det, p, rng=1)
+    with pytest.raises(ParameterError) as info:
+        noise.write_noise_fits(tmp_path / "n.fits", gen, 2, unit="DN", gain=outside)
+    _check(str(info.value), "gain")
+    assert os.listdir(tmp_path) == []
+    m = mapping(1e30)
+    m["noise"] = {"preset": "none"}                  # nothing to resolve
+    assert parse_scene(m).effects.gain == 1e30
+
+
+def test_the_commands_refuse_a_gain_coarser_than_the_dark_reads(tmp_path):
+    (tmp_path / "s.toml").write_text(_toml("bias_offset", MID).replace(
+        f"gain = {GAIN!r}\nadc_bits = {BITS}", "gain = 1e30\nadc_bits = 16"))
+    for args in (["run", "s.toml", "-q"],
+                 ["noise", "--preset", "H2RG", "--naxis", "16", "--frames", "2",
+                  "--unit", "DN", "--gain", "1e30", "-o", "n.fits"]):
+        res = subprocess.run([sys.executable, "-m", "scenesim.cli", *args],
+                             cwd=tmp_path, capture_output=True, text=True)
+        assert res.returncode == 2, res.stderr
+        lines = res.stderr.strip().splitlines()
+        assert len(lines) == 1 and "'gain' = 1e+30" in lines[0], res.stderr
+    assert sorted(os.listdir(tmp_path)) == ["s.toml"]

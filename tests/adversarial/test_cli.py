@@ -433,3 +433,27 @@ def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
                          capture_output=True, timeout=60)
     assert res.returncode == 1
     assert "Traceback" in res.stderr and "RuntimeError: a bug" in res.stderr
+
+
+@pytest.mark.parametrize("args, named", [
+    (["--frames", "0"], "'--frames'"),
+    (["--nints", "-1"], "'--nints'"),
+    (["--naxis", "-4"], "'--naxis' -4"),
+    (["--n-out", "3"], "'--n-out' 3"),
+    (["--threads", "0"], "'--threads'"),
+    (["--seed", "-1"], "'--seed'"),
+    (["--unit", "DN", "--gain", "0"], "'--gain'"),
+    (["--unit", "DN", "--gain", "nan"], "'--gain'"),
+    (["--gain", "2"], "'--unit DN'"),                # a gain that would change nothing
+    (["--unit", "DN", "--gain", "1e30"], "'gain' = 1e+30"),
+])
+def test_noise_options_are_named_as_typed_before_any_work(tmp_path, args, named):
+    """Each bad option of `scenesim noise` is refused in one line naming the option
+    the user typed (before: 'nframes' for --frames, 'naxis1' for --naxis), before the
+    progress bar or any file (before: --gain 0 failed after the bar was drawn, and
+    --gain without --unit DN was written as a GAIN card of an electron file)."""
+    res = _cli(["noise", "--preset", "H2RG", "--naxis", "64", "--frames", "3", *args,
+                "-o", "n.fits"], tmp_path)
+    assert res.returncode == 2, res.stderr
+    _one_line(res.stderr, named)
+    assert "%" not in res.stderr and os.listdir(tmp_path) == []
