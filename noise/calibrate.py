@@ -101,6 +101,7 @@ the white variance per read, which is subtracted.  Measured round trips are in
 import functools
 import json
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -289,13 +290,30 @@ def load_darks(paths, *, detector=None, gain=None):
         A file is unreadable, has no 3-D or 4-D data, or averages frames per group.
     noise.errors.ParameterError
         Files of different geometry, no gain for DN data, no detector for a file
-        without the scenesim cards.
+        without the scenesim cards, one file named twice (under any spelling).
+
+    Notes
+    -----
+    The ramps must be darks: charge collected at ``lam`` e- per frame adds ``lam / 2``
+    to the white variance per read that :func:`calibrate_darks` reports (a dark
+    current of 0.01 e-/s adds 0.05 e-^2 at NIRSpec's 10.7 s frames).  Nothing here
+    tells a dark from a lit exposure.
     """
     if isinstance(paths, (str, bytes)) or not hasattr(paths, "__iter__"):
         paths = [paths]
     paths = list(paths)
     if not paths:
         raise ParameterError("'paths' must name at least one dark file, got none")
+    for j, path in enumerate(paths):       # one file twice would count as two darks
+        for first in paths[:j]:
+            try:
+                same = os.path.samefile(first, path)
+            except (OSError, TypeError, ValueError):  # missing: named by open_fits below
+                same = False
+            if same:
+                raise ParameterError(
+                    f"dark ramps {first!r} and {path!r} are the same file: each dark is "
+                    f"counted once (twice would shrink the uncertainties by sqrt(2))")
     detector = _as_detector(detector)
     if gain is not None:
         gain = check_float("gain", gain, minimum=0.0, strict_min=True)

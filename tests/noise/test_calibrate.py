@@ -189,6 +189,22 @@ def test_dn_file_round_trip_uses_the_gain(tmp_path):
     assert abs(a.value - b.value) < a.sigma
 
 
+def test_one_dark_named_twice_is_refused(tmp_path, monkeypatch):
+    # under another spelling or through a link it would count as a second dark and
+    # shrink every uncertainty by sqrt(2)
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    dark = _write_dark(tmp_path / "dark.fits", det, NoiseParams(), seed=2, nints=1)
+    os.link(dark, tmp_path / "hard.fits")
+    os.symlink(dark, tmp_path / "soft.fits")
+    monkeypatch.chdir(tmp_path)
+    for other in ("./dark.fits", str(dark), "hard.fits", "soft.fits", "../"
+                  + tmp_path.name + "/dark.fits"):
+        with pytest.raises(ParameterError, match="same file"):
+            load_darks(["dark.fits", other])
+    _write_dark(tmp_path / "other.fits", det, NoiseParams(), seed=3, nints=1)
+    assert len(load_darks(["dark.fits", "other.fits"]).integrations) == 2
+
+
 def test_cli_calibrate_writes_a_scene_ready_table(tmp_path):
     from scenesim.cli import main
     from scenesim.scene import load_scene
