@@ -296,6 +296,24 @@ def _umask():
     return mask
 
 
+#: Outputs renamed into place by this process, in order (see :func:`completed_outputs`).
+_COMPLETED = []
+
+
+def record_completed(path):
+    """Note that ``path`` was written completely (renamed into place)."""
+    path = os.fspath(path)
+    if path not in _COMPLETED:
+        _COMPLETED.append(path)
+
+
+def completed_outputs():
+    """The files this process has written completely so far (renamed into place by
+    :func:`atomic_path` or another atomic writer), in order: what an interrupted
+    command keeps."""
+    return list(_COMPLETED)
+
+
 @contextlib.contextmanager
 def atomic_path(path, *, overwrite=False):
     """Yield a temporary path beside ``path``; rename it to ``path`` on success.
@@ -323,6 +341,7 @@ def atomic_path(path, *, overwrite=False):
         yield tmp
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+        record_completed(path)
     except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

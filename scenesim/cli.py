@@ -290,8 +290,15 @@ def _ending(command, exc):
 def _interrupted(command, exc):
     """The one line of an interrupted command; its exit status (128 + signal)."""
     signum = getattr(exc, "signum", signal.SIGINT)
+    kept = ""
+    fitsio = sys.modules.get("noise.fitsio")          # imported by every writer
+    done = fitsio.completed_outputs() if fitsio is not None else []
+    if done:
+        names = ", ".join(repr(p) for p in done[:4])
+        more = f" and {len(done) - 4} more" if len(done) > 4 else ""
+        kept = f"the files it had finished are complete and kept ({names}{more}); "
     print(f"scenesim{command}: interrupted ({signal.Signals(signum).name}); "
-          f"no partial output was left", file=sys.stderr)
+          f"{kept}no partial output was left", file=sys.stderr)
     return 128 + int(signum)
 
 

@@ -123,6 +123,7 @@ import numpy as np
 
 from noise.clock import column_runs, copy_columns, detector_from_header
 from noise.errors import FileFormatError, ParameterError
+from noise.fitsio import record_completed
 from noise.validate import check_writable
 
 from scenesim.io.exposure import Exposure
@@ -277,6 +278,7 @@ def _save_asdf(model, path, overwrite):
         tmp = os.path.join(tmpdir, os.path.basename(path))
         model.to_asdf(tmp)
         os.replace(tmp, path)
+        record_completed(path)
 
 
 def write_l1(exposure, path, *, overwrite=False):

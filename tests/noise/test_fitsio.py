@@ -160,6 +160,40 @@ def test_failing_write_leaves_nothing(tmp_path):
     assert _files(tmp_path) == []
 
 
+def test_completed_outputs_lists_only_what_was_renamed_into_place(tmp_path,
+                                                                  monkeypatch):
+    # what an interrupted command reports as kept (scenesim.cli._interrupted)
+    import noise.fitsio as fitsio
+    from scenesim import cli
+    monkeypatch.setattr(fitsio, "_COMPLETED", [])
+    write_noise_fits(tmp_path / "a.fits", NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1,
+                                                         threads=1), 2)
+    with pytest.raises(RuntimeError):
+        write_noise_fits(tmp_path / "b.fits", _FailingGenerator(
+            DET, NIRSPEC_DEFAULTS, rng=1, threads=1), 4)
+    assert fitsio.completed_outputs() == [str(tmp_path / "a.fits")]
+    assert cli._interrupted(" noise", KeyboardInterrupt()) == 130
+    monkeypatch.setattr(fitsio, "_COMPLETED", [])
+    assert cli._interrupted(" noise", KeyboardInterrupt()) == 130
+
+
+def test_interrupted_names_the_files_it_keeps(capsys, monkeypatch):
+    import noise.fitsio as fitsio
+    from scenesim import cli
+    monkeypatch.setattr(fitsio, "_COMPLETED", [])
+    cli._interrupted(" run", KeyboardInterrupt())
+    assert capsys.readouterr().err == ("scenesim run: interrupted (SIGINT); no partial "
+                                       "output was left\n")
+    for name in ("x.fits", "x_truth.fits", "x_gls.fits", "a", "b", "c"):
+        fitsio.record_completed(name)
+    fitsio.record_completed("x.fits")                # once, however often rewritten
+    cli._interrupted(" run", KeyboardInterrupt())
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert ("the files it had finished are complete and kept ('x.fits', 'x_truth.fits', "
+            "'x_gls.fits', 'a' and 2 more); no partial output was left") in err
+
+
 def test_failing_write_keeps_existing_file(tmp_path):
     path = tmp_path / "keep.fits"
     path.write_bytes(b"previous result")
