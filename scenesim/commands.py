@@ -23,7 +23,7 @@ def noise_command(args):
     """``scenesim noise``: write an empty (noise-only) ramp."""
     import noise
     from scenesim.budget import check_noise_budget, one_line_warnings
-    from scenesim.outputs import check_outputs, clean_stale_temps
+    from scenesim.outputs import FITS_ENDINGS, check_outputs, clean_stale_temps
     from scenesim.progress import progress_bar
     from noise.validate import check_float, check_int
     # the options by the names the user typed, before any work
@@ -56,7 +56,8 @@ def noise_command(args):
             params.check_adc(gain, 16)
         except ParameterError as exc:
             raise type(exc)(f"'--unit DN' (16-bit ADC): {exc}") from exc
-    check_outputs({"output": args.output}, overwrite=args.overwrite)
+    check_outputs({"output": args.output}, overwrite=args.overwrite,
+                  endings={"output": FITS_ENDINGS})
     budget = check_noise_budget(det, params, args.frames, nints=args.nints,
                                 unit=args.unit, path=args.output, force=args.force)
     with one_line_warnings("scenesim noise"):
@@ -133,9 +134,11 @@ def fit_command(args):
     """``scenesim fit``: fit the slopes of an exposure."""
     from scenesim.adapters.stcal import fit_exposure_stcal
     from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
-    from scenesim.outputs import check_outputs, clean_stale_temps, fit_path_for
+    from scenesim.outputs import (FITS_ENDINGS, check_outputs, clean_stale_temps,
+                                  fit_path_for)
     out = args.output or fit_path_for(args.exposure, args.fitter)
-    check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite)
+    check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite,
+                  endings={"slope file": FITS_ENDINGS})
     cleaned = clean_stale_temps([out])          # e.g. a killed fit's prepared cube
     if cleaned:
         print(cleaned)

@@ -33,8 +33,12 @@ PLOT_FILES = ("slope.png", "residuals.png", "noise_vs_flux.png")
 def fit_path_for(exposure, fitter):
     """The default slope file of ``exposure`` fitted with ``fitter``:
     ``dir/stem_<fitter>.fits`` for ``dir/stem.fits`` (``stem_<fitter>.fits.gz`` for a
-    compressed one; :func:`noise.fitsio.derived_path`)."""
-    return derived_path(exposure, f"_{fitter}")
+    compressed one; :func:`noise.fitsio.derived_path`); an exposure named otherwise
+    (``x.dat``) gives ``x_<fitter>.fits``: the slope file is FITS."""
+    path = derived_path(exposure, f"_{fitter}")
+    if not path.lower().endswith(FITS_ENDINGS):
+        path = os.path.splitext(path)[0] + ".fits"
+    return path
 
 
 def clean_stale_temps(paths):
@@ -67,7 +71,11 @@ def _same(a, b):
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def check_outputs(outputs, *, inputs=(), overwrite=False):
+#: The name endings of a FITS output (``.gz``: written gzip-compressed).
+FITS_ENDINGS = (".fits", ".fits.gz")
+
+
+def check_outputs(outputs, *, inputs=(), overwrite=False, endings=None):
     """Check every output path of a run before any work starts.
 
     Parameters
@@ -79,6 +87,9 @@ def check_outputs(outputs, *, inputs=(), overwrite=False):
         Files the run reads: never written, even with ``overwrite``.
     overwrite : bool
         Replace existing outputs (not read-only ones, never inputs).
+    endings : dict, optional
+        ``{what: (ending, ...)}``: the name endings an output may have (compared
+        without case), e.g. :data:`FITS_ENDINGS` for a FITS file.
 
     Returns
     -------
@@ -98,6 +109,11 @@ def check_outputs(outputs, *, inputs=(), overwrite=False):
         if path is None:
             continue
         path = check_output_name(what, os.fspath(path))
+        allowed = (endings or {}).get(what)
+        if allowed and not path.lower().endswith(tuple(allowed)):
+            raise ParameterError(
+                f"the {what} {path!r} must end in {' or '.join(allowed)} (the format "
+                f"it is written in)")
         for other, other_path in checked.items():
             if _same(path, other_path):
                 raise ParameterError(

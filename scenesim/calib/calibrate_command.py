@@ -40,7 +40,7 @@ def _detector(args):
 def calibrate_command(args):
     """``scenesim calibrate DARK.fits [...] -o noise.toml``."""
     check_outputs({"output": args.output}, inputs=[os.path.abspath(d) for d in args.darks],
-                  overwrite=args.overwrite)
+                  overwrite=args.overwrite, endings={"output": (".toml",)})
     ramps = load_darks(args.darks, detector=_detector(args), gain=args.gain)
     template = None if args.template is None else os.path.abspath(args.template)
     res = calibrate_darks(ramps, f_min=args.f_min, template_file=template)
@@ -66,7 +66,7 @@ def psd_command(args):
     """``scenesim psd FILE... [--plot psd.png]``."""
     if args.plot is not None:
         check_outputs({"plot": args.plot}, inputs=[os.path.abspath(f) for f in args.files],
-                      overwrite=args.overwrite)
+                      overwrite=args.overwrite, endings={"plot": (".png",)})
     det = _detector(args)
     results = []
     for path in args.files:

@@ -81,3 +81,33 @@ def test_command_run_with_a_gz_scene_path(tmp_path):
                            cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert again.returncode == 2
     assert "x.fits.gz" in again.stderr and len(again.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("command, ending", [
+    (["noise", "--preset", "H2RG", "--naxis", "16", "--frames", "2", "-o", "n.txt"],
+     ".fits or .fits.gz"),
+    (["noise", "--preset", "H2RG", "--naxis", "16", "--frames", "2", "-o", "n.fit"],
+     ".fits or .fits.gz"),
+    (["fit", "x.fits", "-o", "f.txt"], ".fits or .fits.gz"),
+    (["calibrate", "x.fits", "-o", "cal.txt"], ".toml"),
+    (["psd", "x.fits", "--plot", "p.txt"], ".png"),
+])
+def test_every_command_output_ends_in_its_format(tmp_path, command, ending):
+    """Before, only `run -o` was held to its format's ending: `noise -o n.txt` wrote
+    FITS under a .txt name and `psd --plot p.txt` a PNG.  Each is refused in one
+    line naming the option's file and the endings allowed, before reading anything
+    (x.fits does not even exist)."""
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", *command], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"must end in {ending}" in lines[0], res.stderr
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("exposure, slopes", [
+    ("x.fits", "x_gls.fits"), ("x.fits.gz", "x_gls.fits.gz"), ("x.dat", "x_gls.fits"),
+    ("x", "x_gls.fits"), (os.path.join("a.b", "x"), os.path.join("a.b", "x_gls.fits"))])
+def test_the_default_slope_file_is_a_fits_name(exposure, slopes):
+    from scenesim.outputs import fit_path_for
+    assert fit_path_for(exposure, "gls") == slopes
