@@ -94,15 +94,21 @@ def is_real(value):
         value, (bool, np.bool_)) and not isinstance(value, np.complexfloating)
 
 
+def _shown(value):
+    """``repr`` of ``value`` as the user wrote it (a numpy scalar as a Python one, not
+    ``np.float64(...)``)."""
+    return repr(value.item() if isinstance(value, np.generic) else value)
+
+
 def check_int(name, value, *, minimum=None, maximum=None):
     """``value`` as int, or raise if it is not an integer in ``[minimum, maximum]``."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise ParameterTypeError(f"{name!r} must be an integer, got {describe(value)}")
     value = int(value)
     if minimum is not None and value < minimum:
-        raise ParameterError(f"{name!r} must be >= {minimum}, got {value!r}")
+        raise ParameterError(f"{name!r} must be >= {minimum}, got {_shown(value)}")
     if maximum is not None and value > maximum:
-        raise ParameterError(f"{name!r} must be <= {maximum}, got {value!r}")
+        raise ParameterError(f"{name!r} must be <= {maximum}, got {_shown(value)}")
     return value
 
 
@@ -115,14 +121,17 @@ def check_float(name, value, *, minimum=None, maximum=None, strict_min=False):
     except OverflowError:                      # an int beyond the float range
         v = math.inf
     if not math.isfinite(v):
-        raise ParameterError(f"{name!r} must be finite, got {value!r}")
+        raise ParameterError(f"{name!r} must be finite, got {_shown(value)}")
     if minimum is not None:
         if strict_min and v <= minimum:
-            raise ParameterError(f"{name!r} must be > {_num(minimum)}, got {value!r}")
+            raise ParameterError(
+                f"{name!r} must be > {_num(minimum)}, got {_shown(value)}")
         if not strict_min and v < minimum:
-            raise ParameterError(f"{name!r} must be >= {_num(minimum)}, got {value!r}")
+            raise ParameterError(
+                f"{name!r} must be >= {_num(minimum)}, got {_shown(value)}")
     if maximum is not None and v > maximum:
-        raise ParameterError(f"{name!r} must be <= {_num(maximum)}, got {value!r}")
+        raise ParameterError(
+            f"{name!r} must be <= {_num(maximum)}, got {_shown(value)}")
     return v
 
 

@@ -293,7 +293,10 @@ def _interrupted(command, exc):
     kept = ""
     fitsio = sys.modules.get("noise.fitsio")          # imported by every writer
     done = fitsio.completed_outputs() if fitsio is not None else []
-    if done:
+    if command == " batch":           # its workers' files are in its manifest
+        kept = ("the finished tasks are kept (the same command resumes the batch); "
+                if done else "")
+    elif done:
         names = ", ".join(repr(p) for p in done[:4])
         more = f" and {len(done) - 4} more" if len(done) > 4 else ""
         kept = f"the files it had finished are complete and kept ({names}{more}); "

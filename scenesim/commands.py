@@ -130,12 +130,20 @@ def run_command(args):
     return 0
 
 
+#: What ``scenesim fit --fitter`` takes (any case).
+FIT_CHOICES = ("cds", "ols", "gls", "stcal-ols_c", "stcal-likely")
+
+
 def fit_command(args):
     """``scenesim fit``: fit the slopes of an exposure."""
     from scenesim.adapters.stcal import fit_exposure_stcal
     from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
     from scenesim.outputs import (FITS_ENDINGS, check_outputs, clean_stale_temps,
                                   fit_path_for)
+    from noise.validate import check_choice, check_float
+    # 'GLS' as 'gls', 'STCAL-likely' as 'stcal-likely'; the stcal names in the list
+    args.fitter = check_choice("--fitter", args.fitter, FIT_CHOICES, ignore_case=True)
+    check_float("--jump-threshold", args.jump_threshold, minimum=0.0)
     out = args.output or fit_path_for(args.exposure, args.fitter)
     check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite,
                   endings={"slope file": FITS_ENDINGS})

@@ -35,7 +35,7 @@ import numpy as np
 
 from noise import streams
 from noise.clock import exposure_slots
-from noise.errors import ParameterError
+from noise.errors import FileFormatError, ParameterError
 from scenesim.budget import check_budget
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
@@ -183,6 +183,20 @@ def _output_paths(scene, cfg, *, overwrite, plots):
 
 
 @contextlib.contextmanager
+def _about_scene(scene, *, tables_only=False):
+    """Errors in the block name the scene file first, as the loader's do (a map's
+    values, the scene's own output names, a one-group readout with a fit);
+    ``tables_only``: only those about a scene table (``[output] 'fit' ...``)."""
+    try:
+        yield
+    except (ParameterError, FileFormatError) as exc:
+        if scene.path is None or str(exc).startswith(scene.path) or (
+                tables_only and not str(exc).startswith("[")):
+            raise
+        raise type(exc)(f"{scene.path}: {exc}") from exc
+
+
+@contextlib.contextmanager
 def _progress(nreads, enabled):
     """A progress callback (reads done) drawing a bar on long runs, or None."""
     if not enabled or nreads < 20:
@@ -242,11 +256,13 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
     if seed is not None:
         scene = scene.replace(seed=seed)
     scene = scene.ensure_seed().replace(output=out_cfg)
-    exp_path, truth_path, fit_path = _output_paths(scene, out_cfg, overwrite=overwrite,
-                                                   plots=plots)
+    with _about_scene(scene, tables_only=output is not None):   # -o: not the scene's
+        exp_path, truth_path, fit_path = _output_paths(scene, out_cfg,
+                                                       overwrite=overwrite, plots=plots)
     check_budget(scene, force=force, options=options, products=products).warn()
     cleaned = clean_stale_temps([exp_path, truth_path, fit_path])
-    engine, rendered = build_engine(scene, options=options)
+    with _about_scene(scene):
+        engine, rendered = build_engine(scene, options=options)
     cards = list(scene.to_header_cards()) + psf_cards(scene.sources.psf) + \
         instrument_cards(scene.instrument)
     ro = engine.readout

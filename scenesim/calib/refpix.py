@@ -166,21 +166,21 @@ def check_correction_options(detector, scheme, side_window, sigma):
     check_float("sigma", sigma, minimum=0.0, strict_min=True)
     if scheme == "irs2" and detector.interleave is None:
         raise ParameterError(
-            f"scheme 'irs2' needs interleaved reference samples, but detector "
+            f"refpix 'irs2' needs interleaved reference samples, but detector "
             f"{detector.name!r} has no 'interleave' (use a detector such as preset "
-            f"'NIRSPEC-IRS2', or scheme 'jwst'/'median'/'none')")
+            f"'NIRSPEC-IRS2', or refpix 'jwst'/'median'/'none')")
     rows, cols = reference_layout(detector)
     if scheme == "median" and rows.size == 0:
         raise ParameterError(
-            f"scheme 'median' needs top/bottom reference rows, but readout "
+            f"refpix 'median' needs top/bottom reference rows, but readout "
             f"{detector.subarray_name!r} (rows {detector.y0}..{detector.y0 + detector.ny - 1}"
             f" of {detector.naxis2}, border {detector.ref_border}) has none; use "
-            f"scheme 'none'")
+            f"refpix 'none'")
     if scheme == "jwst" and rows.size == 0 and cols.size == 0:
         raise ParameterError(
-            f"scheme 'jwst' needs reference rows or side reference columns, but "
+            f"refpix 'jwst' needs reference rows or side reference columns, but "
             f"readout {detector.subarray_name!r} has none (border "
-            f"{detector.ref_border}); use scheme 'none'")
+            f"{detector.ref_border}); use refpix 'none'")
 
 
 def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.0):

@@ -654,11 +654,17 @@ class ReadoutConfig:
         if form == "nframes":
             return Readout.multiaccum(self.nframes, self.ngroups, groupgap=self.groupgap,
                                       nskip=self.nskip, name=self.name or "CUSTOM", **kw)
-        if form == "ma_table":
-            return Readout.from_ma_table([list(r) for r in self.ma_table],
-                                         name=self.name or "MA_TABLE", **kw)
-        return Readout.from_reads([list(r) for r in self.resultants],
-                                  name=self.name or "CUSTOM", **kw)
+        # the library's argument names, as the scene's keys
+        arg, key = {"ma_table": ("'table'", "'ma_table'"),
+                    "resultants": ("'read_lists'", "'resultants'")}[form]
+        try:
+            if form == "ma_table":
+                return Readout.from_ma_table([list(r) for r in self.ma_table],
+                                             name=self.name or "MA_TABLE", **kw)
+            return Readout.from_reads([list(r) for r in self.resultants],
+                                      name=self.name or "CUSTOM", **kw)
+        except ParameterError as exc:
+            raise type(exc)(str(exc).replace(arg, key)) from exc
 
 
 # ===================================================================== effects

@@ -395,7 +395,7 @@ class ImagePSF:
             raise ParameterError("'data' (PSF image) contains NaN or infinite values")
         if np.any(data < 0):
             raise ParameterError(
-                f"'data' (PSF image) must be >= 0 everywhere, minimum is {data.min()!r}; "
+                f"'data' (PSF image) must be >= 0 everywhere, minimum is {float(data.min())!r}; "
                 f"clip negative values first")
         total = float(data.sum())
         if self.normalize:

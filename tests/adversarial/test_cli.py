@@ -457,3 +457,47 @@ def test_noise_options_are_named_as_typed_before_any_work(tmp_path, args, named)
     assert res.returncode == 2, res.stderr
     _one_line(res.stderr, named)
     assert "%" not in res.stderr and os.listdir(tmp_path) == []
+
+
+def test_fit_takes_the_fitter_in_any_case_and_lists_every_choice(workdir):
+    _exposure(workdir)
+    res = _cli(["fit", "out.fits", "--fitter", "GLS", "-o", "g.fits"], workdir)
+    assert res.returncode == 0, res.stderr
+    before = _snapshot(workdir)
+    for bad in ("STCAL-bogus", "foo"):
+        res = _cli(["fit", "out.fits", "--fitter", bad, "-o", "b.fits"], workdir)
+        assert res.returncode == 2
+        line = _one_line(res.stderr, "'--fitter'", repr(bad), "'stcal-ols_c'",
+                         "'stcal-likely'", "'gls'")
+        assert "algorithm" not in line
+    res = _cli(["fit", "out.fits", "--jump-threshold", "-1", "-o", "b.fits"], workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, "'--jump-threshold'")
+    assert _snapshot(workdir) == before
+
+
+def test_scene_errors_found_at_run_time_name_the_scene_file(workdir):
+    """A map's values (read when the run starts), a one-group readout with a fit, and
+    the scene's own output directory: each error starts with the scene file, as the
+    loader's do; an -o of the command line is not the scene's."""
+    fits.writeto(workdir / "neg.fits", np.full((64, 64), -1.0))
+    text = (workdir / "scene.toml").read_text()
+    cases = {
+        "map.toml": text.replace("background = 1.0", 'background = "neg.fits"'),
+        "one.toml": text.replace("ngroups = 3", "ngroups = 1"),
+        "dir.toml": text.replace('path = "out.fits"', 'path = "nodir/out.fits"'),
+    }
+    for name, body in cases.items():
+        (workdir / name).write_text(body)
+    before = _snapshot(workdir)
+    for name, extra, word in (("map.toml", [], "'background' map"),
+                              ("one.toml", ["--fit", "gls"], "[output] 'fit'"),
+                              ("dir.toml", [], "nodir")):
+        res = _cli(["run", name, "-q", *extra], workdir)
+        assert res.returncode == 2, res.stderr
+        line = _one_line(res.stderr, word)
+        assert line.startswith(f"scenesim run: error: {workdir / name}: "), line
+    (workdir / "out.fits").write_bytes(b"x")
+    res = _cli(["run", "scene.toml", "-q", "-o", "out.fits"], workdir)
+    assert "scene.toml" not in _one_line(res.stderr, "exists")
+    assert _snapshot(workdir) == {**before, "out.fits": _snapshot(workdir)["out.fits"]}

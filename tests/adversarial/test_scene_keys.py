@@ -566,3 +566,29 @@ def test_printable_labels_are_accepted(table, key, ctx, scene_dir):
     m.setdefault(table[0], {})
     _get(m, table)[key] = value
     _parse(m, scene_dir)
+
+
+@pytest.mark.parametrize("readout, key", [
+    ({"ma_table": [[0, 2], [1, 2]]}, "'ma_table'"),
+    ({"ma_table": [[0, 0]]}, "'ma_table'"),
+    ({"resultants": [[1], [0]]}, "'resultants'"),
+    ({"resultants": [[0, 0]]}, "'resultants'"),
+])
+def test_readout_errors_name_the_scene_keys(readout, key, scene_dir):
+    # not the library's argument names ('table', 'read_lists')
+    m = _base()
+    m["readout"] = readout
+    with pytest.raises(ParameterError) as err:
+        _parse(m, scene_dir)
+    msg = str(err.value)
+    assert key in msg and "'table'" not in msg and "'read_lists'" not in msg, msg
+
+
+def test_numbers_in_messages_are_shown_as_written():
+    # a numpy scalar is shown as the number, not as np.float64(-0.5)
+    from noise.validate import check_float, check_int
+    for check, value in ((check_float, np.float64(-0.5)), (check_int, np.int64(-3)),
+                         (check_float, np.float32(np.inf))):
+        with pytest.raises(ParameterError) as err:
+            check(name="x", value=value, minimum=0)
+        assert "np." not in str(err.value), str(err.value)

@@ -184,7 +184,8 @@ def test_interrupt_then_resume_recomputes_nothing_finished(reference, tmp_path):
     # one line: the workers (in the same process group, as under a terminal) never
     # see the SIGINT, so none prints a KeyboardInterrupt of its own
     assert err.strip().splitlines() == [
-        "scenesim batch: interrupted (SIGINT); no partial output was left"], err
+        "scenesim batch: interrupted (SIGINT); the finished tasks are kept (the same "
+        "command resumes the batch); no partial output was left"], err
     assert not _temps(str(out))
     plan = plan_batch(scene, out=out, realisations=n)
     tasks = plan.tasks()

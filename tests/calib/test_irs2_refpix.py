@@ -118,7 +118,7 @@ def test_scheme_through_correct_reference():
      ["'irs2'", "'interleave'"]),
     (lambda: correct_reference(np.zeros((2, 64, 64)),
                                preset("H2RG", naxis1=64, naxis2=64), scheme="irs2"),
-     ["scheme 'irs2'", "NIRSPEC-IRS2"]),
+     ["refpix 'irs2'", "NIRSPEC-IRS2"]),
     (lambda: correct_irs2(np.zeros((2,) + DET.shape), DET),
      ["'raw'", "(..., 64, 400)", "(2, 64, 256)"]),
     (lambda: correct_irs2(np.zeros((2,) + DET.raw_shape), DET, window=4),
