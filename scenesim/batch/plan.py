@@ -319,17 +319,22 @@ def _scene_at(raw, scene_path, params, where):
 
 
 def _fitters(value, where):
+    """The fitters of ``value``; ``where`` is ``--fit`` (the option, or ``fit=`` of
+    :func:`plan_batch`) or the table that gave them."""
+    prefix = "" if where.startswith("--") else f"{where} "
     if isinstance(value, str):
         value = [value] if value else []
     if not isinstance(value, (list, tuple)):
-        raise ParameterTypeError(f"{where} 'fit' must be a fitter name or a list of "
+        raise ParameterTypeError(f"{prefix}'fit' must be a fitter name or a list of "
                                  f"them, got {describe(value)}")
     out = []
     for f in value:
-        f = check_choice(f"{where} 'fit'", f.lower() if isinstance(f, str) else f,
-                         FITTERS)
+        try:
+            f = check_choice("fit", f.lower() if isinstance(f, str) else f, FITTERS)
+        except ParameterError as exc:
+            raise type(exc)(f"{prefix}{exc}") from exc
         if f in out:
-            raise ParameterError(f"{where} 'fit' lists {f!r} twice")
+            raise ParameterError(f"{prefix}'fit' lists {f!r} twice")
         out.append(f)
     return tuple(out)
 

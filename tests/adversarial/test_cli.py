@@ -442,6 +442,7 @@ def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
     (["--n-out", "3"], "'--n-out' 3"),
     (["--threads", "0"], "'--threads'"),
     (["--seed", "-1"], "'--seed'"),
+    (["--seed", str(2 ** 63)], "'--seed' must be <= 9223372036854775807"),
     (["--unit", "DN", "--gain", "0"], "'--gain'"),
     (["--unit", "DN", "--gain", "nan"], "'--gain'"),
     (["--gain", "2"], "'--unit DN'"),                # a gain that would change nothing
