@@ -167,7 +167,7 @@ def compare_command(args):
     """``scenesim compare``: grade a slope file against the truth (or, with
     ``--pool DIR``, print the comparisons of a batch pooled over realisations)."""
     from scenesim.batch.command import pool_command
-    from scenesim.outputs import check_plot_dir, plot_dir
+    from scenesim.outputs import check_plot_dir, made_directory
     from scenesim.validate.compare import compare_files
     if getattr(args, "pool", None) is not None:
         if args.fit is not None or args.plots or args.exposure:
@@ -181,7 +181,7 @@ def compare_command(args):
     if plots:
         inputs = [p for p in (args.fit, args.truth, args.exposure) if p is not None]
         check_plot_dir(plots, inputs=inputs, overwrite=args.overwrite)
-    with plot_dir(plots):
+    with made_directory(plots):
         report = compare_files(args.fit, args.truth, plots=plots,
                                exposure=args.exposure)
     print(report.format())

@@ -161,9 +161,10 @@ def check_plot_dir(directory, *, inputs=(), overwrite=False):
 
 
 @contextlib.contextmanager
-def plot_dir(directory):
-    """Create ``directory`` for the figures if it is missing, and remove it again
-    (if still empty) when the block fails: a refused command leaves nothing."""
+def made_directory(directory):
+    """Create ``directory`` (for figures, pipeline products) if it is missing, and
+    remove it again (if still empty) when the block fails: a refused command leaves
+    nothing."""
     made = directory is not None and not os.path.isdir(directory)
     if made:
         os.makedirs(directory)

@@ -42,8 +42,8 @@ from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import ExposureWriter
 from scenesim.io.header import instrument_cards, psf_cards
 from scenesim.progress import progress_bar
-from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps, plot_dir,
-                              fit_path_for, scene_inputs)
+from scenesim.outputs import (check_outputs, check_plot_dir, clean_stale_temps,
+                              fit_path_for, made_directory, scene_inputs)
 from scenesim.validate.compare import compare_files
 from scenesim.sky.maps import load_map
 from scenesim.sky.rates import cosmic_ray_hits, scene_rates
@@ -285,7 +285,7 @@ def run_scene(scene, *, output=None, seed=None, options=EngineOptions(), progres
                           options=PrepareOptions(refpix=out_cfg.refpix))
         del exposure
         if out_cfg.compare and truth_path is not None:
-            with plot_dir(plots):
+            with made_directory(plots):
                 report = compare_files(fit_path, truth_path, plots=plots,
                                        exposure=exp_path)
     return RunResult(exp_path, truth_path, fit_path, report, time.perf_counter() - t0,

@@ -114,12 +114,26 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
     if l1:
         from scenesim.pipelines.roman import check_amp33_detector
         check_amp33_detector(det)
+    from scenesim.outputs import scene_inputs
+    inputs = scene_inputs(scene)               # never written, even with overwrite
     check_outputs({"JWST uncal": paths["uncal"] if uncal else None,
                    "Roman L1": paths["l1"] if l1 else None},
-                  inputs=[], overwrite=overwrite)
-    if reffiles and os.path.exists(paths["reffiles"]) and not overwrite:
-        raise ParameterError(f"reference directory {paths['reffiles']!r} exists; pass "
-                             f"--overwrite to replace its files")
+                  inputs=inputs, overwrite=overwrite)
+    if reffiles:
+        refs = paths["reffiles"]
+        if os.path.exists(refs) and not os.path.isdir(refs):
+            raise ParameterError(f"the reference directory {refs!r} is a file; remove it "
+                                 f"or write the exposure under another name")
+        inside = [p for p in inputs
+                  if os.path.realpath(p).startswith(os.path.realpath(refs) + os.sep)]
+        if inside:
+            raise ParameterError(
+                f"the reference directory {refs!r} holds {inside[0]!r}, a file this run "
+                f"reads: its files are never replaced, even with --overwrite; write the "
+                f"exposure under another name")
+        if os.path.exists(refs) and not overwrite:
+            raise ParameterError(f"reference directory {refs!r} exists; pass "
+                                 f"--overwrite to replace its files")
 
 
 def reference_paths(directory, prefix):
@@ -207,22 +221,39 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
 
 
 def pipeline_command(args):
-    """``scenesim pipeline jwst|roman``: run the pipeline offline, then compare."""
-    refs = args.refs
+    """``scenesim pipeline jwst|roman``: run the pipeline offline, then compare.
+
+    Everything is checked before the pipeline runs: the input's kind, the references,
+    ``--truth`` and ``--exposure``, and the products (never one of those files, even
+    with ``--overwrite``)."""
+    from noise.validate import check_existing_file
+    from scenesim.outputs import check_outputs
     require_extra(args.pipeline, f"'scenesim pipeline {args.pipeline}'")
+    refs = reference_paths(args.refs, args.pipeline)
+    read = [os.fspath(p) for p in refs.values()]
+    for opt, path in (("--truth", args.truth), ("--exposure", args.exposure)):
+        if path:
+            read.append(check_existing_file(opt, path))
     if args.pipeline == "jwst":
-        from scenesim.pipelines.jwst import run_detector1
-        out_dir = args.output or os.path.dirname(os.path.abspath(args.input))
-        out = run_detector1(args.input, reference_paths(refs, "jwst"), out_dir,
-                            overwrite=args.overwrite)
+        from scenesim.pipelines.jwst import check_uncal_file, detector1_products, \
+            run_detector1
+        uncal = check_uncal_file(args.input)
+        out_dir = args.output or os.path.dirname(os.path.abspath(uncal))
+        if os.path.isdir(out_dir):
+            check_outputs({f"Detector1 {k} file": p
+                           for k, p in detector1_products(uncal, out_dir).items()},
+                          inputs=[uncal, *read], overwrite=args.overwrite)
+        out = run_detector1(uncal, refs, out_dir, overwrite=args.overwrite)
         product = out["rate"]
     else:
-        from scenesim.pipelines.roman import run_ramp_fit
-        stem = _stem(args.input)
+        from scenesim.pipelines.roman import check_l1_file, run_ramp_fit
+        l1 = check_l1_file(args.input)
+        stem = _stem(l1)
         stem = stem[:-len("_l1")] if stem.endswith("_l1") else stem
         product = args.output or stem + "_l2.asdf"
-        run_ramp_fit(args.input, reference_paths(refs, "roman"), product,
-                     overwrite=args.overwrite)
+        check_outputs({"L2 file": product}, inputs=[l1, *read], overwrite=args.overwrite,
+                      endings={"L2 file": (".asdf",)})
+        run_ramp_fit(l1, refs, product, overwrite=args.overwrite)
     print(f"wrote {product}")
     if args.truth:
         from scenesim.validate.compare import compare_files

@@ -128,6 +128,7 @@ from scenesim.adapters.stcal import stcal_read_noise
 from scenesim.detector.dq import REFERENCE_PIXEL
 from scenesim.io.exposure import Exposure
 from scenesim.io.header import header_instrument, readout_from_table
+from scenesim.outputs import made_directory
 from scenesim.pipelines.instrument import resolve_instrument
 
 __all__ = ["write_uncal", "uncal_model", "irs2_to_dms", "irs2_filter",
@@ -750,16 +751,39 @@ def _check_irs2_references(uncal, references):
                 f"IRS2 detector writes it)")
 
 
-def detector1_products(uncal, output_dir):
-    """``{'rate': path, 'rateints': path}`` that Detector1 writes for ``uncal`` in
-    ``output_dir`` (the stem without ``_uncal``)."""
+def detector1_products(uncal, output_dir, *, ramp=False):
+    """``{'rate': path, 'rateints': path}`` (and ``'ramp'``) that Detector1 writes for
+    ``uncal`` in ``output_dir``: the stem as the pipeline makes it, the input's name
+    without its extension and without the one pipeline suffix it may end in
+    (``x_uncal`` -> ``x``, but also ``x_rate`` -> ``x``: jwst's ``remove_suffix``)."""
     stem = os.path.basename(os.fspath(uncal))
-    if stem.endswith(".fits"):
+    if stem.lower().endswith(".fits"):
         stem = stem[:-len(".fits")]
-    if stem.endswith("_uncal"):
-        stem = stem[:-len("_uncal")]
+    try:
+        from jwst.lib.suffix import remove_suffix
+        stem = remove_suffix(stem)[0]
+    except ImportError:                    # (the pipeline is not installed: its name)
+        if stem.endswith("_uncal"):
+            stem = stem[:-len("_uncal")]
+    kinds = ("rate", "rateints") + (("ramp",) if ramp else ())
     return {kind: os.path.join(os.fspath(output_dir), f"{stem}_{kind}.fits")
-            for kind in ("rate", "rateints")}
+            for kind in kinds}
+
+
+def check_uncal_file(path):
+    """Raise unless ``path`` is an existing JWST level-1b (uncal) FITS file."""
+    from noise.fitsio import open_fits
+    from noise.validate import check_existing_file
+    path = check_existing_file("uncal", path)
+    with open_fits(path, "uncal") as hdul:
+        model = hdul[0].header.get("DATAMODL")
+        names = {h.name for h in hdul}
+    if model != "Level1bModel" or not {"SCI", "ASDF"} <= names:
+        raise FileFormatError(
+            f"uncal {path!r} is not a JWST level-1b (uncal) file: DATAMODL = {model!r}"
+            f" (expected 'Level1bModel'), extensions {sorted(names)}; write one with "
+            f"'scenesim run SCENE --uncal'")
+    return path
 
 
 def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
@@ -789,11 +813,22 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
         ``rate`` and ``rateints`` paths (``rateints`` None when not written).
     """
     from astropy.io import fits
+    from scenesim.outputs import check_outputs
+    uncal = check_uncal_file(uncal)
     irs2 = "NRS_NORM" in fits.getheader(os.fspath(uncal))
-    products = detector1_products(uncal, output_dir)
+    products = detector1_products(uncal, output_dir, ramp=save_calibrated_ramp)
+    output_dir = os.fspath(output_dir)
     if os.path.isdir(output_dir):
-        for path in products.values():
-            check_writable("Detector1 output", path, overwrite=overwrite)
+        # never the uncal nor a reference, even with overwrite (an input named
+        # x_rate.fits has the product x_rate.fits); an existing product only with it
+        check_outputs({f"Detector1 {k} file": p for k, p in products.items()},
+                      inputs=[uncal, *map(os.fspath, references.values())],
+                      overwrite=overwrite)
+    elif os.path.exists(output_dir):
+        raise ParameterError(f"the Detector1 output directory {output_dir!r} is a file")
+    elif not os.path.isdir(os.path.dirname(os.path.abspath(output_dir))):
+        raise ParameterError(f"the Detector1 output directory {output_dir!r}: its parent "
+                             f"directory does not exist")
     need = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark", "mask")
     missing = [t for t in need if t not in references]
     if missing:
@@ -816,12 +851,11 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
         cfg["refpix"] = {"override_refpix": os.fspath(references["refpix"])}
     for name, pars in (steps or {}).items():
         cfg.setdefault(name, {}).update(pars)
-    os.makedirs(output_dir, exist_ok=True)
-    with offline_crds():
+    with made_directory(output_dir), offline_crds():   # (removed again if it fails)
         from jwst.pipeline import Detector1Pipeline
         pipe = Detector1Pipeline(steps=cfg)
         pipe.prefetch_references = False
-        pipe.output_dir = os.fspath(output_dir)
+        pipe.output_dir = output_dir
         pipe.save_results = True
         pipe.save_calibrated_ramp = save_calibrated_ramp
         result = pipe.run(os.fspath(uncal))

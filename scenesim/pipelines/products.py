@@ -137,6 +137,11 @@ def subtract_dark(truth, dark):
     """A copy of ``truth`` (:func:`scenesim.io.exposure.read_truth`) without ``dark``
     (e-/s, before IPC): ``RATE - dark`` and ``RATE_IPC - IPC(dark)``."""
     out = dict(truth)
+    for key in ("RATE", "RATE_IPC"):
+        if key in out and np.shape(out[key]) != np.shape(dark):
+            raise FileFormatError(
+                f"the truth's {key} has shape {np.shape(out[key])} but the pipeline's "
+                f"dark {np.shape(dark)}: not the same detector")
     if "RATE" in out:
         out["RATE"] = np.asarray(out["RATE"], dtype=np.float64) - dark
     if "RATE_IPC" in out:

@@ -118,6 +118,7 @@ frame (``docs/VALIDATION_PIPELINES.md`` measures what that costs on a small wind
 
 import os
 import tempfile
+import warnings
 
 import numpy as np
 
@@ -398,6 +399,29 @@ def _run_step(step_class, model, **references):
     return _step(step_class, **references).run(model)
 
 
+def check_l1_file(path):
+    """Raise unless ``path`` is an existing Roman L1 (``ScienceRawModel``) ASDF file."""
+    from noise.validate import check_existing_file
+    path = check_existing_file("L1", path)
+    rdd = _rdm()
+    try:
+        with warnings.catch_warnings():    # e.g. meta.filename of a renamed copy
+            warnings.simplefilter("ignore")
+            with rdd.open(path) as model:
+                kind, shape = type(model).__name__, np.shape(model.data)
+    except Exception as exc:                 # not ASDF, or not a Roman data model
+        raise FileFormatError(
+            f"L1 {path!r} is not a Roman ASDF data model ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}); write one with "
+            f"'scenesim run SCENE --l1'") from exc
+    if kind != "ScienceRawModel" or len(shape) != 3:
+        raise FileFormatError(
+            f"L1 {path!r} holds a {kind} of shape {shape}, not an L1 ramp "
+            f"(ScienceRawModel, (nresultants, ny, nx)); write one with 'scenesim run "
+            f"SCENE --l1'")
+    return path
+
+
 def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
     """Calibrate a Roman L1 file with romancal, offline; write the L2 ASDF.
 
@@ -426,6 +450,7 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
         ``path``.
     """
     rdd = _rdm()
+    l1 = check_l1_file(l1)
     missing = [t for t in _REQUIRED if t not in references]
     if missing:
         raise ParameterError(f"'references' lacks {missing}; write them with "
@@ -437,7 +462,11 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
     if algorithm not in ("likely", "ols_cas22"):
         raise ParameterError(f"'algorithm' must be 'likely' or 'ols_cas22', got "
                              f"{algorithm!r}")
-    path = check_writable("L2 path", path, overwrite=overwrite)
+    from scenesim.outputs import check_outputs
+    # never the L1 or a reference, even with overwrite
+    path = check_outputs({"L2 file": path}, inputs=[l1, *map(os.fspath,
+                                                            references.values())],
+                         overwrite=overwrite, endings={"L2 file": (".asdf",)})["L2 file"]
     from scenesim.pipelines.jwst import offline_crds
     with offline_crds():
         from romancal.dark_current import DarkCurrentStep

@@ -282,3 +282,78 @@ def test_frame_keywords_and_int_times_against_the_clock(tmp_path):
     from astropy.io import fits
     hdr = fits.getheader(path)
     assert hdr["DRPFRMS1"] == 2 and hdr["FRMDIVSR"] == 2
+
+
+def _refused(args, cwd):
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", *args], cwd=cwd,
+                         capture_output=True, text=True)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    return lines[0]
+
+
+def _digest(directory):
+    return {os.path.relpath(os.path.join(r, n), directory):
+            open(os.path.join(r, n), "rb").read() for r, _, ns in os.walk(directory)
+            for n in ns}
+
+
+def test_pipeline_jwst_never_replaces_an_input_and_checks_first(jwst_loop, tmp_path):
+    """Detector1 names its products from the input without its one pipeline suffix:
+    an uncal named x_rate.fits has the product x_rate.fits.  That product, an
+    existing one without --overwrite, a missing or wrong input, a missing --truth, an
+    -o that is a file: each refused in one line before the pipeline runs, nothing
+    changed or created."""
+    d, _ = jwst_loop
+    w = tmp_path / "w"
+    w.mkdir()
+    shutil.copy(d / "jwst_loop_uncal.fits", w / "z_rate.fits")
+    shutil.copy(d / "jwst_loop_uncal.fits", w / "v_ramp.fits")
+    (w / "v_rate.fits").write_text("mine")
+    (w / "file").write_text("mine")
+    shutil.copytree(d / "jwst_loop_refs", w / "refs")
+    shutil.copy(d / "jwst_loop.fits", w / "exposure.fits")
+    before = _digest(w)
+    for args, words in (
+            (["z_rate.fits", "--overwrite"], ["z_rate.fits", "reads"]),
+            (["v_ramp.fits"], ["v_rate.fits", "exists"]),
+            (["nope.fits"], ["nope.fits", "does not exist"]),
+            (["exposure.fits"], ["not a JWST level-1b"]),
+            (["z_rate.fits", "-o", "file"], ["'file' is a file"]),
+            (["z_rate.fits", "-o", "new", "--truth", "nope.fits"], ["'--truth'"])):
+        line = _refused(["pipeline", "jwst", *args, "--refs", "refs"], w)
+        assert all(word in line for word in words), line
+    assert _digest(w) == before and not (w / "new").exists()
+
+
+def test_run_products_never_replace_a_file_the_scene_reads(tmp_path):
+    """--uncal and --reffiles with --overwrite: a product that is one of the scene's
+    inputs (its catalogue named x_uncal.fits, its flat inside the reference
+    directory) is refused before the run, and a reference 'directory' that is a file
+    too; nothing changes."""
+    from astropy.io import fits
+    from astropy.table import Table
+    Table({"x": [10.0], "y": [10.0], "flux": [100.0]}).write(tmp_path / "x_uncal.fits")
+    (tmp_path / "y_refs").mkdir()
+    fits.writeto(tmp_path / "y_refs" / "jwst_gain.fits", np.ones((32, 32)))
+    (tmp_path / "m_refs").write_text("a file")
+    base = ('seed = 1\n[detector]\npreset = "H2RG"\nnaxis1 = 32\nnaxis2 = 32\n'
+            '[readout]\npattern = "RAPID"\nngroups = 3\n[output]\npath = "{p}"\n'
+            '[sources]\n')
+    (tmp_path / "s.toml").write_text(base.format(p="x.fits")
+                                     + 'catalogue = "x_uncal.fits"\n')
+    (tmp_path / "t.toml").write_text(base.format(p="y.fits") + "[effects]\n"
+                                     'flat = "y_refs/jwst_gain.fits"\n')
+    (tmp_path / "u.toml").write_text(base.format(p="m.fits"))
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    for scene, product, words in (("s.toml", "--uncal", ["x_uncal.fits", "reads"]),
+                                  ("t.toml", "--reffiles", ["jwst_gain.fits", "reads"]),
+                                  ("u.toml", "--reffiles", ["'m_refs' is a file"])):
+        res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", scene, product,
+                              "--overwrite", "-q"], cwd=tmp_path, capture_output=True,
+                             text=True)
+        assert res.returncode == 2, res.stderr
+        lines = res.stderr.strip().splitlines()
+        assert len(lines) == 1 and all(w in lines[0] for w in words), res.stderr
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

@@ -308,3 +308,30 @@ def test_romancal_slopes_are_unbiased_and_its_pulls_follow_its_error_model(tmp_p
     # would fail here
     assert abs(z.mean() - predicted) < 5 / np.sqrt(n), (z.mean(), predicted)
     assert predicted < -2 * 5 / np.sqrt(n)
+
+
+def test_pipeline_roman_never_replaces_an_input_and_checks_first(roman_loop, tmp_path):
+    """The L2 may not be the L1, a reference or the truth, even with --overwrite; the
+    input must be an L1 (not an L2 or a FITS file); the L2 ends in .asdf."""
+    d, _ = roman_loop
+    w = tmp_path / "w"
+    w.mkdir()
+    shutil.copy(d / "roman_loop_l1.asdf", w / "l1.asdf")
+    shutil.copy(d / "roman_loop_l2.asdf", w / "l2.asdf")
+    shutil.copy(d / "roman_loop_truth.fits", w / "truth.fits")
+    shutil.copytree(d / "roman_loop_refs", w / "refs")
+    gain = next(p.name for p in (w / "refs").iterdir() if "gain" in p.name)
+    before = {p: p.read_bytes() for p in w.rglob("*") if p.is_file()}
+    for args, words in (
+            (["l1.asdf", "-o", "l1.asdf"], ["l1.asdf", "reads"]),
+            (["l1.asdf", "-o", f"refs/{gain}"], [gain, "reads"]),
+            (["l2.asdf"], ["ImageModel", "not an L1"]),
+            (["truth.fits", "-o", "x.asdf"], ["not a Roman ASDF"]),
+            (["l1.asdf", "-o", "x.fits"], ["must end in .asdf"])):
+        res = subprocess.run([sys.executable, "-m", "scenesim.cli", "pipeline", "roman",
+                              *args, "--refs", "refs", "--overwrite"], cwd=w,
+                             capture_output=True, text=True)
+        assert res.returncode == 2, res.stderr
+        lines = res.stderr.strip().splitlines()
+        assert len(lines) == 1 and all(word in lines[0] for word in words), res.stderr
+    assert {p: p.read_bytes() for p in w.rglob("*") if p.is_file()} == before
