@@ -251,8 +251,9 @@ class NoiseParams:
     def check_detector(self, detector, *, where="the detector's"):
         """Raise :class:`~noise.errors.ParameterError` if these amplitudes cannot be
         generated on ``detector``: per-output values that do not match its active
-        outputs, or ``f_min`` not below the Nyquist frequency of an enabled 1/f series
-        (module notes).  ``where`` names the detector's keys in the message (a scene
+        outputs, ``f_min`` not below the Nyquist frequency of an enabled 1/f series
+        (module notes), or ACN on an odd number of columns per output or an odd row
+        length.  ``where`` names the detector's keys in the message (a scene
         passes ``'[detector]'``)."""
         n_out = detector.n_out_active
         for name in _PER_OUTPUT:
@@ -278,6 +279,18 @@ class NoiseParams:
                     f"'f_min' = {self.f_min!r} Hz must be below the Nyquist frequency "
                     f"of the {comp} series, {how[comp]} = {nyq:.6g} Hz with {where} "
                     f"'dt' = {detector.dt!r} s and {values}")
+        if self.enabled("acn"):           # even and odd columns: two series per output
+            if detector.ncols_out % 2:
+                raise ParameterError(
+                    f"ACN needs an even number of columns per output; got "
+                    f"{detector.ncols_out} columns per output ({detector.nx} columns / "
+                    f"{n_out} outputs); set 'acn' to 0 or change 'naxis1'/'n_out'/the "
+                    f"subarray")
+            if detector.row_samples % 2:
+                raise ParameterError(
+                    f"ACN needs an even row length (columns per output + 'nroh'); got "
+                    f"{detector.ncols_out} + {detector.nroh}; make 'nroh' even or set "
+                    f"'acn' to 0")
 
     def check_adc(self, gain, adc_bits):
         """Raise :class:`~noise.errors.ParameterError` if an ADC of ``gain`` e-/DN and
@@ -285,9 +298,11 @@ class NoiseParams:
         notes): ``bias_offset`` must lie in ``[5 s, range - 5 s]`` e-, ``s`` the
         components' rms spread (:meth:`spread`), ``range = gain * (2**adc_bits - 1)``.
         The error names ``bias_offset``, or the largest amplitude when ``10 s``
-        exceeds the range (no bias fits), or ``gain`` when one ADC step exceeds
-        ``bias_offset + 5 s`` (every read without charge would be code 0; a noise-free
-        detector with no bias, ``bias_offset + 5 s = 0``, takes any gain)."""
+        exceeds the range (no bias fits), or ``rtn_amp`` when the RTN pixels' high
+        state, ``bias_offset + rtn_amp``, is not 5 s below the top code, or ``gain``
+        when one ADC step exceeds ``bias_offset + 5 s`` (every read without charge
+        would be code 0; a noise-free detector with no bias, ``bias_offset + 5 s =
+        0``, takes any gain)."""
         top = 2 ** int(adc_bits) - 1
         adc_range = float(gain) * top
         adc = (f"the ADC range [0, {adc_range:.6g}] e- ('gain' {float(gain):g} e-/DN x "
@@ -326,6 +341,15 @@ class NoiseParams:
                 f"of a pixel without charge {where}, where the ADC clips them: with "
                 f"the noise's rms spread s = {spread:.6g} e- it must lie {k:g} s inside "
                 f"{adc}, i.e. in [{lo:.6g}, {hi:.6g}] e-")
+        rtn_top = self.bias_offset + self.rtn_amp + k * spread
+        if self.rtn_fraction > 0 and rtn_top > adc_range:
+            raise ParameterError(
+                f"'rtn_amp' = {self.rtn_amp!r} e- puts the high state of the RTN pixels "
+                f"('rtn_fraction' {self.rtn_fraction!r}) above the ADC's top code, where "
+                f"it clips: 'bias_offset' {self.bias_offset!r} + 'rtn_amp' + {k:g} x the "
+                f"noise's rms spread s = {spread:.6g} e- is {rtn_top:.6g} e-, beyond "
+                f"{adc}; 'rtn_amp' must be <= "
+                f"{adc_range - self.bias_offset - k * spread:.6g} e-")
 
     def _largest_amplitude(self):
         """(name, e-) of the largest term of :meth:`spread`."""

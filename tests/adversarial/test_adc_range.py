@@ -307,3 +307,25 @@ def test_the_commands_refuse_a_gain_coarser_than_the_dark_reads(tmp_path):
         lines = res.stderr.strip().splitlines()
         assert len(lines) == 1 and "'gain' = 1e+30" in lines[0], res.stderr
     assert sorted(os.listdir(tmp_path)) == ["s.toml"]
+
+
+def test_the_rtn_pixels_high_state_must_stay_inside_the_adc():
+    """RTN reaches only its pixels, so it is not in the spread s; but their high state,
+    bias_offset + rtn_amp, must lie 5 s below the top code too (before, rtn_amp = 1e9
+    with rtn_fraction 0.5 clipped half the pixels at 65535 without a word).  Without
+    RTN pixels the amplitude is not bounded."""
+    p = noise.NIRSPEC_DEFAULTS.replace(bias_offset=MID, rtn_fraction=0.01)
+    edge = ADC_RANGE - MID - 5 * _spread(p)
+    inside, outside = edge * (1 - 1e-6), edge * (1 + 1e-6)
+
+    def mapping(amp, fraction=0.01):
+        m = _mapping("bias_offset", MID)
+        m["noise"].update(rtn_fraction=fraction, rtn_amp=amp)
+        return m
+
+    assert parse_scene(mapping(inside)).noise.rtn_amp == inside
+    with pytest.raises(ParameterError) as info:
+        parse_scene(mapping(outside))
+    _check(str(info.value), "rtn_amp")
+    assert "top code" in str(info.value)
+    assert parse_scene(mapping(1e9, fraction=0.0)).noise.rtn_amp == 1e9

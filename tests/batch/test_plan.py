@@ -87,6 +87,9 @@ name = "SCA02"
     ('"sources.background.x" = [1.0]', r"is not a scene key"),
     ('"sources.background" = []', r"non-empty list"),
     ('"sources.background" = [-1.0]', r"background"),
+    # a detector the noise generator refuses (17 columns per output: no ACN pairs),
+    # refused with the plan, not when its task runs
+    ('"detector.naxis1" = [64, 68]', r"grid point 1.*ACN needs an even number"),
 ])
 def test_bad_grid_keys_are_refused_naming_the_key(small_scene, tmp_path, grid, match):
     path = _batch_file(tmp_path, f'scene = "small.toml"\n[grid]\n{grid}\n')
