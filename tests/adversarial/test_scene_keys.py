@@ -424,8 +424,12 @@ def test_noise_that_clips_every_pixel_is_refused():
     with pytest.raises(ParameterError, match=r"'bias_amp' = 500\.0 e- is too large .*"
                                              r"'adc_bits' 4.*s <= 3 e-"):
         parse_scene(_small(effects={"gain": 2.0, "adc_bits": 4}))
-    # only RTN pixels see rtn_amp: not every pixel clips
-    parse_scene(_small(noise={"rtn_amp": 1e20, "rtn_fraction": 0.01}))
+    # only RTN pixels see rtn_amp, but their high state clips as surely (before: it
+    # was accepted, and those pixels sat at the top code); without RTN pixels, fine
+    with pytest.raises(ParameterError, match=r"\[noise\] 'rtn_amp' = 1e\+20 e- puts "
+                                             r"the high state of the RTN pixels"):
+        parse_scene(_small(noise={"rtn_amp": 1e20, "rtn_fraction": 0.01}))
+    parse_scene(_small(noise={"rtn_amp": 1e20, "rtn_fraction": 0.0}))
     with pytest.raises(ParameterError, match=r"'bias_offset' = -100000000\.0 e- puts 100 % "
                                              r"of the reads .* below code 0"):
         parse_scene(_small(noise={"bias_offset": -1e8}))
