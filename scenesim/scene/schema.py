@@ -36,7 +36,7 @@ from scenesim.detector.readout import MAX_READS, Readout
 from scenesim.engine import MAX_CHARGE
 from scenesim.outputs import derived_path
 from scenesim.pipelines.instrument import InstrumentConfig
-from scenesim.sky.lightcurve import LightCurve
+from scenesim.sky.lightcurve import MAX_TIME as LC_MAX_TIME, LightCurve
 from scenesim.sky.maps import FITS_EXTENSIONS
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF
 from scenesim.sky.sources import read_catalogue
@@ -220,7 +220,13 @@ def _check_series(name, time, flux):
         raise ParameterError(
             f"{name!r}: 'time' and 'flux' must be 1-d with the same length >= 2, got "
             f"{t.size} times and {f.size} fluxes")
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+    if not np.all(np.isfinite(t)):
+        raise ParameterError(f"{name!r}: 'time' must be finite and strictly increasing")
+    if np.any(np.abs(t) > LC_MAX_TIME):
+        raise ParameterError(
+            f"{name!r}: 'time' must lie within +-{LC_MAX_TIME:g} s of the exposure "
+            f"start, got {float(t[np.argmax(np.abs(t))])!r}")
+    if np.any(np.diff(t) <= 0):
         raise ParameterError(f"{name!r}: 'time' must be finite and strictly increasing")
     if not np.all(np.isfinite(f)) or np.any(f < 0):
         raise ParameterError(f"{name!r}: 'flux' must be finite and >= 0")

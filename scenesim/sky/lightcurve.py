@@ -51,6 +51,10 @@ from scenesim.sky.tables import column_values, find_columns, read_table
 
 __all__ = ["LightCurve"]
 
+#: Largest |time| of a light curve's nodes, s from the exposure start (about 30 000
+#: years: far beyond any exposure, and far from float overflow in the integrals).
+MAX_TIME = 1e12
+
 
 def _seconds(name, value):
     """``value`` as a float64 array of times (s), or a ParameterTypeError."""
@@ -101,11 +105,16 @@ class LightCurve:
                 f"{f.size}")
         if not np.all(np.isfinite(t)):
             raise ParameterError("'time' must be finite (seconds), found NaN or inf")
+        if np.any(np.abs(t) > MAX_TIME):          # (their differences must not overflow)
+            bad = int(np.flatnonzero(np.abs(t) > MAX_TIME)[0])
+            raise ParameterError(
+                f"'time' must lie within +-{MAX_TIME:g} s of the exposure start, got "
+                f"time[{bad}]={float(t[bad])!r}")
         if not np.all(np.isfinite(f)) or np.any(f < 0):
             bad = np.flatnonzero(~np.isfinite(f) | (f < 0))[0]
             raise ParameterError(
                 f"'flux' must be finite and >= 0 (relative flux), got flux[{bad}]="
-                f"{f[bad]!r}")
+                f"{float(f[bad])!r}")
         dt = np.diff(t)
         if np.any(dt < 0):
             bad = int(np.flatnonzero(dt < 0)[0])

@@ -596,3 +596,18 @@ def test_numbers_in_messages_are_shown_as_written():
         with pytest.raises(ParameterError) as err:
             check(name="x", value=value, minimum=0)
         assert "np." not in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("times", [[-1e308, 1e308], [0.0, 2e12], [-2e12, 0.0]])
+def test_light_curve_times_beyond_the_bound_are_refused(times, scene_dir):
+    """Node times far from the exposure (before: [-1e308, 1e308] overflowed in the
+    charge integrals, warned, and failed at run time naming an internal 'lam')."""
+    from scenesim.sky.lightcurve import MAX_TIME, LightCurve
+    m = _base()
+    m["sources"]["light_curves"]["tb"]["time"] = times
+    with pytest.raises(ParameterError, match=r"\[sources\.light_curves\.tb\].*'time' must "
+                                             r"lie within \+-1e\+12 s"):
+        _parse(m, scene_dir)
+    with pytest.raises(ParameterError, match=r"'time' must lie within"):
+        LightCurve(times, [1.0, 1.0])
+    LightCurve([-MAX_TIME, MAX_TIME], [1.0, 1.0])
