@@ -26,7 +26,7 @@ import os
 import time
 
 from noise.errors import ParameterError
-from noise.fitsio import atomic_file, package_version
+from noise.fitsio import atomic_file, output_error, package_version
 from scenesim.batch.plan import identity_digest
 from scenesim.batch.tasks import RECORD_FORMAT, files_match
 
@@ -105,7 +105,10 @@ def load_record(task):
 def batch_lock(out_dir):
     """Hold ``OUT/.batch.lock`` for the duration of a batch; refuse a second one."""
     path = os.path.join(out_dir, _LOCK_NAME)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:                   # e.g. a read-only file system
+        raise output_error(path, exc) from exc
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

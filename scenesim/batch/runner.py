@@ -50,7 +50,7 @@ import time
 from dataclasses import dataclass
 
 from noise.errors import ParameterError, ScenesimError
-from noise.fitsio import TEMP_PATTERN, remove_stale_temps
+from noise.fitsio import TEMP_PATTERN, output_error, remove_stale_temps
 from scenesim.budget import check_batch_budget
 from scenesim.batch.manifest import (Manifest, batch_lock, check_same_batch,
                                      load_record, read_manifest)
@@ -154,6 +154,23 @@ def _import_dask():
             f"scenesim batch runs on dask.distributed, which is not installed: pip "
             f"install 'scenesim[batch]' ({exc})") from exc
     return Client, LocalCluster, as_completed
+
+
+def _check_out_writable(out_dir):
+    """Raise before any work unless ``out_dir`` (or, where it does not exist yet, the
+    directory that would hold it) can be written: a read-only one (file system or
+    mode) gives one line, not an OSError once the workers are up."""
+    path = os.path.abspath(out_dir)
+    while not os.path.exists(path):
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    if not os.path.isdir(path):
+        raise ParameterError(f"'out' {out_dir!r}: {path!r} is not a directory")
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ParameterError(f"'out' {out_dir!r}: the directory {path!r} is not "
+                             f"writable")
 
 
 @contextlib.contextmanager
@@ -357,15 +374,19 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
     check_batch_budget([(first[k], n) for k, n in counts.items()],
                        workers=workers if target is None else None,
                        fitters=plan.fitters, force=force)
+    _check_out_writable(plan.out_dir)
     with contextlib.ExitStack() as stack:
         client = cluster = None
         if todo:
             client, cluster = stack.enter_context(
                 _client(target, workers, connect_timeout, log))
-        os.makedirs(plan.out_dir, exist_ok=True)
-        for p in plan.points:
-            if p.label:
-                os.makedirs(os.path.join(plan.out_dir, p.label), exist_ok=True)
+        try:
+            os.makedirs(plan.out_dir, exist_ok=True)
+            for p in plan.points:
+                if p.label:
+                    os.makedirs(os.path.join(plan.out_dir, p.label), exist_ok=True)
+        except OSError as exc:
+            raise output_error(plan.out_dir, exc) from exc
         folders = sorted({os.path.dirname(t.path["record"]) for t in tasks}
                          | {plan.out_dir})
         stack.enter_context(batch_lock(plan.out_dir))

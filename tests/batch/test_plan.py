@@ -1,6 +1,8 @@
 """Batch planning: seeds spawned from the batch seed, grids over scene keys, and the
 errors of bad batch files, before anything runs (no dask needed)."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,20 @@ def test_bad_batch_files(small_scene, tmp_path):
         plan_batch(small_scene, out=tmp_path / "g", realisations=0)
     with pytest.raises(ParameterError, match="compare.*fitter"):
         plan_batch(small_scene, out=tmp_path / "g", fit=[], compare=True)
+
+
+def test_an_out_directory_that_cannot_be_written_is_refused_first(tmp_path,
+                                                                  monkeypatch):
+    # a read-only file system (as root, modes do not stop writes; os.access does see
+    # a read-only mount): before, OSError from the lock file once the workers were up
+    from scenesim.batch import runner
+    real = os.access
+    monkeypatch.setattr(runner.os, "access",
+                        lambda p, m: False if os.path.abspath(p) == str(tmp_path)
+                        else real(p, m))
+    for out in (tmp_path, tmp_path / "new" / "deeper"):
+        with pytest.raises(ParameterError, match=r"'out' .*is not writable"):
+            runner._check_out_writable(str(out))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ParameterError, match="is not a directory"):
+        runner._check_out_writable(str(tmp_path / "file" / "sub"))
