@@ -380,6 +380,11 @@ def load_darks(paths, *, detector=None, gain=None):
             scale = np.float32(g) if is_dn else np.float32(1.0)
             for cube in data:
                 ints.append(cube.astype(np.float32) * scale)
+    if gain is not None and not dn_any:      # it would change nothing: say so
+        raise ParameterError(
+            f"'gain' {gain!r} e-/DN applies to dark ramps in DN, but "
+            f"{', '.join(map(repr, paths))} {'is' if len(paths) == 1 else 'are'} in "
+            f"electrons (BUNIT); leave the gain out")
     return DarkRamps(tuple(ints), det_all, gain_all if dn_any else None,
                      tuple(str(p) for p in paths))
 

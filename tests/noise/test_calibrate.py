@@ -189,6 +189,18 @@ def test_dn_file_round_trip_uses_the_gain(tmp_path):
     assert abs(a.value - b.value) < a.sigma
 
 
+def test_a_gain_for_darks_in_electrons_is_refused(tmp_path):
+    # it would change nothing (before: silently ignored)
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    dark = _write_dark(tmp_path / "e.fits", det, NoiseParams(), seed=2, nints=1)
+    with pytest.raises(ParameterError, match=r"'gain' 2\.0 e-/DN applies to dark "
+                                             r"ramps in DN.*in electrons"):
+        load_darks([dark], gain=2.0)
+    dn = _write_dark(tmp_path / "dn.fits", det, NoiseParams(), seed=3, nints=1,
+                     unit="DN", gain=2.0)
+    assert load_darks([dn], gain=2.0).gain == 2.0
+
+
 def test_one_dark_named_twice_is_refused(tmp_path, monkeypatch):
     # under another spelling or through a link it would count as a second dark and
     # shrink every uncertainty by sqrt(2)
