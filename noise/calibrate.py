@@ -355,7 +355,12 @@ def load_darks(paths, *, detector=None, gain=None):
                     raise ParameterError(
                         f"dark ramp {path!r} is in {unit!r}: pass the gain (e-/DN) "
                         f"with --gain")
-                g = check_float("gain", float(g), minimum=0.0, strict_min=True)
+                src = "--gain" if gain is not None else f"dark ramp {path!r} header GAIN"
+                try:
+                    g = check_float("gain", g if isinstance(g, (int, float)) else
+                                    float(g), minimum=0.0, strict_min=True)
+                except (ParameterError, TypeError, ValueError) as exc:
+                    raise ParameterError(f"{src}: {exc}") from exc
             if data.ndim == 3:
                 data = data[None]
             if data.ndim != 4:

@@ -38,7 +38,7 @@ MANIFEST_FORMAT = "scenesim-batch 1"
 _LOCK_NAME = ".batch.lock"
 
 
-def read_manifest(out_dir):
+def read_manifest(out_dir, *, what="'out'", advice="use another output directory"):
     """The manifest of ``out_dir`` as a dict, or None when there is none.
 
     Raises
@@ -53,11 +53,11 @@ def read_manifest(out_dir):
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
     except (OSError, ValueError) as exc:
-        raise ParameterError(f"'out': {path!r} is not a readable scenesim batch manifest "
-                             f"({exc}); use another output directory") from exc
+        raise ParameterError(f"{what}: {path!r} is not a readable scenesim batch "
+                             f"manifest ({exc}); {advice}") from exc
     if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
-        raise ParameterError(f"'out': {path!r} is not a scenesim batch manifest (format "
-                             f"{MANIFEST_FORMAT!r}); use another output directory")
+        raise ParameterError(f"{what}: {path!r} is not a scenesim batch manifest (format "
+                             f"{MANIFEST_FORMAT!r}); {advice}")
     return data
 
 

@@ -247,7 +247,8 @@ def pool_directory(out_dir):
     noise.errors.ParameterError
         No manifest in ``out_dir``, or no finished task with a comparison.
     """
-    manifest = read_manifest(out_dir) if os.path.isdir(out_dir) else None
+    manifest = read_manifest(out_dir, what="'--pool'", advice="give the directory of a "
+                             "batch") if os.path.isdir(out_dir) else None
     if manifest is None:
         raise ParameterError(f"'pool': {out_dir!r} holds no scenesim batch manifest "
                              f"({MANIFEST_NAME}); give the --out directory of a batch")

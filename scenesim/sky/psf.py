@@ -409,7 +409,8 @@ class ImagePSF:
                     f"PSF image 'data' sums to {total!r} but normalize=True requires a "
                     f"sum of 1 within {_SUM_RTOL} (flux per sub-pixel){hint}; use "
                     f"ImagePSF.normalized(data, oversample) to rescale it, or "
-                    f"normalize=False to use it as given")
+                    f"normalize=False (a scene: [sources.psf] normalize = false) to use "
+                    f"it as given")
             data /= total
         elif total > 1.0 + _SUM_RTOL:
             raise ParameterError(
