@@ -42,6 +42,10 @@ from noise.validate import describe
 __all__ = ["ENGINE", "NOISE", "POISSON", "POISSON_2D", "COSMIC_RAYS", "HOT_PIXELS",
            "NOISE_COMPONENTS", "root_seed", "generator", "KeyedStreams"]
 
+#: Largest seed of a scene or of ``scenesim noise --seed``: a signed 64-bit integer,
+#: as TOML and a FITS integer card hold it.
+MAX_SEED = 2 ** 63 - 1
+
 #: The charge engine's root, under the scene's seed.
 ENGINE = (0,)
 #: The noise generator's root, under the engine's root.

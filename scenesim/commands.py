@@ -32,7 +32,7 @@ def noise_command(args):
     if args.threads is not None:
         check_int("--threads", args.threads, minimum=1)
     if args.seed is not None:                # as a scene's seed: a FITS integer card
-        from scenesim.scene.schema import MAX_SEED
+        from noise.streams import MAX_SEED
         check_int("--seed", args.seed, minimum=0, maximum=MAX_SEED)
     if args.gain is not None:
         check_float("--gain", args.gain, minimum=0.0, strict_min=True)

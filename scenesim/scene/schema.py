@@ -27,6 +27,7 @@ from astropy.table import Table
 from noise.clock import Detector, exposure_slots
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.params import NoiseParams
+from noise.streams import MAX_SEED as SEED_MAX
 from noise.validate import (check_bool, check_choice, check_existing_file, check_float,
                             check_int, check_str, describe, is_real, is_sequence, suggest)
 
@@ -61,7 +62,7 @@ __all__ = [
 ]
 
 #: Largest seed: fits a signed 64-bit integer (TOML and FITS).
-MAX_SEED = 2 ** 63 - 1
+MAX_SEED = SEED_MAX
 
 
 def curve_table(name):
