@@ -39,6 +39,7 @@ import contextlib
 import errno as _errno
 import gzip
 import io
+import math
 import os
 import re
 import shutil
@@ -54,7 +55,8 @@ from astropy.io import fits
 from astropy.utils.exceptions import AstropyWarning
 
 from noise.validate import (check_bool, check_choice, check_float, check_instance,
-                            check_int, check_path, check_writable, describe, is_sequence)
+                            check_int, check_path, check_str, check_writable, describe,
+                            is_sequence)
 from noise.errors import (FileFormatError, OutputError, ParameterError,
                           ParameterTypeError, ScenesimError)
 
@@ -678,6 +680,48 @@ def _hdu_bytes(hdu):
     return raw[hdr_len:]
 
 
+#: Keywords that describe a FITS file's structure: never taken from a caller.
+_STRUCTURAL = re.compile(r"^(SIMPLE|BITPIX|NAXIS\d*|EXTEND|BZERO|BSCALE|BLANK|END|"
+                         r"PCOUNT|GCOUNT|XTENSION|EXTNAME|EXTVER|TFIELDS|T[A-Z]+\d+|"
+                         r"ZIMAGE|Z[A-Z]+\d*|CHECKSUM|DATASUM|CONTINUE|COMMENT|HISTORY)$")
+
+
+def _check_extra_card(card):
+    """``(key, value, comment)`` of a caller's header card, or a ParameterError: a
+    standard keyword (1-8 of A-Z, 0-9, '-', '_') that is not structural, a value FITS
+    holds (bool, int, finite float, printable ASCII string) and an ASCII comment."""
+    key, value, comment = card if len(card) == 3 else (*card, "")
+    if not isinstance(key, str) or not re.fullmatch(r"[A-Z0-9_-]{1,8}", key.upper()):
+        raise ParameterError(f"'extra_cards': keyword {key!r} must be 1-8 characters of "
+                             f"A-Z, 0-9, '-' and '_'")
+    key = key.upper()
+    if _STRUCTURAL.match(key):
+        raise ParameterError(f"'extra_cards': {key!r} describes the file's structure "
+                             f"(scenesim writes it); use another keyword")
+    if isinstance(value, (bool, np.bool_)):
+        value = bool(value)
+    elif isinstance(value, (int, np.integer)):
+        value = int(value)
+        if not -2 ** 63 <= value < 2 ** 63:
+            raise ParameterError(f"'extra_cards': {key} = {value!r} does not fit a FITS "
+                                 f"integer (64-bit)")
+    elif isinstance(value, (float, np.floating)):
+        value = float(value)
+        if not math.isfinite(value):
+            raise ParameterError(f"'extra_cards': {key} = {value!r} is not finite; FITS "
+                                 f"holds finite numbers")
+    elif isinstance(value, str):
+        check_str(f"extra_cards {key}", value, label=True)
+    else:
+        raise ParameterTypeError(f"'extra_cards': {key} must be a bool, an integer, a "
+                                 f"finite number or a string, got {describe(value)}")
+    if not isinstance(comment, str):
+        raise ParameterTypeError(f"'extra_cards': the comment of {key} must be a string, "
+                                 f"got {describe(comment)}")
+    check_str(f"extra_cards {key} comment", comment, label=True)
+    return key, value, comment
+
+
 def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
                      overwrite=False, progress=None, extra_cards=()):
     """Stream a noise-only ramp to a FITS file, atomically.
@@ -732,6 +776,7 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
             not all(isinstance(c, tuple) and len(c) in (2, 3) for c in extra_cards):
         raise ParameterTypeError(f"'extra_cards' must be a sequence of (key, value[, "
                                  f"comment]) tuples, got {describe(extra_cards)}")
+    extra_cards = [_check_extra_card(c) for c in extra_cards]
     if unit == "DN":
         # no noise clipped at the 16-bit ADC (noise.params module notes)
         try:
@@ -751,7 +796,13 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
              ("NFRAMES", nframes, "read frames per integration"),
              ("SEEDENT", str(generator.entropy), "root SeedSequence entropy"),
              ("SEEDKEY", ",".join(map(str, generator.key)) or "-", "root spawn key")]
-    cards += det.to_header_cards() + generator.params.to_header_cards() + list(extra_cards)
+    cards += det.to_header_cards() + generator.params.to_header_cards()
+    ours = {c[0] for c in cards}
+    for key, _, _ in extra_cards:
+        if key in ours:
+            raise ParameterError(f"'extra_cards': {key!r} is a card scenesim writes "
+                                 f"itself (the file's provenance); use another keyword")
+    cards += extra_cards
     with atomic_file(path, overwrite=overwrite, buffering=1 << 20) as f:
         out = StreamingFITS(f)
         out.begin_image(shape, dtype, cards)

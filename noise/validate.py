@@ -261,7 +261,9 @@ def check_image(name, image):
 
 def check_writable(name, path, *, overwrite=True):
     """``path`` if it can be written: its directory exists and is writable, it is not a
-    directory, and it does not exist unless ``overwrite``."""
+    directory, it does not exist unless ``overwrite``, and what exists there is a
+    regular file (a FIFO, a device or a socket is never replaced by one: as root,
+    ``overwrite`` would otherwise turn ``/dev/null`` into a file)."""
     path = check_path(name, path)
     directory = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(directory):
@@ -271,6 +273,9 @@ def check_writable(name, path, *, overwrite=True):
         raise ParameterError(f"{name!r}: directory {directory!r} is not writable")
     if os.path.isdir(path):
         raise ParameterError(f"{name!r}: {path!r} is a directory, expected a file path")
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise ParameterError(f"{name!r}: {path!r} is not a regular file (a device, FIFO "
+                             f"or socket); it is never replaced: write to a file path")
     if os.path.exists(path) and not overwrite:
         raise ParameterError(f"{name!r}: {path!r} exists; pass overwrite=True to replace it")
     return path

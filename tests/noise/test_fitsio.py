@@ -7,6 +7,7 @@ DN conversion is rewritten here from its definition: rint(e / gain) clipped to
 
 import dataclasses
 import os
+import stat
 from importlib import metadata
 
 import numpy as np
@@ -15,7 +16,7 @@ from astropy.io import fits
 
 from noise import (NIRSPEC_DEFAULTS, ZERO_NOISE, NoiseGenerator, NoiseParams, preset,
                    write_noise_fits)
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ParameterTypeError
 
 DET = preset("H2RG", naxis1=64, naxis2=64, n_out=4)
 
@@ -354,3 +355,33 @@ def test_writer_thread_keeps_order_and_raises_a_write_error_once():
     w.close()
     w.close()
     assert seen == [0, 1, 2, 5]
+
+
+def test_a_target_that_is_not_a_regular_file_is_never_replaced(tmp_path):
+    # with overwrite, os.replace would put a regular file where a FIFO (or, as root,
+    # a device such as /dev/null) was; tested on a FIFO only
+    fifo = tmp_path / "pipe.fits"
+    os.mkfifo(fifo)
+    gen = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    with pytest.raises(ParameterError, match="not a regular file"):
+        write_noise_fits(fifo, gen, 2, overwrite=True)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and _files(tmp_path) == ["pipe.fits"]
+
+
+@pytest.mark.parametrize("cards, match", [
+    ([("NAXIS", 7, "x")], "structure"), ([("BZERO", 1000.0)], "structure"),
+    ([("NAXIS2", 1)], "structure"), ([("GAIN", 3.0)], "scenesim writes itself"),
+    ([("X", float("nan"))], "not finite"), ([("X", "caf\u00e9")], "printable ASCII"),
+    ([("TOOLONGKEY", 1)], "1-8 characters"), ([("X", [1])], "bool, an integer"),
+    ([("X", 1, "\n")], "printable ASCII")])
+def test_extra_cards_that_fits_cannot_hold_are_refused(tmp_path, cards, match):
+    # before: NAXIS wrote an unreadable file, BZERO shifted the data silently, a
+    # 2-tuple (the documented form) raised a bare ValueError
+    gen = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    with pytest.raises((ParameterError, ParameterTypeError), match=match):
+        write_noise_fits(tmp_path / "x.fits", gen, 2, extra_cards=cards)
+    assert _files(tmp_path) == []
+    write_noise_fits(tmp_path / "y.fits", gen, 2,
+                     extra_cards=[("OBSERVER", "me"), ("obsid", np.int64(5), "id")])
+    hdr = fits.getheader(tmp_path / "y.fits")
+    assert hdr["OBSERVER"] == "me" and hdr["OBSID"] == 5
