@@ -523,6 +523,14 @@ def _named(what, path, exc):
     return FileFormatError(f"{what} {path!r}: {msg}")
 
 
+#: Header cards an exposure and its truth file share, checked by :func:`compare_files`
+#: (with ``exposure``): the detector and window, the clock, the readout and the seed.
+SAME_EXPOSURE_CARDS = ("DETECTOR", "DETNAX1", "DETNAX2", "NOUTPUTS", "SUBSTRT1",
+                       "SUBSTRT2", "SUBSIZE1", "SUBSIZE2", "PIXDWELL", "NROH", "NFOH",
+                       "TFRAME", "NGROUPS", "NFRAMES", "GROUPGAP", "DROPFRM1", "READPATT",
+                       "RESETMD", "SEED", "SEEDENT")
+
+
 def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
                   radius=4.0, edges=DEFAULT_EDGES, cr_sigma=10.0):
     """Compare a slope file with a truth file; see :func:`compare`.
@@ -582,6 +590,11 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
                 raise FileFormatError(
                     f"'NINTS' = {esettings['nints']} but the truth file has "
                     f"{settings['nints']}: not the same exposure")
+            for key in SAME_EXPOSURE_CARDS:      # the truth records them too
+                if key in ehdr and key in hdr and ehdr[key] != hdr[key]:
+                    raise FileFormatError(
+                        f"{key!r} = {ehdr[key]!r} but the truth file has {hdr[key]!r}: "
+                        f"not the same exposure")
             t_frame = esettings["t_frame"]
             if t_frame is None:
                 raise FileFormatError("lacks header keyword 'TFRAME'")

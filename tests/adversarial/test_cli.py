@@ -502,3 +502,21 @@ def test_scene_errors_found_at_run_time_name_the_scene_file(workdir):
     res = _cli(["run", "scene.toml", "-q", "-o", "out.fits"], workdir)
     assert "scene.toml" not in _one_line(res.stderr, "exists")
     assert _snapshot(workdir) == {**before, "out.fits": _snapshot(workdir)["out.fits"]}
+
+
+def test_compare_refuses_the_exposure_of_another_run(workdir):
+    """--exposure gives the read times; one of another run (another seed here, or
+    another window or frame time) made a silently wrong report: only NINTS was
+    compared.  The cards both files carry must agree."""
+    assert _cli(["run", "scene.toml", "-q", "--fit", "gls"], workdir).returncode == 0
+    (workdir / "other.toml").write_text(
+        SCENE.format(naxis=64, ngroups=3, dark=0.1).replace("seed = 5", "seed = 6")
+        .replace('path = "out.fits"', 'path = "other.fits"'))
+    assert _cli(["run", "other.toml", "-q"], workdir).returncode == 0
+    res = _cli(["compare", "out_gls.fits", "out_truth.fits", "--exposure", "other.fits"],
+               workdir)
+    assert res.returncode == 2
+    _one_line(res.stderr, "other.fits", "'SEED'", "not the same exposure")
+    res = _cli(["compare", "out_gls.fits", "out_truth.fits", "--exposure", "out.fits"],
+               workdir)
+    assert res.returncode == 0, res.stderr
