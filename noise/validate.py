@@ -221,6 +221,8 @@ def check_map(name, value, shape, *, minimum=0.0, strict_min=False):
             raise ParameterError(f"{name!r} must be finite{rule}, got {describe(value)}")
         return v
     try:
+        if np.iscomplexobj(value):         # (float64 would drop the imaginary part)
+            raise TypeError("complex")
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ParameterTypeError(

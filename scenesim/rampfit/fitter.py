@@ -168,6 +168,11 @@ _WINDOW = 2
 
 
 # ---------------------------------------------------------------------- entry point
+#: Largest read noise per read (e-) :func:`fit_ramps` takes: its square, 1e30 e-^2,
+#: stays far inside float32.
+MAX_READ_NOISE = 1e15
+
+
 def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
               saturated=None, jump_threshold=None, n_iter=2, refmask=None,
               zero_point=None, threads=None, variance_rate="local", block_rows=None):
@@ -252,6 +257,10 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     nints, nres, ny, nx = src.shape
     times, shift = check_read_times(read_times, nres, (ny, nx))
     read_noise = check_map("read_noise", read_noise, (ny, nx), minimum=0.0)
+    if np.max(read_noise) > MAX_READ_NOISE:       # its square must stay finite in float32
+        raise ParameterError(
+            f"'read_noise' must be <= {MAX_READ_NOISE:g} e- per read (its square is "
+            f"computed in float32), got {float(np.max(read_noise))!r}")
     gain = check_float("gain", gain, minimum=0.0, strict_min=True)
     thr = None if jump_threshold is None else check_float(
         "jump_threshold", jump_threshold, minimum=0.0, strict_min=True)

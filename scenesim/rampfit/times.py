@@ -83,6 +83,9 @@ def check_read_times(read_times, nres=None, image_shape=None):
 
 def _entry(r, t, image_shape):
     """Entry ``r`` as a float64 array of shape (N,) or (N,) + image_shape."""
+    if np.iscomplexobj(t):                 # (float() would drop the imaginary part)
+        raise ParameterError(
+            f"'read_times'[{r}] must be real read times (s), got complex values")
     try:
         a = np.asarray(t, dtype=float)
     except (TypeError, ValueError) as exc:

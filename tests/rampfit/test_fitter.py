@@ -353,6 +353,13 @@ def test_null_limits_and_refmask():
     (dict(resultants=np.zeros((4, 4))), "resultants"),
     (dict(resultants=np.full((4, 4, 4), np.nan)), "finite"),
     (dict(threads=0), "threads"),
+    # a read noise whose float32 square overflows (1e200: a bare OverflowError; 1e30:
+    # every pixel DO_NOT_USE, with warnings), complex values (the imaginary part was
+    # dropped with a ComplexWarning)
+    (dict(read_noise=1e200), r"'read_noise' must be <= 1e\+15"),
+    (dict(read_noise=1e30), r"'read_noise' must be <= 1e\+15"),
+    (dict(read_noise=np.full((4, 4), 1 + 1j)), "read_noise"),
+    (dict(read_times=[[1.0 + 0j], [2.0], [3.0], [4.0]]), "complex"),
 ])
 def test_bad_input(kwargs, match):
     args = dict(resultants=np.zeros((4, 4, 4)), read_times=[[1.0], [2.0], [3.0], [4.0]],
