@@ -117,12 +117,12 @@ import math
 import numbers
 import os
 import weakref
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
-from noise.validate import check_float, check_int, describe
+from noise.validate import check_choice, check_float, check_int, describe
 from noise.adc import ADC
 from noise.clock import Detector, column_runs, copy_columns, frame_slot
 from noise.errors import ParameterError, ParameterTypeError
@@ -514,7 +514,20 @@ class NoiseGenerator:
         start, n : int
             Absolute sample range on that series' own time line (pixel rate; half rate
             for each ACN parity, which returns shape (2, n); row rate for 'pca0').
+
+        Raises
+        ------
+        noise.errors.ParameterError
+            An unknown or disabled component, an output out of range, a negative or
+            non-integer ``start`` or ``n``.
         """
+        component = check_choice("component", component,
+                                 ("c_pink", "u_pink", "pink", "acn", "pca0"))
+        if component in ("u_pink", "pink", "acn"):          # (the others ignore it)
+            output = check_int("output", output, minimum=0,
+                               maximum=self.detector.n_out_active - 1)
+        start = check_int("start", start, minimum=0)
+        n = check_int("n", n, minimum=0)
         u_pink = self._single("u_pink", output)
         if component == "pink" and (self._common is not None or u_pink is not None):
             if self._merged:
@@ -799,7 +812,24 @@ class NoiseGenerator:
         -------
         ndarray, shape (ny, nx)
             float32 e-, or uint16 DN with ``dn_gain``.
+
+        Raises
+        ------
+        noise.errors.ParameterError
+            A negative or non-integer ``slot`` or ``integration``, a ``pool`` that is
+            not an Executor, ``dn_gain`` not > 0, or an ``out`` that is not a writable
+            C-contiguous array of the frame's shape and dtype.
         """
+        slot = check_int("slot", slot, minimum=0)
+        integration = check_int("integration", integration, minimum=0)
+        if pool is not None and not isinstance(pool, Executor):
+            raise ParameterTypeError(f"'pool' must be a concurrent.futures.Executor or "
+                                     f"None, got {describe(pool)}")
+        if dn_gain is not None:
+            dn_gain = check_float("dn_gain", dn_gain, minimum=0.0, strict_min=True)
+        if out is not None and not (isinstance(out, np.ndarray) and out.flags.writeable):
+            raise ParameterTypeError(f"'out' must be a writable numpy array or None, got "
+                                     f"{describe(out)}")
         return self._frame(slot, integration, pool, dn_gain, out, None)
 
     def _frame(self, slot, integration, pool, dn_gain, out, next_slot):

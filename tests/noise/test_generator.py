@@ -707,3 +707,30 @@ def test_frames_with_lines_made_ahead_equal_frames_made_one_by_one(ny, band_rows
         if n == 2:                              # before (1, 0), whose lines are ahead
             g.frame(frame_slot(0, 4, 5), 0)
     assert len({float(f.std()) for f in ref.values()}) == len(ref)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda g: g.frame(-1, 0), "'slot' must be >= 0"),
+    (lambda g: g.frame(1.5, 0), "'slot' must be an integer"),
+    (lambda g: g.frame(1, None), "'integration' must be an integer"),
+    (lambda g: g.frame(1, 0, pool="x"), "'pool' must be a concurrent"),
+    (lambda g: g.frame(1, 0, dn_gain=0.0), "'dn_gain' must be > 0"),
+    (lambda g: g.frame(1, 0, out=[[0.0]]), "'out' must be a writable"),
+    (lambda g: g.timeline("u_pink", 0, -5, 10), "'start' must be >= 0"),
+    (lambda g: g.timeline("u_pink", 0, 0, 10.5), "'n' must be an integer"),
+    (lambda g: g.timeline("u_pink", 0, 3.9, 10), "'start' must be an integer"),
+    (lambda g: g.timeline("u_pink", True, 0, 10), "'output' must be an integer"),
+    (lambda g: g.timeline("u_pink", 4, 0, 10), "'output' must be <= 3"),
+    (lambda g: g.timeline("upink", 0, 0, 10), "'component' must be one of"),
+])
+def test_frame_and_timeline_name_a_bad_argument(call, match):
+    # before: bare ValueError/TypeError/AttributeError from numpy and SeedSequence,
+    # and 10.5 samples or start 3.9 silently truncated
+    gen = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    with pytest.raises(ParameterError, match=match):
+        call(gen)
+    ro = np.zeros(DET.shape, np.float32)
+    ro.flags.writeable = False
+    with pytest.raises(ParameterError, match="'out' must be a writable"):
+        gen.frame(1, 0, out=ro)
+    assert gen.timeline("u_pink", 3, 0, 10).shape == (10,)
