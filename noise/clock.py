@@ -299,14 +299,14 @@ class Detector:
     def __post_init__(self):
         object.__setattr__(self, "interleave", _as_interleave(self.interleave))
         check_bool("ref_output", self.ref_output)
-        check_int("naxis1", self.naxis1, minimum=1)
-        check_int("naxis2", self.naxis2, minimum=1)
-        check_int("n_out", self.n_out, minimum=1)
-        check_int("nroh", self.nroh, minimum=0)
-        check_int("nfoh", self.nfoh, minimum=0)
-        check_int("ref_border", self.ref_border, minimum=0)
-        check_float("dt", self.dt, minimum=0.0, strict_min=True)
-        check_float("pixel_pitch", self.pixel_pitch, minimum=0.0, strict_min=True)
+        # stored as Python numbers (a float16 dt made the frame time inf)
+        for name, low in (("naxis1", 1), ("naxis2", 1), ("n_out", 1), ("nroh", 0),
+                          ("nfoh", 0), ("ref_border", 0)):
+            object.__setattr__(self, name, check_int(name, getattr(self, name),
+                                                     minimum=low))
+        for name in ("dt", "pixel_pitch"):
+            object.__setattr__(self, name, check_float(name, getattr(self, name),
+                                                       minimum=0.0, strict_min=True))
         check_str("name", self.name, label=True)
         check_bool("reverse_scan", self.reverse_scan)
         check_instance("subarray", self.subarray, Subarray, "a noise.clock.Subarray",

@@ -68,6 +68,7 @@ the values).
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -204,21 +205,23 @@ class NoiseParams:
                     if not math.isfinite(v) or v < 0:
                         raise ParameterError(
                             f"{name!r} must be finite and >= 0 (e-), got {value!r}")
-            else:
-                check_float(name, value, minimum=0.0)
-        for name in _SCALAR_AMPS:
-            check_float(name, getattr(self, name), minimum=0.0)
-        check_float("ref_ratio", self.ref_ratio, minimum=0.0)
-        check_float("bias_offset", self.bias_offset)
+            else:      # stored as a Python float (a float16 would compute in float16)
+                object.__setattr__(self, name, check_float(name, value, minimum=0.0))
+        for name in _SCALAR_AMPS + ("ref_ratio",):
+            object.__setattr__(self, name, check_float(name, getattr(self, name),
+                                                       minimum=0.0))
+        object.__setattr__(self, "bias_offset", check_float("bias_offset",
+                                                            self.bias_offset))
         for name in _PER_OUTPUT + _SCALAR_AMPS + ("bias_offset",):
             if max(abs(v) for v in self._values(name)) > MAX_AMPLITUDE:
                 raise ParameterError(
                     f"{name!r} = {getattr(self, name)!r} e- is beyond what float32 frames "
                     f"hold: amplitudes (and |bias_offset|) must be <= {MAX_AMPLITUDE:g} e-")
-        check_float("rtn_fraction", self.rtn_fraction, minimum=0.0, maximum=1.0)
-        check_float("rtn_tau_low", self.rtn_tau_low, minimum=0.0, strict_min=True)
-        check_float("rtn_tau_high", self.rtn_tau_high, minimum=0.0, strict_min=True)
-        check_float("f_min", self.f_min, minimum=MIN_F_MIN)
+        for name, kw in (("rtn_fraction", dict(minimum=0.0, maximum=1.0)),
+                         ("rtn_tau_low", dict(minimum=0.0, strict_min=True)),
+                         ("rtn_tau_high", dict(minimum=0.0, strict_min=True)),
+                         ("f_min", dict(minimum=MIN_F_MIN))):
+            object.__setattr__(self, name, check_float(name, getattr(self, name), **kw))
         ref_noise = max(self._values("rd_noise")) * self.ref_ratio
         if ref_noise > MAX_AMPLITUDE:
             raise ParameterError(
@@ -228,6 +231,8 @@ class NoiseParams:
         if self.pink_spectrum is not None:
             object.__setattr__(self, "pink_spectrum",
                                check_pink_spectrum("pink_spectrum", self.pink_spectrum))
+        if isinstance(self.pca0_file, os.PathLike):       # as every other path argument
+            object.__setattr__(self, "pca0_file", os.fspath(self.pca0_file))
         if self.pca0_file is not None and not isinstance(self.pca0_file, str):
             raise ParameterTypeError(
                 f"'pca0_file' must be a path string or None, got {describe(self.pca0_file)}")

@@ -45,3 +45,17 @@ def test_rtn_amplitude_without_pixels_is_silent():
 def test_options_alone_are_silent():
     params = noise.ZERO_NOISE.replace(ref_ratio=2.0, f_min=1e-3, rtn_tau_low=2.0)
     assert params.is_silent()
+
+
+def test_numbers_are_stored_as_python_numbers_and_paths_as_strings():
+    # a numpy float16 was kept as given: a float16 'dt' made the frame time inf, and
+    # amplitudes computed in float16; a pathlib.Path pca0_file was refused
+    import pathlib
+    det = noise.preset("H2RG", dt=np.float16(1e-5), naxis1=np.int64(64),
+                       naxis2=np.int64(64))
+    assert type(det.dt) is float and type(det.naxis1) is int
+    assert np.isfinite(det.frame_time)
+    p = noise.NoiseParams(rd_noise=np.float16(5), c_pink=np.float32(3), f_min=np.float16(1e-4),
+                          pca0_file=pathlib.Path("t.fits"))
+    assert type(p.rd_noise) is float and type(p.c_pink) is float and type(p.f_min) is float
+    assert p.pca0_file == "t.fits"
