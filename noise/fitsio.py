@@ -761,13 +761,17 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
     noise.errors.OutputError
         The file could not be written (disk full, file-size limit); nothing is left.
     """
-    from noise.generator import NoiseGenerator      # (it imports this module)
+    # (noise.generator imports this module)
+    from noise.generator import MAX_FRAMES, MAX_FRAMES_TOTAL, NoiseGenerator
     path = check_path("path", path)
     check_instance("generator", generator, NoiseGenerator, "a noise.NoiseGenerator")
     unit = check_choice("unit", unit, ("e", "DN"))
     gain = check_float("gain", gain, minimum=0.0, strict_min=True)
-    nframes = check_int("nframes", nframes, minimum=1)
-    nints = check_int("nints", nints, minimum=1)
+    nframes = check_int("nframes", nframes, minimum=1, maximum=MAX_FRAMES)
+    nints = check_int("nints", nints, minimum=1, maximum=MAX_FRAMES)
+    if nframes * nints > MAX_FRAMES_TOTAL:
+        raise ParameterError(f"'nframes' x 'nints' = {nframes} x {nints}: at most "
+                             f"{MAX_FRAMES_TOTAL} frames per file")
     overwrite = check_bool("overwrite", overwrite)
     if progress is not None and not callable(progress):
         raise ParameterTypeError(f"'progress' must be callable or None, got "

@@ -144,6 +144,12 @@ _AHEAD = 2                # small frames: batches whose 1/f lines are made ahead
 _FORK_MIN_BATCHES = 4     # ... by a forked process, if at least this many batches
 _FORK_DEPTH = 3           # large frames: band results per 1/f line helper (2 ahead)
 
+#: Most reads per integration, and integrations, of one :meth:`NoiseGenerator.frames`
+#: call: 2**20 (as ``scenesim.detector.readout.MAX_READS``); and most frames in all,
+#: 2**22 (48 days of 1 s frames; their order is listed up front).
+MAX_FRAMES = 2 ** 20
+MAX_FRAMES_TOTAL = 2 ** 22
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -967,8 +973,12 @@ class NoiseGenerator:
         iterator of (int, int, ndarray (ny, nx))
             float32 e-, or uint16 DN with ``dn_gain``.
         """
-        nreads = check_int("nreads", nreads, minimum=1)
-        nints = check_int("nints", nints, minimum=1)
+        nreads = check_int("nreads", nreads, minimum=1, maximum=MAX_FRAMES)
+        nints = check_int("nints", nints, minimum=1, maximum=MAX_FRAMES)
+        if nreads * nints > MAX_FRAMES_TOTAL:
+            raise ParameterError(
+                f"'nreads' x 'nints' = {nreads} x {nints} frames: at most "
+                f"{MAX_FRAMES_TOTAL} frames per call (their order is listed up front)")
         reads = list(range(nreads)) if reads is None else _index_list("reads", reads,
                                                                       nreads)
         ints = list(range(nints)) if integrations is None else \

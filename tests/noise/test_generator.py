@@ -21,6 +21,7 @@ from scipy.special import polygamma
 
 from noise import (NIRSPEC_DEFAULTS, ZERO_NOISE, Detector, NoiseGenerator, NoiseParams,
                    preset, synthetic_template, template_for, to_dn)
+import noise
 from noise.generator import Layout
 from noise.errors import ParameterError
 
@@ -734,3 +735,15 @@ def test_frame_and_timeline_name_a_bad_argument(call, match):
     with pytest.raises(ParameterError, match="'out' must be a writable"):
         gen.frame(1, 0, out=ro)
     assert gen.timeline("u_pink", 3, 0, 10).shape == (10,)
+
+
+def test_more_frames_than_one_call_lists_are_refused():
+    # before: frames(10**15) built its list of reads and ran out of memory
+    from noise.generator import MAX_FRAMES
+    gen = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    with pytest.raises(ParameterError, match="'nreads' must be <="):
+        gen.frames(10 ** 15)
+    with pytest.raises(ParameterError, match="at most 4194304 frames"):
+        gen.frames(MAX_FRAMES, nints=5)
+    with pytest.raises(ParameterError, match="'nframes' must be <="):
+        noise.write_noise_fits("never.fits", gen, 10 ** 9)
