@@ -35,7 +35,8 @@ import numpy as np
 
 from noise import streams
 from noise.clock import exposure_slots
-from noise.errors import FileFormatError, ParameterError
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
+from noise.validate import describe
 from scenesim.budget import check_budget
 from scenesim.calib.prepare import PrepareOptions, fit_exposure_file
 from scenesim.engine import ChargeEngine, EngineOptions
@@ -155,6 +156,10 @@ def build_engine(scene, *, options=EngineOptions()):
 def _output_config(cfg, **overrides):
     """The scene's ``[output]`` with the non-None ``overrides`` (``path`` from
     ``output``, ``fit``, ``refpix``, ``compare``) applied."""
+    out = overrides.get("output")
+    if out is not None and not isinstance(out, (str, os.PathLike)):
+        raise ParameterTypeError(f"'output' must be a path (str or os.PathLike) or None, "
+                                 f"got {describe(out)}")
     changes = {("path" if k == "output" else k): (os.fspath(v) if k == "output" else v)
                for k, v in overrides.items() if v is not None}
     return dataclasses.replace(cfg, **changes) if changes else cfg
@@ -178,6 +183,9 @@ def _output_paths(scene, cfg, *, overwrite, plots):
     check_outputs({"exposure": exp_path, "truth file": truth_path, "fit file": fit_path},
                   inputs=scene_inputs(scene), overwrite=overwrite)
     if plots is not None:
+        if not isinstance(plots, (str, os.PathLike)):
+            raise ParameterTypeError(f"'plots' must be a directory path or None, got "
+                                     f"{describe(plots)}")
         check_plot_dir(plots, inputs=scene_inputs(scene), overwrite=overwrite)
     return exp_path, truth_path, fit_path
 

@@ -70,3 +70,18 @@ def test_exposure_is_written_behind_only_when_nothing_reads_it_back(
     run_scene(scene, progress=False, products=products)
     assert seen == [behind]
     assert (tmp_path / "e.fits").exists()
+
+
+@pytest.mark.parametrize("kwargs, match", [(dict(output=123), "'output' must be a path"),
+                                           (dict(plots=123), "'plots' must be a direct")])
+def test_run_scene_names_a_path_argument_of_the_wrong_type(kwargs, match, tmp_path):
+    # before: a bare TypeError from os.fspath
+    from noise.errors import ParameterTypeError
+    from scenesim.scene import parse_scene
+    scene = parse_scene({"seed": 1, "detector": {"naxis1": 16, "naxis2": 16,
+                                                 "ref_border": 2},
+                         "readout": {"pattern": "RAPID", "ngroups": 2},
+                         "output": {"path": str(tmp_path / "x.fits")}})
+    with pytest.raises(ParameterTypeError, match=match):
+        run_scene(scene, progress=False, **kwargs)
+    assert list(tmp_path.iterdir()) == []

@@ -154,10 +154,11 @@ class Report:
                       f"clean pixels"]
         p = self.photometry
         if p and p.get("n", 0):
+            spread = (f"+- {p['median_ratio_err']:.4f} over {p['n']} sources"
+                      if p["n"] > 1 else "from 1 source (no scatter to give its error)")
             lines += ["", f"Aperture photometry (r = {p['radius']:g} px, aperture "
                       f"correction {p['aperture_correction']:.4f}): median measured/"
-                      f"injected = {p['median_ratio']:.4f} +- "
-                      f"{p['median_ratio_err']:.4f} over {p['n']} sources",
+                      f"injected = {p['median_ratio']:.4f} {spread}",
                       f"{'x':>9} {'y':>9} {'flux':>11} {'measured':>11} {'ratio':>8}"]
             for s in p["sources"]:
                 lines.append(f"{s['x']:>9.2f} {s['y']:>9.2f} {s['flux']:>11.4g} "
