@@ -432,6 +432,11 @@ class ChargeEngine:
         index, charge e-): finite, indices on the image, charges in [0, MAX_CHARGE]."""
         n = self.detector.ny * self.detector.nx
         t = _as_1d("cosmic_rays time", cr.time, np.float64)
+        raw = np.asarray(cr.index)
+        if raw.dtype.kind == "f" and raw.size and not np.all(raw == np.floor(raw)):
+            raise ParameterError(          # (truncated to an integer pixel before)
+                f"'cosmic_rays index' must be integer flat pixel indices, got "
+                f"{describe(cr.index)}")
         idx = _as_1d("cosmic_rays index", cr.index, np.int64)
         q = _as_1d("cosmic_rays charge", cr.charge, np.float64)
         if not t.size == idx.size == q.size:

@@ -557,3 +557,17 @@ def test_stopping_a_run_early_releases_its_threads():
     assert threading.active_count() == before
     with pytest.raises(StopIteration):
         next(run)
+
+
+def test_a_fractional_cosmic_ray_index_is_refused():
+    # before: 330.7 was truncated to pixel 330 without a word
+    from noise import ZERO_NOISE
+    det = preset("H2RG", naxis1=32, naxis2=32)
+    ro = Readout.named("RAPID", 2)
+    with pytest.raises(ParameterError, match="'cosmic_rays index' must be integer"):
+        ChargeEngine(det, ro, noise_params=ZERO_NOISE, rate=0.0, rng=1,
+                     cosmic_rays=CosmicRayHits(np.array([0.1]), np.array([330.7]),
+                                               np.array([100.0])))
+    ChargeEngine(det, ro, noise_params=ZERO_NOISE, rate=0.0, rng=1,
+                 cosmic_rays=CosmicRayHits(np.array([0.1]), np.array([330.0]),
+                                           np.array([100.0])))
