@@ -56,7 +56,10 @@ that is known:
   for: e.g. ``preset = "none"`` (``bias_offset = 0``) with ``rd_noise = 5`` put half
   of every dark pixel's reads at code 0.  When ``10 s`` exceeds the range no bias
   fits, and the error names the largest amplitude instead.  Charge, which only adds,
-  is not counted: reaching the top code is saturation.
+  is not counted: reaching the top code is saturation.  Two more ends: the RTN
+  pixels' high state, ``bias_offset + rtn_amp``, must also lie 5 s below the top code
+  (when there are RTN pixels), and one ADC step (``gain``) may not exceed
+  ``bias_offset + 5 s``, where every read of a pixel without charge would be code 0.
 
 The 1/f synthesis bounds two options: ``f_min >= 1e-20`` Hz (:data:`MIN_F_MIN`; a
 flat PSD below a period of 3e12 years; lower values need hundreds of filter bands and
