@@ -128,6 +128,7 @@ from noise.clock import Detector, column_runs, copy_columns, frame_slot
 from noise.errors import ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.pink import PinkSeries
+from noise.fast.memory import available_memory
 from noise.fast.producer import ForkedProducer, available as producer_available
 from noise.streams import NOISE_COMPONENTS, KeyedStreams, generator, root_seed
 from noise.fast.normal import standard_normal, standard_normal_rows
@@ -1344,10 +1345,24 @@ class NoiseGenerator:
             Read frames per integration, >= 1.
         nints : int
             Integrations, >= 1.
+
+        Raises
+        ------
+        noise.errors.ParameterError
+            Bad counts, or a cube larger than the memory available now (it would be
+            paged out or end in a MemoryError: stream it with :meth:`frames`).
         """
-        nframes = check_int("nframes", nframes, minimum=1)
-        nints = check_int("nints", nints, minimum=1)
+        nframes = check_int("nframes", nframes, minimum=1, maximum=MAX_FRAMES)
+        nints = check_int("nints", nints, minimum=1, maximum=MAX_FRAMES)
         det = self.detector
+        need = 4.0 * nints * nframes * det.ny * det.nx
+        avail = available_memory()
+        if avail is not None and need > avail:
+            raise ParameterError(
+                f"cube of 'nints' x 'nframes' = {nints} x {nframes} frames of "
+                f"{det.ny}x{det.nx}: {need / 2 ** 30:.3g} GiB, more than the "
+                f"{avail / 2 ** 30:.3g} GiB of memory available; stream the frames "
+                f"with frames() or write them with noise.write_noise_fits")
         out = np.empty((nints, nframes) + det.shape, dtype=np.float32)
         for i, k, frame in self.frames(nframes, nints=nints):
             out[i, k] = frame

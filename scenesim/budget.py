@@ -194,6 +194,7 @@ import numpy as np
 
 from noise.clock import Detector, exposure_slots
 from noise.errors import ParameterError
+from noise.fast.memory import available_memory
 from noise.fitsio import derived_path
 from noise.params import NoiseParams
 from noise.validate import check_bool, check_choice, check_instance, check_int, check_path
@@ -253,39 +254,6 @@ def _size(n):
             return f"{n:.3g} {unit}" if unit != "B" else f"{n:.0f} B"
         n /= 1024.0
     return f"{n:.3g} EB"
-
-
-def available_memory():
-    """Bytes of memory available to this process now, or None if unknown.
-
-    ``MemAvailable`` of ``/proc/meminfo`` (what the kernel can give without swapping),
-    bounded by the cgroup v2 limit ``memory.max - memory.current`` of this process
-    when one is set; else ``os.sysconf('SC_AVPHYS_PAGES') * SC_PAGE_SIZE``.
-    """
-    avail = None
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    avail = float(line.split()[1]) * 1024
-                    break
-    except (OSError, ValueError, IndexError):
-        avail = None
-    if avail is None:
-        try:
-            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-        except (AttributeError, ValueError, OSError):
-            return None
-    try:
-        with open("/sys/fs/cgroup/memory.max") as f:
-            limit = f.read().strip()
-        if limit != "max":
-            with open("/sys/fs/cgroup/memory.current") as f:
-                used = float(f.read().strip())
-            avail = min(avail, max(float(limit) - used, 0.0))
-    except (OSError, ValueError):
-        pass
-    return avail
 
 
 def free_disk(path):

@@ -17,9 +17,10 @@ C libraries it does nothing.
 """
 
 import ctypes
+import os
 import sys
 
-__all__ = ["keep_freed_memory"]
+__all__ = ["keep_freed_memory", "available_memory"]
 
 _M_TRIM_THRESHOLD = -1
 _M_TOP_PAD = -2
@@ -46,3 +47,36 @@ def keep_freed_memory():
     ok &= mallopt(_M_TRIM_THRESHOLD, 1 << 30)
     ok &= mallopt(_M_TOP_PAD, 64 * 1024 * 1024)
     return bool(ok)
+
+
+def available_memory():
+    """Bytes of memory available to this process now, or None if unknown.
+
+    ``MemAvailable`` of ``/proc/meminfo`` (what the kernel can give without swapping),
+    bounded by the cgroup v2 limit ``memory.max - memory.current`` of this process
+    when one is set; else ``os.sysconf('SC_AVPHYS_PAGES') * SC_PAGE_SIZE``.
+    """
+    avail = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    avail = float(line.split()[1]) * 1024
+                    break
+    except (OSError, ValueError, IndexError):
+        avail = None
+    if avail is None:
+        try:
+            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (AttributeError, ValueError, OSError):
+            return None
+    try:
+        with open("/sys/fs/cgroup/memory.max") as f:
+            limit = f.read().strip()
+        if limit != "max":
+            with open("/sys/fs/cgroup/memory.current") as f:
+                used = float(f.read().strip())
+            avail = min(avail, max(float(limit) - used, 0.0))
+    except (OSError, ValueError):
+        pass
+    return avail

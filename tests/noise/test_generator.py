@@ -747,3 +747,14 @@ def test_more_frames_than_one_call_lists_are_refused():
         gen.frames(MAX_FRAMES, nints=5)
     with pytest.raises(ParameterError, match="'nframes' must be <="):
         noise.write_noise_fits("never.fits", gen, 10 ** 9)
+
+
+def test_a_cube_larger_than_the_memory_available_is_refused(monkeypatch):
+    # before: cube(10**6) of 64x64 (16 GB, allowed by overcommit) ran until killed
+    import noise.generator as generator
+    gen = NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1, threads=1)
+    monkeypatch.setattr(generator, "available_memory", lambda: 1e6)   # 1 MB
+    with pytest.raises(ParameterError, match=r"cube of 'nints' x 'nframes' = 1 x 16 "
+                                             r"frames of 128x128.*memory available"):
+        gen.cube(16)                                   # 16 x 64 kB = 1.05 MB
+    assert gen.cube(15).shape == (1, 15, 128, 128)     # 0.98 MB
