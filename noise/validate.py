@@ -45,6 +45,8 @@ def describe(value):
     dimension or more than 8 elements is ``array of shape (3, 5), float64``; anything
     else longer than 80 characters is cut (``...``).  Never contains a newline.
     """
+    if isinstance(value, np.generic):       # as written: -0.5, not np.float64(-0.5)
+        value = value.item()
     if isinstance(value, np.ndarray) and (value.ndim > 1 or value.size > 8):
         return f"array of shape {value.shape}, {value.dtype}"
     text = " ".join(repr(value).split()) if isinstance(value, np.ndarray) else repr(value)
@@ -94,21 +96,15 @@ def is_real(value):
         value, (bool, np.bool_)) and not isinstance(value, np.complexfloating)
 
 
-def _shown(value):
-    """``repr`` of ``value`` as the user wrote it (a numpy scalar as a Python one, not
-    ``np.float64(...)``)."""
-    return repr(value.item() if isinstance(value, np.generic) else value)
-
-
 def check_int(name, value, *, minimum=None, maximum=None):
     """``value`` as int, or raise if it is not an integer in ``[minimum, maximum]``."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise ParameterTypeError(f"{name!r} must be an integer, got {describe(value)}")
     value = int(value)
     if minimum is not None and value < minimum:
-        raise ParameterError(f"{name!r} must be >= {minimum}, got {_shown(value)}")
+        raise ParameterError(f"{name!r} must be >= {minimum}, got {describe(value)}")
     if maximum is not None and value > maximum:
-        raise ParameterError(f"{name!r} must be <= {maximum}, got {_shown(value)}")
+        raise ParameterError(f"{name!r} must be <= {maximum}, got {describe(value)}")
     return value
 
 
@@ -121,17 +117,17 @@ def check_float(name, value, *, minimum=None, maximum=None, strict_min=False):
     except OverflowError:                      # an int beyond the float range
         v = math.inf
     if not math.isfinite(v):
-        raise ParameterError(f"{name!r} must be finite, got {_shown(value)}")
+        raise ParameterError(f"{name!r} must be finite, got {describe(value)}")
     if minimum is not None:
         if strict_min and v <= minimum:
             raise ParameterError(
-                f"{name!r} must be > {_num(minimum)}, got {_shown(value)}")
+                f"{name!r} must be > {_num(minimum)}, got {describe(value)}")
         if not strict_min and v < minimum:
             raise ParameterError(
-                f"{name!r} must be >= {_num(minimum)}, got {_shown(value)}")
+                f"{name!r} must be >= {_num(minimum)}, got {describe(value)}")
     if maximum is not None and v > maximum:
         raise ParameterError(
-            f"{name!r} must be <= {_num(maximum)}, got {_shown(value)}")
+            f"{name!r} must be <= {_num(maximum)}, got {describe(value)}")
     return v
 
 

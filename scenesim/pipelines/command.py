@@ -227,33 +227,24 @@ def pipeline_command(args):
     ``--truth`` and ``--exposure``, and the products (never one of those files, even
     with ``--overwrite``)."""
     from noise.validate import check_existing_file
-    from scenesim.outputs import check_outputs
     require_extra(args.pipeline, f"'scenesim pipeline {args.pipeline}'")
     refs = reference_paths(args.refs, args.pipeline)
-    read = [os.fspath(p) for p in refs.values()]
-    for opt, path in (("--truth", args.truth), ("--exposure", args.exposure)):
-        if path:
-            read.append(check_existing_file(opt, path))
+    read = [check_existing_file(opt, path) for opt, path in
+            (("--truth", args.truth), ("--exposure", args.exposure)) if path]
+    # run_detector1 / run_ramp_fit check the input's kind and their products against
+    # every file read (these too) before the pipeline runs
     if args.pipeline == "jwst":
-        from scenesim.pipelines.jwst import check_uncal_file, detector1_products, \
-            run_detector1
-        uncal = check_uncal_file(args.input)
-        out_dir = args.output or os.path.dirname(os.path.abspath(uncal))
-        if os.path.isdir(out_dir):
-            check_outputs({f"Detector1 {k} file": p
-                           for k, p in detector1_products(uncal, out_dir).items()},
-                          inputs=[uncal, *read], overwrite=args.overwrite)
-        out = run_detector1(uncal, refs, out_dir, overwrite=args.overwrite)
+        from scenesim.pipelines.jwst import run_detector1
+        out_dir = args.output or os.path.dirname(os.path.abspath(args.input))
+        out = run_detector1(args.input, refs, out_dir, overwrite=args.overwrite,
+                            inputs=read)
         product = out["rate"]
     else:
-        from scenesim.pipelines.roman import check_l1_file, run_ramp_fit
-        l1 = check_l1_file(args.input)
-        stem = _stem(l1)
+        from scenesim.pipelines.roman import run_ramp_fit
+        stem = _stem(args.input)
         stem = stem[:-len("_l1")] if stem.endswith("_l1") else stem
         product = args.output or stem + "_l2.asdf"
-        check_outputs({"L2 file": product}, inputs=[l1, *read], overwrite=args.overwrite,
-                      endings={"L2 file": (".asdf",)})
-        run_ramp_fit(l1, refs, product, overwrite=args.overwrite)
+        run_ramp_fit(args.input, refs, product, overwrite=args.overwrite, inputs=read)
     print(f"wrote {product}")
     if args.truth:
         from scenesim.validate.compare import compare_files

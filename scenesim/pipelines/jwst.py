@@ -787,7 +787,7 @@ def check_uncal_file(path):
 
 
 def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
-                  steps=None, overwrite=False):
+                  steps=None, overwrite=False, inputs=()):
     """Run ``calwebb_detector1`` on ``uncal`` offline with scenesim's references.
 
     Parameters
@@ -806,6 +806,9 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
         ``{"jump": {"rejection_threshold": 5}}``).
     overwrite : bool, keyword-only
         Replace existing rate files (default: refuse them, before running).
+    inputs : sequence of str, keyword-only
+        Other files the caller reads (a truth, an exposure): like the uncal and the
+        references, never replaced by a product, even with ``overwrite``.
 
     Returns
     -------
@@ -822,8 +825,8 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
         # never the uncal nor a reference, even with overwrite (an input named
         # x_rate.fits has the product x_rate.fits); an existing product only with it
         check_outputs({f"Detector1 {k} file": p for k, p in products.items()},
-                      inputs=[uncal, *map(os.fspath, references.values())],
-                      overwrite=overwrite)
+                      inputs=[uncal, *map(os.fspath, references.values()),
+                              *map(os.fspath, inputs)], overwrite=overwrite)
     elif os.path.exists(output_dir):
         raise ParameterError(f"the Detector1 output directory {output_dir!r} is a file")
     elif not os.path.isdir(os.path.dirname(os.path.abspath(output_dir))):

@@ -422,7 +422,8 @@ def check_l1_file(path):
     return path
 
 
-def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
+def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,
+                 inputs=()):
     """Calibrate a Roman L1 file with romancal, offline; write the L2 ASDF.
 
     Runs ``dq_init``, ``saturation``, ``linearity``, ``ramp_fit`` and ``dark_current``
@@ -443,6 +444,9 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
     algorithm : {'likely', 'ols_cas22'}, keyword-only
         romancal's fitter (``ols_cas22`` is deprecated in romancal 1.1).
     overwrite : bool, keyword-only
+    inputs : sequence of str, keyword-only
+        Other files the caller reads (a truth, an exposure): like the L1 and the
+        references, never replaced by the L2, even with ``overwrite``.
 
     Returns
     -------
@@ -464,9 +468,9 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False):
                              f"{algorithm!r}")
     from scenesim.outputs import check_outputs
     # never the L1 or a reference, even with overwrite
-    path = check_outputs({"L2 file": path}, inputs=[l1, *map(os.fspath,
-                                                            references.values())],
-                         overwrite=overwrite, endings={"L2 file": (".asdf",)})["L2 file"]
+    read = [l1, *map(os.fspath, references.values()), *map(os.fspath, inputs)]
+    path = check_outputs({"L2 file": path}, inputs=read, overwrite=overwrite,
+                         endings={"L2 file": (".asdf",)})["L2 file"]
     from scenesim.pipelines.jwst import offline_crds
     with offline_crds():
         from romancal.dark_current import DarkCurrentStep
