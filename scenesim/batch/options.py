@@ -19,7 +19,9 @@ def add_batch_arguments(p):
                    help="grade every fit against the truth and pool over realisations")
     p.add_argument("--no-ramp", dest="ramp", action="store_false", default=None,
                    help="keep only the fits and the truth (no ramp files)")
-    p.add_argument("--refpix", choices=("none", "median", "jwst"), default=None)
+    p.add_argument("--refpix", choices=("none", "median", "jwst", "irs2"), default=None,
+                   help="reference correction before the fits (default: the batch "
+                        "file's, else the scene's [output] refpix)")
     p.add_argument("--scheduler", default=None,
                    help="dask scheduler address (tcp://HOST:8786) or scheduler file; "
                         "default a local cluster")

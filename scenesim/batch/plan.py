@@ -70,6 +70,7 @@ except ModuleNotFoundError:  # Python 3.10
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.validate import (check_bool, check_choice, check_int, check_path, check_str,
                             describe, suggest)
+from scenesim.calib.refpix import SCHEMES, applied_scheme
 from scenesim.outputs import fit_path_for
 from scenesim.scene import load_scene, parse_scene
 from scenesim.scene.schema import MAX_SEED
@@ -395,7 +396,10 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
     compare, ramp : bool, optional
         Grade every fit against the truth; write the ramp file.  Default the batch
         file's, else the scene's ``[output]``.
-    refpix : {'none', 'median', 'jwst'}, optional
+    refpix : {'none', 'median', 'jwst', 'irs2'}, optional
+        Reference correction before the fits; default the batch file's, else the
+        scene's ``[output] refpix``.  Checked against every grid point's readout
+        (:func:`scenesim.calib.refpix.applied_scheme`).
 
     Returns
     -------
@@ -463,8 +467,10 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
     compare = check_bool("compare", compare if compare is not None
                          else defaults.get("compare", cfg.compare))
     ramp = check_bool("ramp", ramp if ramp is not None else defaults.get("ramp", cfg.ramp))
-    refpix = check_choice("refpix", refpix if refpix is not None
-                          else defaults.get("refpix", cfg.refpix), ("none", "median", "jwst"))
+    refpix_from = ("--refpix" if refpix is not None else
+                   f"{where} 'refpix'" if "refpix" in defaults else "[output] 'refpix'")
+    refpix = check_choice(refpix_from, refpix if refpix is not None
+                          else defaults.get("refpix", cfg.refpix), SCHEMES)
     if compare and not fitters:
         raise ParameterError("'compare' grades fitted slopes, so it needs at least one "
                              f"fitter ('fit': {', '.join(FITTERS)})")
@@ -476,6 +482,12 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
         raise ParameterError(f"'fit' {list(fitters)}: stcal is not installed; pip "
                              f"install 'scenesim[stcal]'")
     for p in points:
+        if fitters:     # 'median' without reference rows, 'irs2' without interleaving
+            try:
+                applied_scheme(p.scene.detector, refpix)
+            except ParameterError as exc:
+                at = f" (grid point {p.index})" if p.label else ""
+                raise ParameterError(f"{refpix_from}{at}: {exc}") from exc
         if fitters and p.scene.readout.build().ngroups < 2:
             raise ParameterError(
                 f"'fit' {list(fitters)}: a one-group exposure (ngroups = 1"

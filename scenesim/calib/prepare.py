@@ -95,6 +95,7 @@ in ``docs/VALIDATION_FIT.md``.
 import contextlib
 import math
 import os
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,8 +107,7 @@ from noise.fitsio import input_path, output_error, temp_file
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
 from scenesim.calib.noise_model import common_mode, measure_read_noise
-from scenesim.calib.refpix import (SCHEMES, check_correction_options, correct_irs2,
-                                   correct_reference)
+from scenesim.calib.refpix import SCHEMES, applied_scheme, correct_irs2, correct_reference
 from scenesim.calib.saturation import (SaturationOptions, saturation_flags,
                                        zero_level_bound)
 from scenesim.detector.ipc import ipc_noise_gain, undo_ipc
@@ -299,16 +299,26 @@ def _check_options(options):
 
 
 def _exposure_setup(exp, options):
-    """``(readout, header, detector, settings, read noise e-)`` of an exposure to
-    fit; a one-group exposure is refused (no slope to fit)."""
+    """``(readout, header, detector, settings, read noise e-, options)`` of an
+    exposure to fit; a one-group exposure, or a reference correction its readout
+    cannot support, is refused.  The returned options carry the correction applied
+    (:func:`scenesim.calib.refpix.applied_scheme`: ``'jwst'`` on a window with no
+    reference pixel is ``'none'``)."""
     ro = exposure_readout(exp)
     if ro.ngroups < 2:
         raise ParameterError(
             f"exposure {exp.name!r} has one group (NGROUPS = 1): there is no slope to "
             f"fit (a one-group exposure only gives a zero point)")
     hdr = exp.header
+    det = detector_from_header(hdr)
+    try:
+        scheme = applied_scheme(det, options.refpix)
+    except ParameterError as exc:
+        raise ParameterError(f"exposure {exp.name!r}: {exc}") from exc
+    if scheme != options.refpix:
+        options = dataclasses.replace(options, refpix=scheme)
     rdn = exposure_read_noise(hdr) if options.read_noise is None else options.read_noise
-    return ro, hdr, detector_from_header(hdr), exposure_settings(hdr), rdn
+    return ro, hdr, det, exposure_settings(hdr), rdn, options
 
 
 def prepare_exposure(exposure, *, options=PrepareOptions()):
@@ -338,9 +348,7 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
     """
     _check_options(options)
     exp = load_exposure(exposure)
-    ro, hdr, det, cfg, rdn = _exposure_setup(exp, options)
-    if options.refpix == "irs2":              # needs interleaved reference samples
-        check_correction_options(det, "irs2", 11, 3.0)
+    ro, hdr, det, cfg, rdn, options = _exposure_setup(exp, options)
     gain, t_frame = cfg["gain"], cfg["t_frame"]
     e = exp.sci.astype(np.float32) * np.float32(gain)
     tbar = ro.mean_times(t_frame)
@@ -554,7 +562,7 @@ def _prepare_to_file(src, path, options):
     resultants (common mode removed as read) and of the flags.
     """
     exp = src.exposure
-    ro, hdr, det, cfg, rdn = _exposure_setup(exp, options)
+    ro, hdr, det, cfg, rdn, options = _exposure_setup(exp, options)
     gain, t_frame = cfg["gain"], cfg["t_frame"]
     tbar = ro.mean_times(t_frame)
     refmask = det.reference_mask()

@@ -85,6 +85,7 @@ from noise.validate import check_choice, check_float, check_instance, check_int
 
 __all__ = ["SCHEMES", "correct_reference", "correct_irs2", "irs2_noise_study",
            "reference_layout", "reference_edges", "check_correction_options",
+           "applied_scheme",
            "running_mean", "window_bounds", "clipped_mean_variance_factor"]
 
 #: Reference-correction schemes accepted by :func:`correct_reference`.
@@ -181,6 +182,42 @@ def check_correction_options(detector, scheme, side_window, sigma):
             f"refpix 'jwst' needs reference rows or side reference columns, but "
             f"readout {detector.subarray_name!r} has none (border "
             f"{detector.ref_border}); use refpix 'none'")
+
+
+def applied_scheme(detector, scheme):
+    """The correction a fit applies for the requested ``scheme`` on ``detector``.
+
+    ``'jwst'`` (the default everywhere) on a readout with no reference pixel at all
+    (a window inside the array) has nothing to subtract: it is ``'none'``, and the
+    fit records ``REFPIX = 'none'``.  A scheme asked for by name that the readout
+    cannot support (``'median'`` without top/bottom reference rows, ``'irs2'``
+    without interleaved reference samples) is refused, never skipped.
+
+    Parameters
+    ----------
+    detector : noise.clock.Detector
+    scheme : str
+        One of :data:`SCHEMES`.
+
+    Returns
+    -------
+    str
+        The scheme applied.
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        ``scheme`` unknown, or not supported by the readout
+        (:func:`check_correction_options`).
+    """
+    check_choice("refpix", scheme, SCHEMES)
+    check_instance("detector", detector, Detector, "a noise.clock.Detector")
+    if scheme == "jwst":
+        rows, cols = reference_layout(detector)
+        if rows.size == 0 and cols.size == 0:
+            return "none"
+    check_correction_options(detector, scheme, 11, 3.0)
+    return scheme
 
 
 def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.0):

@@ -189,7 +189,10 @@ Every key is optional and inferred when absent:
 * ``fit``: ``""`` (none, default), ``"cds"``, ``"ols"`` or ``"gls"``.
 * ``refpix``: reference-pixel correction before the fit, ``"none"``, ``"median"``,
   ``"jwst"`` (default) or ``"irs2"`` (interleaved reference samples; an IRS2
-  detector).
+  detector).  A correction the readout cannot support is refused (``"median"``
+  without top/bottom reference rows, ``"irs2"`` without interleaving); ``"jwst"`` on
+  a window with no reference pixel has nothing to subtract, and the fit records
+  ``REFPIX = 'none'`` (:func:`scenesim.calib.refpix.applied_scheme`).
 * ``compare``: compare the fitted slopes with the truth (needs ``fit``); default false.
 
 Validation rules

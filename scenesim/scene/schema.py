@@ -34,6 +34,7 @@ from noise.validate import (check_bool, check_choice, check_existing_file, check
 from scenesim.detector.ipc import check_kernel, ipc_kernel as _kernel_from_alpha
 from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.readout import MAX_READS, Readout
+from scenesim.calib.refpix import applied_scheme
 from scenesim.engine import MAX_CHARGE
 from scenesim.outputs import derived_path
 from scenesim.pipelines.instrument import InstrumentConfig
@@ -950,11 +951,10 @@ class Scene:
         except ParameterError as exc:
             table = "[effects]" if str(exc).startswith("'gain'") else "[noise]"
             raise type(exc)(f"{table} {exc}") from exc
-        if self.output.refpix == "irs2" and self.detector.interleave is None:
-            raise ParameterError(
-                f"[output] 'refpix' = 'irs2' needs interleaved reference samples, but "
-                f"[detector] {self.detector.name!r} has no 'interleave' (use preset "
-                f"'NIRSPEC-IRS2', or refpix 'jwst'/'median'/'none')")
+        try:        # 'median' without reference rows, 'irs2' without interleaving
+            applied_scheme(self.detector, self.output.refpix)
+        except ParameterError as exc:
+            raise type(exc)(f"[output] {exc}") from exc
         self._check_charge()
 
     def _check_charge(self):

@@ -127,3 +127,60 @@ def test_an_out_directory_that_cannot_be_written_is_refused_first(tmp_path,
     (tmp_path / "file").write_text("x")
     with pytest.raises(ParameterError, match="is not a directory"):
         runner._check_out_writable(str(tmp_path / "file" / "sub"))
+
+
+def test_refpix_is_checked_against_every_point_before_any_task(small_scene, tmp_path):
+    """A correction the readout cannot support stops the plan (before, 'median' on a
+    window without reference rows ran every task and fitted without a correction,
+    and 'irs2' was refused for every scene, the IRS2 ones included)."""
+    with pytest.raises(ParameterError, match=r"--refpix: .*refpix 'irs2' needs "
+                                             r"interleaved reference samples"):
+        plan_batch(small_scene, out=tmp_path / "g", refpix="irs2")
+    # a window inside the array has no reference pixel
+    window = small_scene.read_text().replace(
+        "[readout]", "[detector.subarray]\nx0 = 20\ny0 = 20\nnx = 16\nny = 16\n\n[readout]")
+    (tmp_path / "scenes" / "window.toml").write_text(window)
+    path = _batch_file(tmp_path, 'scene = "window.toml"\nrefpix = "median"\n'
+                                 '[grid]\n"sources.background" = [1.0, 2.0]\n')
+    with pytest.raises(ParameterError, match=r"'refpix' \(grid point 0\): refpix "
+                                             r"'median' needs top/bottom reference"):
+        plan_batch(path, out=tmp_path / "g")
+    assert not (tmp_path / "g").exists()
+    # what such a window can have: 'jwst' (nothing to subtract: the fit records
+    # 'none') and 'none'
+    for scheme in ("jwst", "none"):
+        path.write_text(f'scene = "window.toml"\nrefpix = "{scheme}"\n'
+                        '[grid]\n"sources.background" = [1.0, 2.0]\n')
+        assert plan_batch(path, out=tmp_path / "g").refpix == scheme
+
+
+@pytest.mark.slow
+def test_a_batch_of_the_irs2_scene_fits_as_its_run_does(tmp_path):
+    """The IRS2 example scene in a batch: its task fits with the interleaved
+    reference samples (REFPIX 'irs2') and gives the slopes of ``scenesim run`` of the
+    task's scene, which has the task's seed.  Slopes only (no ramp file): the fit
+    reads the raw samples from the exposure kept in memory."""
+    import shutil
+
+    from astropy.io import fits
+
+    from scenesim.batch.tasks import run_task
+    from scenesim.io.fitfile import read_fit
+    from scenesim.run import run_scene
+
+    scenes = os.path.join(os.path.dirname(__file__), "..", "..", "scenes")
+    shutil.copy(os.path.join(scenes, "nirspec_irs2.toml"), tmp_path)
+    shutil.copytree(os.path.join(scenes, "data"), tmp_path / "data")
+    plan = plan_batch(tmp_path / "nirspec_irs2.toml", out=tmp_path / "b",
+                      realisations=1, ramp=False, compare=False)
+    assert plan.refpix == "irs2"
+    os.makedirs(tmp_path / "b")
+    task = plan.tasks()[0]
+    run_task(task)
+    (tmp_path / "single").mkdir()
+    single = run_scene(task.scene, output=str(tmp_path / "single" / "x.fits"),
+                       compare=False, progress=False)
+    assert fits.getheader(task.path["gls"])["REFPIX"] == "irs2"
+    a, b = read_fit(task.path["gls"]), read_fit(single.fit)
+    for name in ("slope", "var_read", "var_poisson", "dq"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), name)

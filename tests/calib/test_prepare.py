@@ -19,7 +19,7 @@ import pytest
 from astropy.io import fits
 
 import noise
-from noise.clock import preset
+from noise.clock import Subarray, preset
 from noise.errors import FileFormatError, ParameterError
 from scenesim.engine import ChargeEngine, EngineOptions
 from scenesim.io.exposure import Exposure, read_exposure
@@ -263,3 +263,52 @@ def test_linearize_resultants_inverts_the_recorded_nonlinearity():
 def test_prepare_options_check_flags_first(flag):
     with pytest.raises(ParameterError, match=flag):
         PrepareOptions(**{flag: "yes"})
+
+
+# ------------------------------------------------------------------ refpix on a window
+def _window_exposure(tmp_path):
+    """A 16 x 16 window at (20, 20) of a 64 x 64 H2RG: no reference pixel at all."""
+    det = preset("H2RG", naxis1=64, naxis2=64,
+                 subarray=Subarray("window", 20, 20, 16, 16))
+    assert not det.reference_mask().any()
+    ro = Readout.multiaccum(1, 5, name="RAPID")
+    eng = ChargeEngine(det, ro, rate=np.full(det.shape, 5.0), gain=1.0,
+                       noise_params=noise.NoiseParams(), rng=4,
+                       options=EngineOptions(threads=1))
+    path = str(tmp_path / "w.fits")
+    write_exposure(eng, path)
+    return path
+
+
+def test_a_correction_the_window_cannot_support_is_refused_and_jwst_recorded_as_none(
+        tmp_path):
+    """'median' (no reference rows) and 'irs2' (no interleaving) are refused naming
+    the exposure, before a fit file is written; the default 'jwst' has nothing to
+    subtract on a window with no reference pixel: the fit is that of 'none' and its
+    file says so (before: REFPIX 'jwst', with nothing done)."""
+    path = _window_exposure(tmp_path)
+    for scheme, match in (("median", "needs top/bottom reference rows"),
+                          ("irs2", "needs interleaved reference samples")):
+        out = tmp_path / f"{scheme}.fits"
+        with pytest.raises(ParameterError, match=rf"exposure .*w\.fits.*{match}"):
+            fit_exposure_file(path, str(out), options=PrepareOptions(refpix=scheme))
+        assert not out.exists()
+    a = fit_exposure_file(path, str(tmp_path / "jwst.fits"))
+    b = fit_exposure_file(path, str(tmp_path / "none.fits"),
+                          options=PrepareOptions(refpix="none"))
+    _assert_same_fit(a, b)
+    assert fits.getheader(tmp_path / "jwst.fits")["REFPIX"] == "none"
+    assert prepare_exposure(path).cards[1] == ("REFPIX", "none",
+                                               "reference-pixel correction")
+
+
+def test_a_scene_asking_a_correction_its_readout_cannot_support_is_refused():
+    scene = {"detector": {"preset": "H2RG", "naxis1": 64, "naxis2": 64,
+                          "subarray": {"x0": 20, "y0": 20, "nx": 16, "ny": 16}},
+             "readout": {"pattern": "RAPID", "ngroups": 5},
+             "output": {"path": "x.fits", "fit": "gls", "refpix": "median"}}
+    with pytest.raises(ParameterError, match=r"\[output\] refpix 'median' needs "
+                                             r"top/bottom reference rows"):
+        parse_scene(scene)
+    scene["output"]["refpix"] = "jwst"
+    assert parse_scene(scene).output.refpix == "jwst"

@@ -149,7 +149,7 @@ save_charge = true
 save_noise = true
 ramp = false
 fit = "ols"
-refpix = "median"
+refpix = "none"
 compare = true
 """
 
@@ -236,7 +236,7 @@ def test_full_scene_round_trips(full_scene_dir, tmp_path_factory, monkeypatch):
     assert eff.gain == 1.8 and eff.adc_bits == 14
     assert scene.output == OutputConfig(path="out/run.fits", truth=True,
                                         save_charge=True, save_noise=True, ramp=False,
-                                        fit="ols", refpix="median", compare=True)
+                                        fit="ols", refpix="none", compare=True)
     assert scene.output.truth_path == "out/run_truth.fits"
 
     # Maps: a full-array map is cut to the window, a window map is used as is.
