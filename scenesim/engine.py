@@ -73,7 +73,7 @@ from noise.streams import root_seed
 from noise.fast.poisson import poisson
 from scenesim.detector.ipc import apply_ipc, check_kernel
 from scenesim.detector.nonlinearity import Nonlinearity
-from scenesim.detector.readout import Readout
+from scenesim.detector.readout import Readout, check_pattern_detector
 from scenesim.detector.saturation import FullWell
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
@@ -297,6 +297,8 @@ class ChargeEngine:
         self.detector = check_instance("detector", detector, Detector, "a noise.Detector")
         self.readout = check_instance("readout", readout, Readout,
                                       "a scenesim.detector.readout.Readout")
+        # the files name the pattern (READPATT): an IRS2 name needs an IRS2 detector
+        check_pattern_detector(self.readout.name, self.detector)
         check_instance("noise_params", noise_params, NoiseParams, "a noise.NoiseParams",
                        allow_none=True)
         check_instance("nonlinearity", nonlinearity, Nonlinearity,

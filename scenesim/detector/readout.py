@@ -71,7 +71,10 @@ NRS         4         0          NIRSpec
 
 NIRSpec's IRS2 patterns: ``NRSIRS2RAPID`` (1 frame per group, no gap) and ``NRSIRS2`` (5
 frames, no gap): group times of 14.589 s and 72.944 s in JWST planning tools, 1 and 5
-IRS2 frames of 14.5889 s; use them with the ``NIRSPEC-IRS2`` detector.
+IRS2 frames of 14.5889 s; use them with the ``NIRSPEC-IRS2`` detector.  A named pattern
+that contradicts the detector (an IRS2 pattern on a detector without interleaved
+reference samples, or another named pattern on one with them) is refused by the
+engine and the scene (:func:`check_pattern_detector`).
 
 Roman-like tables
 -----------------
@@ -101,6 +104,8 @@ from noise.validate import (check_choice, check_float, check_int, check_str, des
 __all__ = [
     "Readout",
     "NAMED_PATTERNS",
+    "IRS2_PATTERNS",
+    "check_pattern_detector",
     "ROMAN_LIKE_TABLE",
     "ROMAN_LIKE_SKIP_TABLE",
     "RESET_MODES",
@@ -133,6 +138,45 @@ NAMED_PATTERNS = {
     "NRSIRS2RAPID": (1, 0),
     "NRSIRS2": (5, 0),
 }
+
+#: Named patterns of NIRSpec's IRS2 readout: for a detector with interleaved
+#: reference samples, and the only named patterns such a detector may use.
+IRS2_PATTERNS = ("NRSIRS2RAPID", "NRSIRS2")
+
+
+def check_pattern_detector(pattern, detector):
+    """Refuse a named pattern that contradicts the detector's readout: an IRS2
+    pattern without interleaved reference samples, or another named (JWST) pattern
+    on a detector that interleaves them (its files would carry one layout and name
+    the other: jwst tells IRS2 data by its shape, reference files by ``READPATT``).
+    Unnamed forms (``nframes``, ``ma_table``, ``resultants``) fit any detector.
+
+    Parameters
+    ----------
+    pattern : str or None
+        Upper-case pattern name (:data:`NAMED_PATTERNS`), or None.
+    detector : noise.clock.Detector
+
+    Raises
+    ------
+    noise.errors.ParameterError
+        Naming the pattern, the detector and the patterns it allows.
+    """
+    if pattern is None or pattern not in NAMED_PATTERNS:
+        return
+    irs2 = detector.interleave is not None
+    if pattern in IRS2_PATTERNS and not irs2:
+        raise ParameterError(
+            f"'pattern' = {pattern!r} is an IRS2 pattern, but detector "
+            f"{detector.name!r} has no interleaved reference samples ('interleave'); "
+            f"use preset 'NIRSPEC-IRS2', or pattern 'NRSRAPID'/'NRS'")
+    if irs2 and pattern not in IRS2_PATTERNS:
+        raise ParameterError(
+            f"'pattern' = {pattern!r} is not an IRS2 pattern, but detector "
+            f"{detector.name!r} interleaves reference samples; use pattern "
+            f"{' or '.join(repr(p) for p in IRS2_PATTERNS)}, or an unnamed form "
+            f"('nframes', 'ma_table', 'resultants')")
+
 
 #: Illustrative Roman-style MA table (not an official Roman table): ``(first_read,
 #: nreads)`` pairs, 0-based, 9 contiguous resultants over 44 reads.

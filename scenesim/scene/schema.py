@@ -33,7 +33,7 @@ from noise.validate import (check_bool, check_choice, check_existing_file, check
 
 from scenesim.detector.ipc import check_kernel, ipc_kernel as _kernel_from_alpha
 from scenesim.detector.nonlinearity import Nonlinearity
-from scenesim.detector.readout import MAX_READS, Readout
+from scenesim.detector.readout import MAX_READS, Readout, check_pattern_detector
 from scenesim.calib.refpix import applied_scheme
 from scenesim.engine import MAX_CHARGE
 from scenesim.outputs import derived_path
@@ -951,6 +951,10 @@ class Scene:
         except ParameterError as exc:
             table = "[effects]" if str(exc).startswith("'gain'") else "[noise]"
             raise type(exc)(f"{table} {exc}") from exc
+        try:
+            check_pattern_detector(self.readout.pattern, self.detector)
+        except ParameterError as exc:
+            raise type(exc)(f"[readout] {exc}") from exc
         try:        # 'median' without reference rows, 'irs2' without interleaving
             applied_scheme(self.detector, self.output.refpix)
         except ParameterError as exc:

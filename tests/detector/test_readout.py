@@ -373,3 +373,34 @@ def test_bad_input_raises_parameter_error(param, bad, call):
 def test_unknown_pattern_suggests_nearest():
     with pytest.raises(ParameterError, match="did you mean 'DEEP8'"):
         Readout.named("deep9", 3)
+
+
+@pytest.mark.parametrize("det_name, pattern, match", [
+    ("NIRSPEC-IRS2", "NRSRAPID", r"'NRSRAPID' is not an IRS2 pattern, but detector "
+                                 r"'NIRSPEC-IRS2' interleaves"),
+    ("NIRSPEC-IRS2", "RAPID", r"'RAPID' is not an IRS2 pattern"),
+    ("NIRSPEC", "NRSIRS2RAPID", r"'NRSIRS2RAPID' is an IRS2 pattern, but detector "
+                                r"'NIRSPEC' has no interleaved"),
+    ("H2RG", "NRSIRS2", r"'NRSIRS2' is an IRS2 pattern"),
+])
+def test_a_named_pattern_that_contradicts_the_detector_is_refused(det_name, pattern,
+                                                                   match):
+    """Before, an IRS2 detector read with NRSRAPID wrote an uncal of the IRS2 layout
+    (3200 columns, 14.589 s frames) that said READPATT 'NRSRAPID', and the reverse an
+    ordinary frame that said 'NRSIRS2RAPID': jwst tells IRS2 data by its shape and
+    picks reference files by READPATT.  Refused by the engine and the scene alike."""
+    from noise.clock import preset
+
+    from scenesim.engine import ChargeEngine
+    from scenesim.scene import parse_scene
+
+    det = preset(det_name, naxis1=64, naxis2=64)
+    with pytest.raises(ParameterError, match=match):
+        ChargeEngine(det, Readout.named(pattern, ngroups=2), rng=1)
+    with pytest.raises(ParameterError, match=r"^\[readout\] 'pattern' = " + match):
+        parse_scene({"detector": {"preset": det_name, "naxis1": 64, "naxis2": 64},
+                     "readout": {"pattern": pattern, "ngroups": 2}})
+    # the unnamed forms fit any detector; a matching name is accepted
+    ChargeEngine(det, Readout.multiaccum(1, 2), rng=1)
+    good = "NRSIRS2RAPID" if det.interleave is not None else "NRSRAPID"
+    ChargeEngine(det, Readout.named(good, ngroups=2), rng=1)
