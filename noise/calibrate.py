@@ -383,7 +383,12 @@ def load_darks(paths, *, detector=None, gain=None):
             gain_all = g if g is not None else gain_all
             dn_any = dn_any or is_dn
             scale = np.float32(g) if is_dn else np.float32(1.0)
-            for cube in data:
+            for k, cube in enumerate(data):
+                try:
+                    _check_samples(cube, "its data" if len(data) == 1 else
+                                   f"its integration {k}")
+                except ParameterError as exc:
+                    raise FileFormatError(f"dark ramp {path!r}: {exc}") from exc
                 ints.append(cube.astype(np.float32) * scale)
     if gain is not None and not dn_any:      # it would change nothing: say so
         raise ParameterError(
@@ -610,19 +615,41 @@ def _check_ramps(ramps):
             f"'ramps' must be a noise.calibrate.DarkRamps (see load_darks), got "
             f"{describe(ramps)}")
     det = ramps.detector
-    n_diff = 0
+    n_diff, varies = 0, False
     for i, cube in enumerate(ramps.integrations):
         shape = np.shape(cube)
         if len(shape) != 3 or shape[1:] != det.shape:
             raise ParameterError(
                 f"integration {i} has shape {shape}: expected (nreads, {det.ny}, "
                 f"{det.nx})")
+        varies = _check_samples(cube, f"integration {i}") or varies
         n_diff += shape[0] // 2
     if n_diff < MIN_DIFFERENCES:
         raise ParameterError(
             f"the darks give {n_diff} CDS differences (non-overlapping read pairs); "
             f"calibration needs at least {MIN_DIFFERENCES}: more reads or integrations")
+    if not varies:
+        named = f" ({', '.join(map(str, ramps.sources))})" if ramps.sources else ""
+        raise ParameterError(
+            f"the darks{named} have no noise: every pixel reads the same value in every "
+            f"read of every integration, so there is nothing to calibrate")
     return det
+
+
+def _check_samples(cube, where):
+    """Refuse a cube that is not real numbers or holds NaN or inf (naming ``where``
+    and the first bad sample); return whether any pixel changes from read to read."""
+    cube = np.asarray(cube)
+    if cube.dtype.kind not in "iuf":
+        raise ParameterError(f"{where} must be real numbers (e-), got dtype {cube.dtype}")
+    if cube.dtype.kind == "f":
+        bad = ~np.isfinite(cube)
+        if bad.any():
+            r, y, x = (int(v) for v in np.argwhere(bad)[0])
+            raise ParameterError(
+                f"{where} has {int(bad.sum())} NaN or inf samples (the first at read "
+                f"{r}, row {y}, column {x}); calibration needs finite dark ramps")
+    return bool(cube.shape[0] > 1 and np.any(cube[1:] != cube[:1]))
 
 
 def _differences(ramps):

@@ -75,13 +75,14 @@ def psd_command(args):
     if args.plot is not None:
         plot_psd(args.plot, results, [os.path.basename(f) for f in args.files])
         print(f"wrote {args.plot}")
-    else:
-        psd = results[0].psd
-        print("# f_Hz  PSD_auto(e-^2/Hz)  sigma  model   (CDS differences / 2, "
-              f"{args.files[0]})")
-        for f, m, s, mod in zip(psd["freq"], psd["auto"]["mean"], psd["auto"]["sigma"],
-                                psd["auto"]["model"]):
-            print(f"{f:12.5g} {m:12.5g} {s:10.3g} {mod:12.5g}")
+    else:                   # one table per file, in the order given
+        for k, (path, res) in enumerate(zip(args.files, results)):
+            psd = res.psd
+            print(("\n" if k else "") + "# f_Hz  PSD_auto(e-^2/Hz)  sigma  model   "
+                  f"(CDS differences / 2, {path})")
+            for f, m, s, mod in zip(psd["freq"], psd["auto"]["mean"],
+                                    psd["auto"]["sigma"], psd["auto"]["model"]):
+                print(f"{f:12.5g} {m:12.5g} {s:10.3g} {mod:12.5g}")
     return 0
 
 
@@ -105,6 +106,7 @@ def plot_psd(path, results, labels):
     fig, axes = plt.subplots(len(keys), 1, figsize=(7, 3.2 * len(keys)), squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, key in zip(axes[:, 0], keys):
+        shown = []              # what sets the y range: the data and the total model
         for i, (res, label) in enumerate(zip(results, labels)):
             psd = res.psd
             if key not in psd:
@@ -113,10 +115,16 @@ def plot_psd(path, results, labels):
             ok = f > 0
             ax.errorbar(f[ok], psd[key]["mean"][ok], yerr=psd[key]["sigma"][ok], fmt=".",
                         ms=4, color=colors[i % len(colors)], label=label)
+            shown.append(psd[key]["mean"][ok])
         f = first["freq"]
         ok = f > 0
         ax.plot(f[ok], first[key]["model"][ok], "k-", lw=1.2, label="model fitted to "
                 + labels[0])
+        shown.append(first[key]["model"][ok])
+        values = np.concatenate(shown)
+        values = values[np.isfinite(values) & (values > 0)]
+        if values.size:     # a component far below the data (a pedestal's zero) is
+            ax.set_ylim(values.min() / 3.0, values.max() * 3.0)    # cut, not the data
         for j, (name, comp) in enumerate(first[key]["components"].items()):
             if np.any(comp[ok] > 0):
                 ax.plot(f[ok], np.where(comp[ok] > 0, comp[ok], np.nan), "--", lw=0.8,

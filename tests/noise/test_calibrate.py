@@ -372,3 +372,46 @@ def test_sci_extension_files_need_preset_gain_and_single_frames(tmp_path):
     assert len(ramps.integrations) == 2 and ramps.gain == 2.0
     # the e- values are the DN times the gain
     assert np.array_equal(ramps.integrations[1][3], dn[1, 3].astype(np.float32) * 2)
+
+
+def test_non_finite_or_noiseless_darks_are_refused_naming_them(tmp_path):
+    """Before: NaN in a dark ended in "'rd_noise' must be finite" (a fitted value, not
+    an input), inf added numpy warnings, and an all-zero dark was 'calibrated' to a
+    table of zeros with NaN bounds."""
+    from astropy.io import fits
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    dark = _write_dark(tmp_path / "d.fits", det, NoiseParams(), seed=5, nints=2)
+    with fits.open(dark) as hdul:
+        data, hdr = hdul[0].data.copy(), hdul[0].header.copy()
+    for value in (np.nan, np.inf):
+        bad = data.copy()
+        bad[1, 3, 10, 12] = value
+        fits.writeto(tmp_path / "bad.fits", bad, hdr, overwrite=True)
+        with pytest.raises(FileFormatError, match=r"dark ramp .*bad\.fits.*integration "
+                           r"1 has 1 NaN or inf samples \(the first at read 3, row 10, "
+                           r"column 12\)"):
+            load_darks([tmp_path / "bad.fits"])
+        with pytest.raises(ParameterError, match="integration 0 has 1 NaN or inf"):
+            calibrate_darks(DarkRamps((bad[1],), det))
+    fits.writeto(tmp_path / "zero.fits", np.zeros_like(data), hdr)
+    with pytest.raises(ParameterError, match=r"the darks \(.*zero\.fits\) have no noise"):
+        calibrate_darks(load_darks([tmp_path / "zero.fits"]))
+    flat = np.broadcast_to(data[0, :1], data[0].shape)       # a bias, never changing
+    with pytest.raises(ParameterError, match="have no noise"):
+        calibrate_darks(DarkRamps((flat,), det))
+
+
+def test_cli_psd_prints_a_table_for_every_file(tmp_path, capsys):
+    # before: only the first file's table, the others dropped without a word
+    from scenesim.cli import main
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    a = _write_dark(tmp_path / "a.fits", det, NoiseParams(), seed=1)
+    b = _write_dark(tmp_path / "b.fits", det, NoiseParams(c_pink=6.0), seed=2)
+    assert main(["psd", str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    heads = [line for line in out.splitlines() if line.startswith("#")]
+    assert len(heads) == 2 and heads[0].endswith("a.fits)") and \
+        heads[1].endswith("b.fits)")
+    # the tables differ: b has more correlated 1/f
+    tables = out.split("\n\n")
+    assert len(tables) == 2 and tables[0].split("\n")[1:] != tables[1].split("\n")[1:]
