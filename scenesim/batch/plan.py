@@ -488,6 +488,12 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
             except ParameterError as exc:
                 at = f" (grid point {p.index})" if p.label else ""
                 raise ParameterError(f"{refpix_from}{at}: {exc}") from exc
+        if fitters and not p.scene.output.fit:      # the scene's own check (a fit)
+            try:
+                p.scene.replace(output=dataclasses.replace(p.scene.output, fit="gls"))
+            except ParameterError as exc:
+                at = f" (grid point {p.index})" if p.label else ""
+                raise ParameterError(f"'fit' {list(fitters)}{at}: {exc}") from exc
         if fitters and p.scene.readout.build().ngroups < 2:
             raise ParameterError(
                 f"'fit' {list(fitters)}: a one-group exposure (ngroups = 1"

@@ -145,7 +145,7 @@ from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
 from scenesim.rampfit.jumps import flag_jumps, jump_block
 from scenesim.rampfit.local_rate import local_rates, uses_neighbours
 from scenesim.rampfit.solver import TINY, ldl_pass, quad_form, row_chunks
-from scenesim.rampfit.times import check_read_times
+from scenesim.rampfit.times import check_read_times, shortest_spacing
 
 __all__ = ["FITTERS", "VARIANCE_RATES", "fit_ramps"]
 
@@ -171,6 +171,11 @@ _WINDOW = 2
 #: Largest read noise per read (e-) :func:`fit_ramps` takes: its square, 1e30 e-^2,
 #: stays far inside float32.
 MAX_READ_NOISE = 1e15
+#: Largest rate scale (e-/s) :func:`fit_ramps` takes: a resultant, the read noise or
+#: ``variance_rate`` over the shortest read spacing.  Rates, their squares (1e30) and
+#: sums of squares stay finite in float32; beyond it a fit used to overflow and give
+#: every pixel DO_NOT_USE without a word.
+MAX_RATE_SCALE = 1e15
 
 
 def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
@@ -224,7 +229,11 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         comes from (module notes).  ``'local'`` (default): the median of the
         pixel's 5 x 5 neighbours, or its own fitted rate where it stands out from
         them (:func:`scenesim.rampfit.local_rate.local_rates`); the GLS weights of
-        read-noise dominated pixels at the neighbours' rate shrunk toward 0.
+        read-noise dominated pixels at the neighbours' rate shrunk toward 0.  A
+        faint source that does not stand out (a few e- per ramp, < ~3 sigma above
+        its neighbours) therefore reports too small an error (``E[z^2]`` 2.4-2.7 at
+        6 e- per ramp; module notes of :mod:`~scenesim.rampfit.local_rate`): pass
+        known sources' rates as an array.
         ``'fit'``: the pixel's own fitted rate clipped at 0, for the weights
         (iterated) and the variance (stcal and fitramp practice; each pixel's
         result depends on its own ramp only).  Its error is correlated with the
@@ -274,7 +283,7 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     if block_rows is not None:
         block_rows = check_int("block_rows", block_rows, minimum=1)
     bounds = row_chunks(ny, nx, nints * nres, rows=block_rows, threads=threads)
-    _check_finite(src, sat, bounds)
+    _check_scale(_check_finite(src, sat, bounds), times, read_noise, variance_rate)
 
     cov = RampCovariance(times)
     s2 = float(read_noise) ** 2 if np.isscalar(read_noise) else \
@@ -413,22 +422,57 @@ def _check_variance_rate(variance_rate, shape):
 
 
 def _check_finite(src, sat, bounds):
-    """Raise unless the resultants are finite wherever ``sat`` does not flag them
-    (one pass over the row blocks; none for integer data)."""
-    if src.all_finite or src.dtype.kind in "iu":
-        return
+    """Raise unless the resultants are finite wherever ``sat`` does not flag them;
+    return the largest ``|resultant|`` there, or a bound of it (one pass over the row
+    blocks; none for a source that says it is finite or for 8- and 16-bit
+    integers, whose dtype bounds them)."""
+    if src.all_finite or (src.dtype.kind in "iu" and src.dtype.itemsize <= 2):
+        return float(np.iinfo(src.dtype).max) if src.dtype.kind in "iu" else 0.0
     nints, nres = src.shape[:2]
     nbad = np.zeros((nints, nres), np.int64)
+    largest = 0.0
     for y0, y1 in bounds:
-        bad = ~np.isfinite(src.rows(y0, y1))
-        if sat is not None:
-            bad &= ~sat.rows(y0, y1)
-        nbad += bad.sum(axis=(2, 3))
+        blk = src.rows(y0, y1)
+        good = None if src.dtype.kind in "iu" else np.isfinite(blk)
+        flagged = sat.rows(y0, y1) if sat is not None else None
+        if good is not None:
+            bad = ~good if flagged is None else ~good & ~flagged
+            nbad += bad.sum(axis=(2, 3))
+        if flagged is not None and not flagged.any():
+            flagged = None
+        if flagged is None and (good is None or good.all()):     # two reductions
+            largest = max(largest, abs(float(blk.max())), abs(float(blk.min())))
+        else:
+            use = ~flagged if good is None else (good if flagged is None
+                                                 else good & ~flagged)
+            if use.any():
+                largest = max(largest, float(np.abs(blk[use]).max()))
     if nbad.any():
         k, r = np.argwhere(nbad)[0]
         raise ParameterError(
             f"'resultants' must be finite where not flagged in 'saturated'; "
             f"integration {k} resultant {r} has {int(nbad[k, r])} NaN or inf values")
+    return largest
+
+
+def _check_scale(largest, times, read_noise, variance_rate):
+    """Refuse inputs whose rates overflow the fit's float32 (:data:`MAX_RATE_SCALE`):
+    the largest resultant or read noise over the shortest read spacing, or a
+    ``variance_rate`` above it."""
+    dt = shortest_spacing(times)
+    for name, value in (("resultants", largest),
+                        ("read_noise", float(np.max(read_noise)))):
+        if value / dt > MAX_RATE_SCALE:
+            raise ParameterError(
+                f"'{name}' up to {value:g} e- over the shortest read spacing of "
+                f"'read_times', {dt:g} s, is a rate of {value / dt:g} e-/s; the fit "
+                f"works in float32 and takes rates up to {MAX_RATE_SCALE:g} e-/s (are "
+                f"the resultants in e- and the read times in s?)")
+    if not isinstance(variance_rate, str) and \
+            float(np.max(variance_rate)) > MAX_RATE_SCALE:
+        raise ParameterError(
+            f"'variance_rate' must be <= {MAX_RATE_SCALE:g} e-/s (its Poisson variance "
+            f"is computed in float32), got {float(np.max(variance_rate))!r}")
 
 
 # ---------------------------------------------------------------------- chunks

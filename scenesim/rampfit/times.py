@@ -9,7 +9,8 @@ estimates involves only differences of times (:mod:`scenesim.rampfit.covariance`
 so the fitter works with the times of pixel ``[0, 0]`` and the per-pixel shift
 matters only for a single-resultant slope (``R_0 / tbar_0``).
 
-Rules: each resultant has >= 1 read; times are finite and >= 0 s, strictly
+Rules: each resultant has >= 1 read; times are finite, >= 0 s and at most
+:data:`MAX_READ_TIME` (the fit's ``1 / dt^2`` stays a normal float32), strictly
 increasing within a resultant; resultants do not overlap in time; per-pixel times
 differ between pixels only by a common shift.
 """
@@ -19,7 +20,18 @@ import numpy as np
 from noise.errors import ParameterError
 from noise.validate import check_int, describe, is_sequence
 
-__all__ = ["check_read_times"]
+__all__ = ["check_read_times", "MAX_READ_TIME", "shortest_spacing"]
+
+#: Latest read time (s from reset) a fit takes: 1e9 s (32 years); ``1 / dt^2`` of a
+#: spacing that long, 1e-18, is still far from float32's underflow.
+MAX_READ_TIME = 1e9
+
+
+def shortest_spacing(times):
+    """The shortest interval (s) between two consecutive reads of ``times`` (checked
+    1-D read times, one array per resultant), or ``inf`` for a single read."""
+    flat = np.concatenate(times)
+    return float(np.diff(flat).min()) if flat.size > 1 else float("inf")
 
 
 def check_read_times(read_times, nres=None, image_shape=None):
@@ -103,9 +115,10 @@ def _entry(r, t, image_shape):
     if a.shape[0] == 0:
         raise ParameterError(f"'read_times'[{r}] is empty; each resultant needs "
                              f">= 1 read")
-    if not np.all(np.isfinite(a)) or np.any(a < 0):
+    if not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > MAX_READ_TIME):
         raise ParameterError(
-            f"'read_times'[{r}] must be finite and >= 0 s, got {describe(t)}")
+            f"'read_times'[{r}] must be finite, >= 0 s and <= {MAX_READ_TIME:g} s (from "
+            f"the reset), got {describe(t)}")
     return a
 
 

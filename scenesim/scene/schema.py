@@ -36,6 +36,7 @@ from scenesim.detector.nonlinearity import Nonlinearity
 from scenesim.detector.readout import MAX_READS, Readout, check_pattern_detector
 from scenesim.calib.refpix import applied_scheme
 from scenesim.engine import MAX_CHARGE
+from scenesim.rampfit.times import MAX_READ_TIME
 from scenesim.outputs import derived_path
 from scenesim.pipelines.instrument import InstrumentConfig
 from scenesim.sky.lightcurve import MAX_TIME as LC_MAX_TIME, LightCurve
@@ -976,6 +977,10 @@ class Scene:
         det = self.detector
         span = (f"{ro.nreads + 1} frames of {det.frame_time:.6g} s: [readout], and "
                 f"[detector] 'dt' x (rows + 'nfoh') x (columns per output + 'nroh')")
+        if self.output.fit and t_int > MAX_READ_TIME:
+            raise ParameterError(
+                f"[output] 'fit' = {self.output.fit!r}: an integration lasts {t_int:.6g} "
+                f"s ({span}); the fitter takes read times up to {MAX_READ_TIME:g} s")
 
         def check(where, key, rate, what):
             if rate > 0 and not rate * t_int <= MAX_CHARGE:

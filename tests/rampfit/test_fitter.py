@@ -360,6 +360,18 @@ def test_null_limits_and_refmask():
     (dict(read_noise=1e30), r"'read_noise' must be <= 1e\+15"),
     (dict(read_noise=np.full((4, 4), 1 + 1j)), "read_noise"),
     (dict(read_times=[[1.0 + 0j], [2.0], [3.0], [4.0]]), "complex"),
+    # inputs whose rates overflow the float32 fit: every pixel came out DO_NOT_USE
+    # (spacing 1e-30 s, resultants of 1e300, int64 resultants of 1e18) or inf
+    # (variance_rate 1e300) with only numpy warnings; read times of 1e30 s
+    # underflowed 1 / dt^2
+    (dict(read_times=[[1e-30], [2e-30], [3e-30], [4e-30]]),
+     r"'read_noise' up to 1 e- over the shortest read spacing .* 1e-30 s"),
+    (dict(resultants=np.full((4, 4, 4), 1e300)), r"'resultants' up to 1e\+300 e-"),
+    (dict(resultants=np.full((4, 4, 4), 10 ** 18, np.int64)),
+     r"'resultants' up to 1e\+18 e-.*takes rates up to 1e\+15"),
+    (dict(variance_rate=1e300), r"'variance_rate' must be <= 1e\+15"),
+    (dict(variance_rate=np.full((4, 4), 1e16)), r"'variance_rate' must be <= 1e\+15"),
+    (dict(read_times=[[1e30], [2e30], [3e30], [4e30]]), r"<= 1e\+09 s"),
 ])
 def test_bad_input(kwargs, match):
     args = dict(resultants=np.zeros((4, 4, 4)), read_times=[[1.0], [2.0], [3.0], [4.0]],
@@ -368,3 +380,24 @@ def test_bad_input(kwargs, match):
     resultants, read_times = args.pop("resultants"), args.pop("read_times")
     with pytest.raises(ParameterError, match=match):
         fit_ramps(resultants, read_times, **args)
+
+
+def test_the_rate_scale_bound_keeps_flagged_and_integer_values_out():
+    """The bound looks at the values the fit uses: a saturated (flagged) 1e30 is not
+    counted, an int32 cube is read (its dtype allows 2e9), and a uint16 cube is
+    bounded by its dtype (65535 over 1e-11 s is refused without a pass)."""
+    t = [[10.0 * (k + 1)] for k in range(4)]
+    res = np.cumsum(np.full((4, 4, 4), 50.0), axis=0)
+    sat = np.zeros(res.shape, bool)
+    sat[2:, 0, 0] = True
+    big = res.copy()
+    big[2:, 0, 0] = 1e30
+    a = fit_ramps(big, t, read_noise=1.0, saturated=sat, fitter="ols")
+    b = fit_ramps(res, t, read_noise=1.0, saturated=sat, fitter="ols")
+    np.testing.assert_array_equal(a.slope, b.slope)
+    np.testing.assert_allclose(b.slope, 5.0, rtol=1e-6)
+    c = fit_ramps(res.astype(np.int32), t, read_noise=1.0, fitter="ols")
+    np.testing.assert_allclose(c.slope, 5.0, rtol=1e-6)
+    with pytest.raises(ParameterError, match=r"'resultants' up to 65535 e-"):
+        fit_ramps(res.astype(np.uint16), [[1e-11 * (k + 1)] for k in range(4)],
+                  read_noise=0.0)

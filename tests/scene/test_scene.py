@@ -709,3 +709,18 @@ def test_replace_reads_no_file_and_check_files_reads_them(full_scene_dir):
         check_files(scene)
     with pytest.raises(FileFormatError):
         load_scene(full_scene_dir / "scene.toml")
+
+
+def test_a_fit_of_an_integration_longer_than_the_fitter_takes_is_refused_first():
+    """dt = 1e4 s per pixel: an 11-frame integration of a 256^2 array lasts 2.1e9 s,
+    beyond the fitter's read times (1e9 s, scenesim.rampfit.times.MAX_READ_TIME):
+    refused with the scene, not after the simulation (no fit: accepted)."""
+    raw = {"detector": {"preset": "H2RG", "naxis1": 256, "naxis2": 256, "dt": 1e4},
+           "noise": {"preset": "none"},
+           "readout": {"pattern": "RAPID", "ngroups": 10},
+           "output": {"path": "x.fits", "fit": "gls"}}
+    with pytest.raises(ParameterError, match=r"\[output\] 'fit' = 'gls': an integration "
+                                             r"lasts 2\.\d+e\+09 s .*up to 1e\+09 s"):
+        parse_scene(raw)
+    raw["output"]["fit"] = ""
+    parse_scene(raw)
