@@ -47,6 +47,7 @@ import sys
 import tempfile
 import threading
 import warnings
+import zlib
 from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
 
@@ -531,6 +532,7 @@ def open_fits(path, what="file", *, memmap=None):
         raise FileFormatError(f"cannot read {what} {path!r}: {_one_line(exc)}") from exc
     if empty:
         raise FileFormatError(f"{what} {path!r} is empty, not a FITS file")
+    _check_gzip(path, what)
     with warnings.catch_warnings():
         warnings.simplefilter("error", AstropyWarning)
         try:
@@ -549,6 +551,54 @@ def open_fits(path, what="file", *, memmap=None):
             else:                     # astropy/numpy tripping over a damaged header
                 msg = f"cannot read {what} {path!r}: damaged FITS file ({text})"
             raise FileFormatError(msg) from exc
+
+
+def _same_file(a, b):
+    """True if paths ``a`` and ``b`` name one existing file (any spelling or link)."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, TypeError, ValueError):
+        return False
+
+
+_GZIP_MAGIC = b"\x1f\x8b"
+_GZIP_CHUNK = 1 << 24
+_gzip_verified = {}          # (path, inode, size, mtime_ns) -> True, of this process
+_gzip_lock = threading.Lock()
+
+
+def _check_gzip(path, what):
+    """Refuse a gzip-compressed file whose stream is damaged.
+
+    astropy reads a ``.fits.gz`` only as far as its HDUs go and never reaches the
+    gzip trailer, so a damaged byte in the compressed data went unnoticed and gave
+    wrong pixel values (a flipped byte in a 3-frame noise file changed 6 of them).
+    Decompressing the whole stream once checks its CRC and length.  A file verified
+    before in this process, unchanged since (path, inode, size, modification time),
+    is not decompressed again.
+    """
+    try:
+        with open(path, "rb") as f:
+            if f.read(2) != _GZIP_MAGIC:
+                return
+        st = os.stat(path)
+    except OSError as exc:
+        raise FileFormatError(f"cannot read {what} {path!r}: {_one_line(exc)}") from exc
+    key = (os.path.realpath(path), st.st_ino, st.st_size, st.st_mtime_ns)
+    with _gzip_lock:
+        if _gzip_verified.get(key):
+            return
+    try:
+        with gzip.open(path, "rb") as g:
+            while g.read(_GZIP_CHUNK):
+                pass
+    except (OSError, EOFError, zlib.error) as exc:     # BadGzipFile is an OSError
+        raise FileFormatError(f"cannot read {what} {path!r}: damaged gzip stream "
+                              f"({_one_line(exc)})") from exc
+    with _gzip_lock:
+        if len(_gzip_verified) > 256:
+            _gzip_verified.clear()
+        _gzip_verified[key] = True
 
 
 _BITPIX = {np.dtype(np.uint8): 8, np.dtype(np.int16): 16, np.dtype(np.uint16): 16,
@@ -781,6 +831,11 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
         raise ParameterTypeError(f"'extra_cards' must be a sequence of (key, value[, "
                                  f"comment]) tuples, got {describe(extra_cards)}")
     extra_cards = [_check_extra_card(c) for c in extra_cards]
+    template = generator.params.pca0_file          # the one file the generator reads
+    if template is not None and _same_file(path, template):
+        raise ParameterError(
+            f"'path' {os.fspath(path)!r} is the generator's 'pca0_file' (a file it "
+            f"reads): it is never replaced, even with overwrite=True")
     if unit == "DN":
         # no noise clipped at the 16-bit ADC (noise.params module notes)
         try:

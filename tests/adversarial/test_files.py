@@ -6,6 +6,7 @@ commands that read files (``scenesim fit FILE``; ``scenesim compare FIT TRUTH
 [--exposure EXPOSURE]`` with any one of them bad) x
 every class of bad file (:data:`BAD_FILES`: missing, a directory, empty, truncated,
 cut inside the header, text, random bytes, a damaged header card, a truncated gzip, a
+damaged gzip stream, a
 dangling link, a FIFO, FITS without the needed extensions, and each other kind of
 scenesim file, with its ``FILETYPE`` card and without it as older files have none).
 Each case checks:
@@ -116,6 +117,19 @@ def _gz_truncated(src, dst):
     return dst
 
 
+def _gz_damaged(src, dst):
+    """Gzip of the good file with two bytes flipped in the middle of the compressed
+    data: astropy reads it without an error and gives wrong pixel values (it never
+    reads the gzip trailer, whose CRC would tell)."""
+    with open(src, "rb") as f:
+        packed = bytearray(gzip.compress(f.read()))
+    packed[len(packed) // 2] ^= 0xFF
+    packed[len(packed) // 2 + 1] ^= 0xFF
+    with open(dst, "wb") as f:
+        f.write(bytes(packed))
+    return dst
+
+
 def _make(case, d, kind, good):
     """Create the bad file of class ``case`` in ``d`` for a reader expecting ``kind``;
     return its path (it may not exist)."""
@@ -149,6 +163,8 @@ def _make(case, d, kind, good):
         return _damaged_card(mine, str(d / "damaged.fits"))
     if case == "gzip-truncated":
         return _gz_truncated(mine, str(d / "half.fits.gz"))
+    if case == "gzip-damaged":
+        return _gz_damaged(mine, str(d / "flipped.fits.gz"))
     if case == "dangling-link":
         os.symlink(str(d / "gone.fits"), str(d / "link.fits"))
         return str(d / "link.fits")
@@ -173,7 +189,8 @@ def _make(case, d, kind, good):
 #: Every class of bad input file.
 BAD_FILES = (["missing", "directory", "empty", "truncated", "truncated-odd",
               "last-hdu-lost", "header-cut", "text",
-              "random-bytes", "damaged-card", "gzip-truncated", "dangling-link", "fifo",
+              "random-bytes", "damaged-card", "gzip-truncated", "gzip-damaged", "dangling-link",
+              "fifo",
               "image-only", "header-only"]
              + [f"kind:{k}" for k in KINDS] + [f"old-kind:{k}" for k in KINDS])
 

@@ -385,3 +385,21 @@ def test_extra_cards_that_fits_cannot_hold_are_refused(tmp_path, cards, match):
                      extra_cards=[("OBSERVER", "me"), ("obsid", np.int64(5), "id")])
     hdr = fits.getheader(tmp_path / "y.fits")
     assert hdr["OBSERVER"] == "me" and hdr["OBSID"] == 5
+
+
+def test_the_generators_own_template_file_is_never_replaced(tmp_path, monkeypatch):
+    """write_noise_fits(path=pca0_file, overwrite=True) replaced the template image the
+    generator had read with a noise cube (the command refuses it; the API did not),
+    under any spelling or link."""
+    template = tmp_path / "tmpl.fits"
+    fits.writeto(template, np.random.default_rng(1).standard_normal(DET.shape)
+                 .astype(np.float32))
+    before = template.read_bytes()
+    os.symlink(template, tmp_path / "link.fits")
+    gen = NoiseGenerator(DET, NoiseParams(pca0_file=str(template)), rng=2, threads=1)
+    monkeypatch.chdir(tmp_path)
+    for path in (template, "tmpl.fits", "./tmpl.fits", "link.fits"):
+        with pytest.raises(ParameterError, match=r"'pca0_file' \(a file it reads\)"):
+            write_noise_fits(path, gen, 1, overwrite=True)
+    assert template.read_bytes() == before
+    write_noise_fits("other.fits", gen, 1)
