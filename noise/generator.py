@@ -10,8 +10,10 @@ clock of :mod:`noise.clock`:
   times the template;
 * pedestal is one offset per frame; kTC + bias one reset level per integration; white
   noise one sample per pixel per read (reference pixels scaled by ``ref_ratio``);
-* random telegraph noise is a two-state Markov process per RTN pixel, advanced exactly
-  over the time between the reads that are actually requested.
+* random telegraph noise is a two-state Markov process per RTN pixel, stepped frame
+  slot by frame slot from the stationary distribution at slot 0 (one uniform per RTN
+  pixel per slot, skipped slots included), so a frame's state does not depend on
+  which frames were requested.
 
 The exposure time line (see ``docs/CONVENTIONS.md``): each integration is one reset
 frame slot followed by its ``nreads`` read slots; slot ``s`` starts at ``s * t_frame``.
@@ -706,22 +708,31 @@ class NoiseGenerator:
         return raw
 
     def _advance_rtn(self, slot):
+        """Set the random-telegraph state to that of absolute frame slot ``slot``.
+
+        The state is a function of the slot alone, whatever frames were asked for
+        before: slot 0 draws from the stationary distribution, and every later slot
+        takes one frame's Markov step from the one before with its own uniforms
+        (stream ``(rtn, 2, slot)``).  Slots nobody asks for are stepped through (a
+        uniform per telegraph pixel each); a request earlier than the last one
+        starts again from slot 0.
+        """
         p, det = self.params, self.detector
         n = self._rtn_idx.size
-        z = self._stream(NOISE_COMPONENTS["rtn"], 2, slot).random(n)
+        if self._rtn_slot is not None and self._rtn_slot == slot:
+            return
+        if self._rtn_slot is None or slot < self._rtn_slot:
+            self._rtn_state, self._rtn_slot = None, -1
         p_high = p.rtn_tau_high / (p.rtn_tau_low + p.rtn_tau_high)
-        if self._rtn_state is None:
-            self._rtn_state = z < p_high
-        else:
-            if slot <= self._rtn_slot:
-                raise ParameterError(
-                    f"frames must be requested in increasing time order; slot {slot} "
-                    f"after {self._rtn_slot}")
-            dt = (slot - self._rtn_slot) * det.frame_time
-            decay = np.exp(-dt * (1 / p.rtn_tau_low + 1 / p.rtn_tau_high))
-            prob_high = np.where(self._rtn_state, p_high + (1 - p_high) * decay,
-                                 p_high * (1 - decay))
-            self._rtn_state = z < prob_high
+        decay = math.exp(-det.frame_time * (1 / p.rtn_tau_low + 1 / p.rtn_tau_high))
+        # P(high at the next slot | high now) and (| low now), over one frame
+        stay_high, turn_high = p_high + (1 - p_high) * decay, p_high * (1 - decay)
+        for s in range(self._rtn_slot + 1, slot + 1):
+            z = self._stream(NOISE_COMPONENTS["rtn"], 2, s).random(n)
+            if self._rtn_state is None:
+                self._rtn_state = z < p_high
+            else:
+                self._rtn_state = z < np.where(self._rtn_state, stay_high, turn_high)
         self._rtn_slot = slot
 
     # ---------------------------------------------------------------- frames
@@ -951,7 +962,10 @@ class NoiseGenerator:
         dn_gain : float, optional
             Gain in e-/DN (> 0).  If given, frames are uint16 DN, exactly
             ``noise.adc.to_dn(frame, dn_gain)`` of the float32 e- frames, but
-            converted in the worker threads while the rows are in cache.
+            converted in the worker threads while the rows are in cache.  Like
+            ``to_dn`` it clips at codes 0 and 65535 without a check of the range
+            (:func:`noise.write_noise_fits` and scenes refuse a gain and bias that
+            clip the model's noise: :meth:`noise.params.NoiseParams.check_adc`).
         reuse : int or bool, keyword-only
             If ``n >= 1`` (True: 1), frames are written into ``n`` arrays in turn, so a
             yielded frame is overwritten ``n`` frames later: for consumers that are done

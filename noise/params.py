@@ -104,6 +104,10 @@ _OPTIONS = ("ref_ratio", "rtn_fraction", "rtn_tau_low", "rtn_tau_high", "f_min",
 def _freeze(name, value):
     """A per-output amplitude as a float or a tuple of floats (checked types)."""
     if isinstance(value, (list, tuple, np.ndarray)):
+        if isinstance(value, np.ndarray) and value.ndim > 1:     # not flattened
+            raise ParameterTypeError(
+                f"{name!r} must be a number or a 1-D sequence of numbers (one per "
+                f"output, e-), got an array of shape {value.shape}")
         items = list(np.ravel(value)) if isinstance(value, np.ndarray) else list(value)
         if not items or not all(is_real(v) for v in items):
             raise ParameterTypeError(

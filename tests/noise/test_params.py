@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import noise
+from noise.errors import ParameterTypeError
 from noise.params import NoiseParams
 
 #: Fields that shape a component but add nothing alone (every other field is an
@@ -59,3 +60,11 @@ def test_numbers_are_stored_as_python_numbers_and_paths_as_strings():
                           pca0_file=pathlib.Path("t.fits"))
     assert type(p.rd_noise) is float and type(p.c_pink) is float and type(p.f_min) is float
     assert p.pca0_file == "t.fits"
+
+
+@pytest.mark.parametrize("value", [np.ones((2, 2)), np.ones((1, 4)), [[1.0, 2.0]]])
+def test_a_per_output_amplitude_must_be_one_dimensional(value):
+    # a 2-D array was flattened into per-output values without a word
+    with pytest.raises(ParameterTypeError, match="'rd_noise' must be a number or a"):
+        NoiseParams(rd_noise=value)
+    assert NoiseParams(rd_noise=np.full(4, 3.0)).rd_noise == (3.0,) * 4
