@@ -11,9 +11,10 @@ def _detector_arguments(p):
     p.add_argument("--preset", default=None,
                    help="detector of files without scenesim detector cards (e.g. JWST "
                         "uncal): H2RG, NIRSPEC, NIRCAM, H4RG-10, WFI, ...")
-    p.add_argument("--naxis", type=int, default=0, help="square array size override "
-                                                        "(with --preset)")
-    p.add_argument("--n-out", type=int, default=0, help="outputs override (with --preset)")
+    p.add_argument("--naxis", type=int, default=None,
+                   help="square array size (with --preset; default the preset's)")
+    p.add_argument("--n-out", type=int, default=None,
+                   help="outputs (with --preset; default the preset's)")
     p.add_argument("--gain", type=float, default=None,
                    help="e-/DN of data in DN (default: the header's GAIN)")
     p.add_argument("--f-min", type=float, default=1e-4,

@@ -47,8 +47,10 @@ def _parser():
     q.add_argument("--preset", default="H2RG", help="H1RG, H2RG, H4RG-10, H4RG-15")
     q.add_argument("--frames", type=int, default=5, help="read frames per integration")
     q.add_argument("--nints", type=int, default=1, help="integrations")
-    q.add_argument("--naxis", type=int, default=0, help="square array size override")
-    q.add_argument("--n-out", type=int, default=0, help="outputs override")
+    q.add_argument("--naxis", type=int, default=None,
+                   help="square array size (default: the preset's)")
+    q.add_argument("--n-out", type=int, default=None,
+                   help="outputs (default: the preset's)")
     q.add_argument("--noise", choices=("nirspec", "white"), default="nirspec",
                    help="paper defaults (all components) or white read noise only "
                         "(the paper's 5.2 e- per read on its 5000 e- bias)")

@@ -16,7 +16,29 @@ import time
 from noise.errors import ParameterError
 
 __all__ = ["noise_command", "run_command", "fit_command", "compare_command",
-           "bench_command"]
+           "bench_command", "preset_detector"]
+
+
+def preset_detector(name, naxis, n_out):
+    """The detector ``noise.preset(name)`` with the ``--naxis`` and ``--n-out``
+    options that were given (None: the preset's own), applied together (``--n-out``
+    may be what makes ``--naxis`` valid); errors name the options as typed."""
+    import noise
+    from noise.validate import check_int
+    det = noise.preset(name)
+    changes, given = {}, []
+    for opt, value, fields in (("--naxis", naxis, ("naxis1", "naxis2")),
+                               ("--n-out", n_out, ("n_out",))):
+        if value is not None:
+            check_int(opt, value, minimum=1)
+            changes.update({f: value for f in fields})
+            given.append(f"'{opt}' {value}")
+    if not changes:
+        return det
+    try:
+        return dataclasses.replace(det, **changes)
+    except ParameterError as exc:
+        raise type(exc)(f"{', '.join(given)}: {exc}") from exc
 
 
 def noise_command(args):
@@ -40,14 +62,7 @@ def noise_command(args):
             raise ParameterError(f"'--gain' {args.gain:g} applies only with '--unit DN' "
                                  f"(the frames are in electrons with '--unit e')")
     gain = 1.0 if args.gain is None else args.gain
-    det = noise.preset(args.preset)
-    for opt, value, fields in (("--naxis", args.naxis, ("naxis1", "naxis2")),
-                               ("--n-out", args.n_out, ("n_out",))):
-        if value:                                  # 0: the preset's own
-            try:
-                det = dataclasses.replace(det, **{f: value for f in fields})
-            except ParameterError as exc:
-                raise type(exc)(f"'{opt}' {value}: {exc}") from exc
+    det = preset_detector(args.preset, args.naxis, args.n_out)
     # white: the paper's read noise on its bias, which keeps the DN file off code 0
     nominal = noise.NoiseParams()
     params = nominal if args.noise == "nirspec" else noise.ZERO_NOISE.replace(

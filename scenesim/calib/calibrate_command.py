@@ -9,15 +9,14 @@ work and never replace a file without ``--overwrite``.  Their arguments are in
 :mod:`scenesim.calibrate_options` (imported by the command line without this module).
 """
 
-import dataclasses
 import os
 
 import numpy as np
 
 from noise.calibrate import calibrate_darks, load_darks
-from noise.clock import preset
 from noise.errors import ParameterError
 from noise.fitsio import atomic_path
+from scenesim.commands import preset_detector
 from scenesim.outputs import check_outputs
 
 __all__ = ["calibrate_command", "psd_command", "plot_psd"]
@@ -25,16 +24,10 @@ __all__ = ["calibrate_command", "psd_command", "plot_psd"]
 
 def _detector(args):
     if args.preset is None:
-        if args.naxis or args.n_out:
+        if args.naxis is not None or args.n_out is not None:
             raise ParameterError("'--naxis' and '--n-out' need '--preset'")
         return None
-    det = preset(args.preset)
-    changes = {}
-    if args.naxis:
-        changes.update(naxis1=args.naxis, naxis2=args.naxis)
-    if args.n_out:
-        changes["n_out"] = args.n_out
-    return dataclasses.replace(det, **changes) if changes else det
+    return preset_detector(args.preset, args.naxis, args.n_out)
 
 
 def calibrate_command(args):

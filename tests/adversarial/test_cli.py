@@ -438,8 +438,11 @@ def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
 @pytest.mark.parametrize("args, named", [
     (["--frames", "0"], "'--frames'"),
     (["--nints", "-1"], "'--nints'"),
-    (["--naxis", "-4"], "'--naxis' -4"),
-    (["--n-out", "3"], "'--n-out' 3"),
+    (["--naxis", "-4"], "'--naxis' must be >= 1, got -4"),
+    # 0 read as "the preset's own" wrote a full 2048^2 cube (--n-out 0: 4 outputs)
+    (["--naxis", "0"], "'--naxis' must be >= 1, got 0"),
+    (["--n-out", "0"], "'--n-out' must be >= 1, got 0"),
+    (["--n-out", "3"], "'--naxis' 64, '--n-out' 3"),
     (["--threads", "0"], "'--threads'"),
     (["--seed", "-1"], "'--seed'"),
     (["--seed", str(2 ** 63)], "'--seed' must be <= 9223372036854775807"),
@@ -458,6 +461,17 @@ def test_noise_options_are_named_as_typed_before_any_work(tmp_path, args, named)
     assert res.returncode == 2, res.stderr
     _one_line(res.stderr, named)
     assert "%" not in res.stderr and os.listdir(tmp_path) == []
+
+
+def test_naxis_and_n_out_are_applied_together(tmp_path):
+    """--naxis 40 with --n-out 4 on H1RG (16 outputs): 4 divides 40 (before: refused
+    because --naxis was checked against the preset's 16 outputs first)."""
+    from astropy.io import fits
+    res = _cli(["noise", "--preset", "H1RG", "--naxis", "40", "--n-out", "4",
+                "--frames", "1", "-q", "-o", "n.fits"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    hdr = fits.getheader(tmp_path / "n.fits")
+    assert (hdr["NAXIS1"], hdr["NAXIS2"], hdr["NOUTPUTS"]) == (40, 40, 4)
 
 
 def test_fit_takes_the_fitter_in_any_case_and_lists_every_choice(workdir):
