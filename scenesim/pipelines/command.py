@@ -231,6 +231,9 @@ def pipeline_command(args):
     refs = reference_paths(args.refs, args.pipeline)
     read = [check_existing_file(opt, path) for opt, path in
             (("--truth", args.truth), ("--exposure", args.exposure)) if path]
+    if args.truth:          # a truth of the wrong kind is found before the run
+        from scenesim.validate.compare import check_compare_inputs
+        check_compare_inputs(args.truth, exposure=args.exposure)
     # run_detector1 / run_ramp_fit check the input's kind and their products against
     # every file read (these too) before the pipeline runs
     if args.pipeline == "jwst":

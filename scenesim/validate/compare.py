@@ -60,7 +60,8 @@ from scenesim.validate.photometry import source_photometry
 from scenesim.validate.plots import plot_report
 from scenesim.validate.stats import DEFAULT_EDGES, bin_rows, usable_variance
 
-__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "check_truth_header"]
+__all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "check_truth_header",
+           "check_compare_inputs"]
 
 
 # ---------------------------------------------------------------------- report
@@ -560,11 +561,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     if plots is not None:                  # a figure never replaces a compared file
         check_plot_dir(plots, inputs=[p for p in (fit_path, truth_path, exposure)
                                       if p is not None], overwrite=True)
-    truth = read_truth(truth_path)
-    try:
-        settings = check_truth_header(truth, readout=exposure is None)
-    except (FileFormatError, ParameterError) as exc:
-        raise _named("truth file", truth_path, exc) from exc
+    truth, read_times, nints, ro = _truth_and_exposure(truth_path, exposure)
     hdr = truth["header"]
     gain = exposure_settings(hdr)["gain"]
     try:
@@ -582,29 +579,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
         notes.append(note)
     if dark is not None:                       # a pipeline's dark step ran
         truth = subtract_dark(truth, dark)
-    read_times = nints = ro = None
     if exposure is not None:
-        try:
-            ehdr, reads = read_exposure_header(exposure)
-            esettings = _check_cards(ehdr)
-            if esettings["nints"] != settings["nints"]:
-                raise FileFormatError(
-                    f"'NINTS' = {esettings['nints']} but the truth file has "
-                    f"{settings['nints']}: not the same exposure")
-            for key in SAME_EXPOSURE_CARDS:      # the truth records them too
-                if key in ehdr and key in hdr and ehdr[key] != hdr[key]:
-                    raise FileFormatError(
-                        f"{key!r} = {ehdr[key]!r} but the truth file has {hdr[key]!r}: "
-                        f"not the same exposure")
-            t_frame = esettings["t_frame"]
-            if t_frame is None:
-                raise FileFormatError("lacks header keyword 'TFRAME'")
-            ro = readout_from_table(ehdr, reads)
-            read_times = ro.read_times(t_frame)
-            check_read_times(read_times)
-        except (FileFormatError, ParameterError) as exc:
-            raise _named("exposure", exposure, exc) from exc
-        nints = ro.nints
         notes.append("read times from the exposure's READS table")
     try:
         return compare(fit, truth, read_times=read_times, nints=nints, psf=psf,
@@ -615,6 +590,58 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
             raise
         raise FileFormatError(f"slope file {fit_path!r} and truth file "
                               f"{truth_path!r}: {exc}") from exc
+
+
+def check_compare_inputs(truth_path, exposure=None):
+    """Check a truth file (and an exposure of the same run) as :func:`compare_files`
+    reads them, before a long step makes the slope file to compare (``scenesim
+    pipeline --truth --exposure``).
+
+    Raises
+    ------
+    noise.errors.FileFormatError, noise.errors.ParameterError
+        Naming the file: not a truth file (another kind of scenesim file, a missing
+        card), or an exposure of another run.
+    """
+    truth_path = check_path("truth_path", truth_path)
+    if exposure is not None:
+        exposure = check_path("exposure", exposure)
+    _truth_and_exposure(truth_path, exposure)
+
+
+def _truth_and_exposure(truth_path, exposure):
+    """``(truth, read_times, nints, readout)`` of a comparison: the truth file read
+    and its header checked, and with an ``exposure`` its read times (None without),
+    after checking that it is the truth's exposure.  Errors name the file."""
+    truth = read_truth(truth_path)
+    try:
+        settings = check_truth_header(truth, readout=exposure is None)
+    except (FileFormatError, ParameterError) as exc:
+        raise _named("truth file", truth_path, exc) from exc
+    if exposure is None:
+        return truth, None, None, None
+    hdr = truth["header"]
+    try:
+        ehdr, reads = read_exposure_header(exposure)
+        esettings = _check_cards(ehdr)
+        if esettings["nints"] != settings["nints"]:
+            raise FileFormatError(
+                f"'NINTS' = {esettings['nints']} but the truth file has "
+                f"{settings['nints']}: not the same exposure")
+        for key in SAME_EXPOSURE_CARDS:      # the truth records them too
+            if key in ehdr and key in hdr and ehdr[key] != hdr[key]:
+                raise FileFormatError(
+                    f"{key!r} = {ehdr[key]!r} but the truth file has {hdr[key]!r}: "
+                    f"not the same exposure")
+        t_frame = esettings["t_frame"]
+        if t_frame is None:
+            raise FileFormatError("lacks header keyword 'TFRAME'")
+        ro = readout_from_table(ehdr, reads)
+        read_times = ro.read_times(t_frame)
+        check_read_times(read_times)
+    except (FileFormatError, ParameterError) as exc:
+        raise _named("exposure", exposure, exc) from exc
+    return truth, read_times, ro.nints, ro
 
 
 def _undefined(value):

@@ -321,7 +321,11 @@ def test_pipeline_jwst_never_replaces_an_input_and_checks_first(jwst_loop, tmp_p
             (["nope.fits"], ["nope.fits", "does not exist"]),
             (["exposure.fits"], ["not a JWST level-1b"]),
             (["z_rate.fits", "-o", "file"], ["'file' is a file"]),
-            (["z_rate.fits", "-o", "new", "--truth", "nope.fits"], ["'--truth'"])):
+            (["z_rate.fits", "-o", "new", "--truth", "nope.fits"], ["'--truth'"]),
+            # a truth of the wrong kind (before: found after the rate files were
+            # written)
+            (["z_rate.fits", "-o", "new", "--truth", "exposure.fits"],
+             ["truth", "exposure.fits"])):
         line = _refused(["pipeline", "jwst", *args, "--refs", "refs"], w)
         assert all(word in line for word in words), line
     assert _digest(w) == before and not (w / "new").exists()
