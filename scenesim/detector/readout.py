@@ -73,8 +73,8 @@ NIRSpec's IRS2 patterns: ``NRSIRS2RAPID`` (1 frame per group, no gap) and ``NRSI
 frames, no gap): group times of 14.589 s and 72.944 s in JWST planning tools, 1 and 5
 IRS2 frames of 14.5889 s; use them with the ``NIRSPEC-IRS2`` detector.  A named pattern
 that contradicts the detector (an IRS2 pattern on a detector without interleaved
-reference samples, or another named pattern on one with them) is refused by the
-engine and the scene (:func:`check_pattern_detector`).
+reference samples, or ``NRSRAPID``/``NRS`` on one with them) is refused by the engine
+and the scene (:func:`check_pattern_detector`).
 
 Roman-like tables
 -----------------
@@ -105,6 +105,7 @@ __all__ = [
     "Readout",
     "NAMED_PATTERNS",
     "IRS2_PATTERNS",
+    "NIRSPEC_PATTERNS",
     "check_pattern_detector",
     "ROMAN_LIKE_TABLE",
     "ROMAN_LIKE_SKIP_TABLE",
@@ -140,16 +141,19 @@ NAMED_PATTERNS = {
 }
 
 #: Named patterns of NIRSpec's IRS2 readout: for a detector with interleaved
-#: reference samples, and the only named patterns such a detector may use.
+#: reference samples only.
 IRS2_PATTERNS = ("NRSIRS2RAPID", "NRSIRS2")
+#: NIRSpec's traditional (non-IRS2) patterns: never on a detector that interleaves.
+NIRSPEC_PATTERNS = ("NRSRAPID", "NRS")
 
 
 def check_pattern_detector(pattern, detector):
     """Refuse a named pattern that contradicts the detector's readout: an IRS2
-    pattern without interleaved reference samples, or another named (JWST) pattern
-    on a detector that interleaves them (its files would carry one layout and name
-    the other: jwst tells IRS2 data by its shape, reference files by ``READPATT``).
-    Unnamed forms (``nframes``, ``ma_table``, ``resultants``) fit any detector.
+    pattern without interleaved reference samples, or NIRSpec's traditional
+    ``NRSRAPID``/``NRS`` on a detector that interleaves them (NIRSpec reads either
+    way, and its files would carry one layout and name the other: jwst tells IRS2
+    data by its shape, reference files by ``READPATT``).  Other names (NIRCam's, used
+    as generic MULTIACCUM labels) and the unnamed forms fit any detector.
 
     Parameters
     ----------
@@ -170,12 +174,11 @@ def check_pattern_detector(pattern, detector):
             f"'pattern' = {pattern!r} is an IRS2 pattern, but detector "
             f"{detector.name!r} has no interleaved reference samples ('interleave'); "
             f"use preset 'NIRSPEC-IRS2', or pattern 'NRSRAPID'/'NRS'")
-    if irs2 and pattern not in IRS2_PATTERNS:
+    if irs2 and pattern in NIRSPEC_PATTERNS:
         raise ParameterError(
             f"'pattern' = {pattern!r} is not an IRS2 pattern, but detector "
-            f"{detector.name!r} interleaves reference samples; use pattern "
-            f"{' or '.join(repr(p) for p in IRS2_PATTERNS)}, or an unnamed form "
-            f"('nframes', 'ma_table', 'resultants')")
+            f"{detector.name!r} interleaves reference samples; use NIRSpec's IRS2 "
+            f"pattern {' or '.join(repr(p) for p in IRS2_PATTERNS)}")
 
 
 #: Illustrative Roman-style MA table (not an official Roman table): ``(first_read,

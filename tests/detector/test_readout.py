@@ -378,7 +378,7 @@ def test_unknown_pattern_suggests_nearest():
 @pytest.mark.parametrize("det_name, pattern, match", [
     ("NIRSPEC-IRS2", "NRSRAPID", r"'NRSRAPID' is not an IRS2 pattern, but detector "
                                  r"'NIRSPEC-IRS2' interleaves"),
-    ("NIRSPEC-IRS2", "RAPID", r"'RAPID' is not an IRS2 pattern"),
+    ("NIRSPEC-IRS2", "NRS", r"'NRS' is not an IRS2 pattern"),
     ("NIRSPEC", "NRSIRS2RAPID", r"'NRSIRS2RAPID' is an IRS2 pattern, but detector "
                                 r"'NIRSPEC' has no interleaved"),
     ("H2RG", "NRSIRS2", r"'NRSIRS2' is an IRS2 pattern"),
@@ -400,7 +400,9 @@ def test_a_named_pattern_that_contradicts_the_detector_is_refused(det_name, patt
     with pytest.raises(ParameterError, match=r"^\[readout\] 'pattern' = " + match):
         parse_scene({"detector": {"preset": det_name, "naxis1": 64, "naxis2": 64},
                      "readout": {"pattern": pattern, "ngroups": 2}})
-    # the unnamed forms fit any detector; a matching name is accepted
+    # the unnamed forms and NIRCam's names (generic MULTIACCUM labels) fit any
+    # detector; a matching name is accepted
     ChargeEngine(det, Readout.multiaccum(1, 2), rng=1)
+    ChargeEngine(det, Readout.named("RAPID", ngroups=2), rng=1)
     good = "NRSIRS2RAPID" if det.interleave is not None else "NRSRAPID"
     ChargeEngine(det, Readout.named(good, ngroups=2), rng=1)
