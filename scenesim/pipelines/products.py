@@ -68,11 +68,21 @@ def _open_roman(path):
 
 def fit_header(path):
     """The primary header of a slope file (FITS), or the cards ``compare`` reads from
-    a Roman L2 ASDF file (``S_IPC``, ``S_DARK``: ``'COMPLETE'`` when that step ran)."""
+    a Roman L2 ASDF file (``S_IPC``, ``S_DARK``: ``'COMPLETE'`` when that step ran;
+    ``R_DARK``; and, from its exposure metadata, ``READPATT`` (the MA table's name),
+    ``NGROUPS`` (resultants), ``NINTS`` (1) and ``TFRAME``)."""
     if not is_asdf(path):
         return fits.getheader(os.fspath(path))
     hdr = fits.Header()
     with _open_roman(path) as m:
+        exposure = m.meta.get("exposure", {})
+        for key, name in (("READPATT", "ma_table_name"), ("NGROUPS", "nresultants"),
+                          ("TFRAME", "frame_time")):
+            value = exposure.get(name) if hasattr(exposure, "get") else None
+            if value is None or (isinstance(value, str) and value.strip() in ("", "?")):
+                continue                    # not recorded
+            hdr[key] = value
+        hdr["NINTS"] = 1
         steps = m.meta.cal_step
         for key, name in (("S_IPC", "ipc"), ("S_DARK", "dark")):
             value = str(getattr(steps, name, "INCOMPLETE")) if name in steps else \
@@ -135,8 +145,13 @@ def subtracted_dark_rate(header, t_frame, gain):
 
 def subtract_dark(truth, dark):
     """A copy of ``truth`` (:func:`scenesim.io.exposure.read_truth`) without ``dark``
-    (e-/s, before IPC): ``RATE - dark`` and ``RATE_IPC - IPC(dark)``."""
+    (e-/s, before IPC): ``RATE - dark`` and ``RATE_IPC - IPC(dark)``.  The rates the
+    pixels collected, dark included, stay in ``out['COLLECTED']`` (a truth-like dict
+    of ``RATE``, ``RATE_IPC`` and ``header``): the shot noise of a ramp, and so the
+    optimum a fit is graded against, is that of all the charge, not of the charge
+    left after the pipeline took the dark out."""
     out = dict(truth)
+    out["COLLECTED"] = {k: truth[k] for k in ("RATE", "RATE_IPC", "header") if k in truth}
     for key in ("RATE", "RATE_IPC"):
         if key in out and np.shape(out[key]) != np.shape(dark):
             raise FileFormatError(

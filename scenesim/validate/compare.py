@@ -30,6 +30,7 @@ numpy error or an overflow deep inside; and every other error about a file's
 content names that file.
 """
 
+import math
 import numbers
 import os
 from dataclasses import dataclass, field
@@ -248,7 +249,14 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     dq = f["dq"]
     regular = (dq & np.uint32(REFERENCE_PIXEL)) == 0
     use = regular & ((dq & np.uint32(DO_NOT_USE)) == 0)
-    r0 = np.clip(rate, 0.0, None)
+    # the noise of a ramp is that of all the charge it collected: a pipeline's dark
+    # subtraction moves the rate the fit is graded on, not the shot noise it had
+    collected = rate
+    if "COLLECTED" in truth:
+        collected = _true_rate(truth["COLLECTED"], ipc_deconvolved, [])[0]
+        notes.append("optimum and hit thresholds at the collected rate (the truth "
+                     "with the dark the pipeline subtracted)")
+    r0 = np.clip(collected, 0.0, None)
     satgroup = _satgroup(truth, nints, rate.shape, len(read_times), notes)
     var_opt = usable_variance(r0, read_times, read_noise, nints=nints, satgroup=satgroup)
     var_ols = usable_variance(r0, read_times, read_noise, nints=nints, satgroup=satgroup,
@@ -258,7 +266,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
                               resultant_noise=q)
     rows = bin_rows(f, rate, var_opt, var_eff, var_ols, edges, use, regular,
                     clusters=_clusters(hdr, rate.shape))
-    jumps = _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes, rate)
+    jumps = _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes, collected)
     photometry = {}
     src = truth.get("SOURCES")
     if src is not None and len(src) and all(c in src.colnames for c in ("x", "y", "flux")):
@@ -533,6 +541,34 @@ SAME_EXPOSURE_CARDS = ("DETECTOR", "DETNAX1", "DETNAX2", "NOUTPUTS", "SUBSTRT1",
                        "RESETMD", "SEED", "SEEDENT")
 
 
+#: Cards a slope file carries from its exposure (scenesim's fit files, a JWST rate
+#: file through the uncal, a Roman L2's exposure metadata: :func:`fit_header`) that
+#: must equal the truth's.
+SAME_RUN_CARDS = ("NINTS", "NGROUPS", "NFRAMES", "GROUPGAP", "READPATT", "TFRAME",
+                  "SEED", "SEEDENT")
+
+
+def _check_same_run(fit_hdr, truth_hdr):
+    """Raise unless the slope file and the truth describe the same exposure: every
+    card of :data:`SAME_RUN_CARDS` both carry agrees (``TFRAME`` to 1e-9; a JWST
+    ``READPATT = 'ANY'`` stands for any pattern of scenesim's own, whose name is in
+    ``SSREADPT``)."""
+    for key in SAME_RUN_CARDS:
+        if key not in fit_hdr or key not in truth_hdr:
+            continue
+        mine, theirs = fit_hdr[key], truth_hdr[key]
+        if key == "READPATT" and str(mine).strip().upper() == "ANY":
+            mine = fit_hdr.get("SSREADPT", theirs)
+        if key == "TFRAME":
+            same = math.isclose(float(mine), float(theirs), rel_tol=1e-9)
+        else:
+            same = str(mine).strip() == str(theirs).strip()
+        if not same:
+            raise FileFormatError(
+                f"{key!r} = {mine!r} but the truth file has {theirs!r}: not the same "
+                f"exposure")
+
+
 def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
                   radius=4.0, edges=DEFAULT_EDGES, cr_sigma=10.0):
     """Compare a slope file with a truth file; see :func:`compare`.
@@ -567,6 +603,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     try:
         fit = read_slopes(fit_path, gain=gain)
         fit_hdr = fit_header(fit_path)             # FITS, or a Roman L2's cal steps
+        _check_same_run(fit_hdr, hdr)
         ipc_deconvolved = header_ipc_deconvolved(fit_hdr)
         dark, note = subtracted_dark_rate(fit_hdr, exposure_settings(hdr)["t_frame"],
                                           gain)

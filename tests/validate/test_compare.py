@@ -143,6 +143,52 @@ def test_poisson_limit_and_jwst_layout(tmp_path):
     assert _row(rep, 1.0)["n_regular"] + _row(rep, 100.0)["n_regular"] == 2000
 
 
+def test_a_subtracted_dark_is_graded_at_the_rate_the_pixels_collected(tmp_path):
+    """A pipeline that subtracted a dark reports ``net = collected - dark``, but its
+    ramps carried the shot noise of all the charge: the optimum is
+    ``V = f_collected / (t_last - t_first) / nints`` (read noise 0).  Before, it was
+    taken at the net rate: std_opt sqrt(40 / 10) = 2 for a 10 e-/s source on a 30
+    e-/s dark (a hostile probe saw 2.85 against 1.016 by hand on a Detector1 file)."""
+    from scenesim.io.exposure import read_truth
+    from scenesim.pipelines.products import subtract_dark
+    rng = np.random.default_rng(14)
+    shape = (40, 50)
+    dark, net = 30.0, 10.0
+    collected = np.full(shape, dark + net)
+    v_opt = collected / ((NG - 1) * TF) / NINTS
+    slope = net + np.sqrt(v_opt) * rng.standard_normal(shape)
+    fit = dict(slope=slope, var=v_opt, dq=np.zeros(shape, np.uint32))
+    truth = read_truth(_write_truth(tmp_path / "truth.fits", collected, _header(0.0)))
+    rep = compare(fit, subtract_dark(truth, np.full(shape, dark)))
+    row = _row(rep, 10.0)
+    n = row["n"]
+    assert n == 2000 and any("collected rate" in note for note in rep.notes)
+    assert abs(row["bias_opt"]) < 5 / math.sqrt(n)         # 5 sigma, mean of N(0, 1)
+    assert abs(row["std_opt"] - 1) < 5 / math.sqrt(2 * n)  # 5 sigma, std of N(0, 1)
+    assert abs(row["chi2_rep"] - 1) < 5 * math.sqrt(2 / n)
+
+
+def test_a_slope_file_of_another_exposure_is_refused(tmp_path):
+    """compare graded a slope file against another run's truth without a word (bias
+    -35 sigma, chi2 1270): the exposure cards both carry must agree."""
+    shape = (10, 10)
+    rate = np.full(shape, 5.0)
+    fit = _write_fit(tmp_path / "fit.fits", rate, np.ones(shape))
+    with fits.open(fit, mode="update") as hdul:
+        hdul[0].header["NINTS"] = NINTS
+        hdul[0].header["TFRAME"] = TF
+        hdul[0].header["SEED"] = 5
+        hdul[0].header["READPATT"] = "RAPID"
+    for card, value in (("NINTS", 1), ("TFRAME", 2.5), ("SEED", 6), ("READPATT", "DEEP8")):
+        truth = _write_truth(tmp_path / f"t_{card}.fits", rate,
+                             _header(1.0, **{"SEED": 5, card: value}))
+        with pytest.raises(FileFormatError, match=rf"slope file .*fit\.fits.*'{card}' = .* "
+                                                  r"but the truth file has .*not the same "
+                                                  r"exposure"):
+            compare_files(fit, truth)
+    compare_files(fit, _write_truth(tmp_path / "same.fits", rate, _header(1.0, SEED=5)))
+
+
 def test_jump_completeness_and_false_positives(tmp_path):
     rng = np.random.default_rng(13)
     shape = (30, 30)
