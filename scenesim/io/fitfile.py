@@ -291,6 +291,15 @@ def read_slopes(path, *, gain=None):
             layout = "scenesim"
         elif "SCI" in names:
             layout = "jwst"
+            hdr0 = hdul[0].header
+            model = hdr0.get("DATAMODL")
+            if "REFTYPE" in hdr0 or (model is not None
+                                     and model not in ("ImageModel", "CubeModel")):
+                what = (f"reference file (REFTYPE = {hdr0['REFTYPE']!r})"
+                        if "REFTYPE" in hdr0 else f"{model} file")
+                raise FileFormatError(
+                    f"{path!r} is a JWST {what}, not a rate (ImageModel) or rateints "
+                    f"(CubeModel) file")
             need = ["SCI", "DQ"]
             if not ("VAR_POISSON" in names and "VAR_RNOISE" in names):
                 need.append("ERR")

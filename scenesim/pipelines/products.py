@@ -26,6 +26,7 @@
 """
 
 import os
+import warnings
 
 import numpy as np
 from astropy.io import fits
@@ -59,11 +60,16 @@ def _open_roman(path):
         raise ParameterError("reading a Roman L2 file needs the optional 'roman' "
                              "extra (roman_datamodels is not installed): pip install "
                              "-e '.[roman]'") from exc
+    if not os.path.isfile(os.fspath(path)):
+        raise FileFormatError(f"{os.fspath(path)!r} does not exist (or is not a file)")
     try:
-        return rdm.open(os.fspath(path))
+        with warnings.catch_warnings():     # a damaged tree: one line, not the schema
+            warnings.simplefilter("ignore")
+            return rdm.open(os.fspath(path))
     except Exception as exc:          # asdf raises many types for a bad file
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         raise FileFormatError(f"{os.fspath(path)!r} is not a Roman datamodels ASDF "
-                              f"file: {exc}") from exc
+                              f"file ({type(exc).__name__}: {text[:200]})") from exc
 
 
 def fit_header(path):
@@ -188,13 +194,22 @@ def read_roman_l2(path, *, gain):
         raise ParameterError(f"'gain' (e-/DN, > 0) is needed to convert the Roman L2 "
                              f"file {os.fspath(path)!r} to e-/s, got {gain!r}")
     with _open_roman(path) as m:
-        slope = np.asarray(m.data, dtype=np.float64)
-        if "var_rnoise" in m and "var_poisson" in m:
-            var = np.asarray(m.var_poisson, dtype=np.float64) + np.asarray(
-                m.var_rnoise, dtype=np.float64)
-        else:
-            var = np.asarray(m.err, dtype=np.float64) ** 2
-        dq = np.asarray(m.dq).astype(np.uint32)
+        kind = type(m).__name__
+        if kind != "ImageModel":        # an L1 ramp, a reference file...
+            raise FileFormatError(
+                f"{os.fspath(path)!r} holds a Roman {kind}, not an L2 image "
+                f"(ImageModel, the slopes 'scenesim pipeline roman' writes)")
+        try:                            # the blocks are read here: a damaged one fails
+            slope = np.asarray(m.data, dtype=np.float64)
+            if "var_rnoise" in m and "var_poisson" in m:
+                var = np.asarray(m.var_poisson, dtype=np.float64) + np.asarray(
+                    m.var_rnoise, dtype=np.float64)
+            else:
+                var = np.asarray(m.err, dtype=np.float64) ** 2
+            dq = np.asarray(m.dq).astype(np.uint32)
+        except Exception as exc:        # noqa: BLE001 - asdf/numpy on a damaged file
+            raise FileFormatError(f"cannot read Roman L2 {os.fspath(path)!r}: damaged "
+                                  f"file ({type(exc).__name__}: {exc})") from exc
     # romancal's ramp fit trims the 4-pixel border ([4:-4, 4:-4]) whatever the
     # array; put the L2 back on the read-out grid, the border flagged as reference
     # (not graded) and DO_NOT_USE

@@ -264,6 +264,10 @@ def l1_model(exposure, *, rng=None):
     tbar = ro.mean_times(t_frame)
     ex.exposure_time = float((ro.nreads + 1) * t_frame)
     ex.effective_exposure_time = float(tbar[-1] - tbar[0])
+    # the fake model's start time stays; the end follows it by the exposure time
+    # (create_fake_data sets both to the same instant)
+    from astropy.time import TimeDelta
+    ex.end_time = ex.start_time + TimeDelta(ex.exposure_time, format="sec")
     m.meta.filename = "l1.asdf"
     return m
 
@@ -285,7 +289,7 @@ def _save_asdf(model, path, overwrite):
 def write_l1(exposure, path, *, overwrite=False):
     """Write the Roman L1 ASDF file of a scenesim exposure; returns ``path``."""
     path = check_writable("L1 path", path, overwrite=overwrite)
-    if not os.fspath(path).endswith(".asdf"):
+    if not os.fspath(path).lower().endswith(".asdf"):
         raise ParameterError(f"'path' of a Roman L1 file must end in '.asdf', got "
                              f"{os.fspath(path)!r}")
     m = l1_model(exposure)
@@ -409,6 +413,10 @@ def check_l1_file(path):
             warnings.simplefilter("ignore")
             with rdd.open(path) as model:
                 kind, shape = type(model).__name__, np.shape(model.data)
+                if kind == "ScienceRawModel" and len(shape) == 3:
+                    # the blocks load lazily: read the ramp now, so that a damaged
+                    # or cut file is refused here, not inside romancal
+                    np.asarray(model.data).sum(dtype=np.float64)
     except Exception as exc:                 # not ASDF, or not a Roman data model
         raise FileFormatError(
             f"L1 {path!r} is not a Roman ASDF data model ({type(exc).__name__}: "
@@ -420,6 +428,39 @@ def check_l1_file(path):
             f"(ScienceRawModel, (nresultants, ny, nx)); write one with 'scenesim run "
             f"SCENE --l1'")
     return path
+
+
+def _check_references_match(l1, references):
+    """Raise unless every reference is of the L1's detector and image size (a set
+    written for another array broke inside romancal with a numpy broadcast error; one
+    of another detector of the same size ran without a word)."""
+    rdd = _rdm()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rdd.open(l1) as m:
+            detector = str(m.meta.instrument.detector)
+            shape = tuple(np.shape(m.data)[-2:])
+        for reftype, ref in sorted(references.items()):
+            try:
+                with rdd.open(os.fspath(ref)) as r:
+                    theirs = str(r.meta.instrument.detector)
+                    arrays = [k for k in ("data", "dq", "dark_slope") if k in r]
+                    ref_shape = tuple(np.shape(r[arrays[0]])[-2:]) if arrays else None
+            except Exception as exc:                  # noqa: BLE001 - asdf's many
+                raise FileFormatError(f"{reftype} reference {os.fspath(ref)!r} is not a "
+                                      f"Roman reference file ({type(exc).__name__}: "
+                                      f"{str(exc).splitlines()[0] if str(exc) else ''})"
+                                      ) from exc
+            if theirs != detector:
+                raise ParameterError(
+                    f"{reftype} reference {os.fspath(ref)!r} is for detector {theirs!r}, "
+                    f"the L1 {os.fspath(l1)!r} for {detector!r}")
+            if ref_shape is not None and ref_shape != shape:
+                raise ParameterError(
+                    f"{reftype} reference {os.fspath(ref)!r} is {ref_shape[0]} x "
+                    f"{ref_shape[1]} pixels, the L1 {os.fspath(l1)!r} {shape[0]} x "
+                    f"{shape[1]}: references of another array (write them with "
+                    f"'scenesim run SCENE --reffiles')")
 
 
 def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,
@@ -466,6 +507,7 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,
     if algorithm not in ("likely", "ols_cas22"):
         raise ParameterError(f"'algorithm' must be 'likely' or 'ols_cas22', got "
                              f"{algorithm!r}")
+    _check_references_match(l1, references)
     from scenesim.outputs import check_outputs
     # never the L1 or a reference, even with overwrite
     read = [l1, *map(os.fspath, references.values()), *map(os.fspath, inputs)]

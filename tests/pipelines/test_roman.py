@@ -59,6 +59,11 @@ def test_l1_opens_and_its_read_times_are_ours(roman_loop):
         assert m.amp33.shape == (ro.ngroups, sci.shape[2], 128)
         pattern = [list(r) for r in m.meta.exposure.read_pattern]
         t = float(m.meta.exposure.frame_time)
+        # the end is the start plus the exposure time (before: the same instant)
+        ex = m.meta.exposure
+        assert (ex.end_time - ex.start_time).sec == pytest.approx(ex.exposure_time,
+                                                                  abs=1e-3)
+        assert ex.exposure_time > 0
     assert t == hdr["TFRAME"]
     # romancal's resultant time: mean of the 1-based read indices times frame_time
     # (romancal.ramp_fitting, stcal cas22); ours: Readout.mean_times, rolling reset
@@ -335,3 +340,28 @@ def test_pipeline_roman_never_replaces_an_input_and_checks_first(roman_loop, tmp
         lines = res.stderr.strip().splitlines()
         assert len(lines) == 1 and all(word in lines[0] for word in words), res.stderr
     assert {p: p.read_bytes() for p in w.rglob("*") if p.is_file()} == before
+
+
+def test_compare_takes_only_an_l2_and_a_damaged_l1_is_refused_first(roman_loop,
+                                                                     tmp_path):
+    """compare given an L1 or a reference as slopes raised AttributeError tracebacks;
+    a cut L1 (its blocks load lazily) passed the pipeline's input check and failed
+    inside romancal (IndexError), and compare on it raised ValueError."""
+    from noise.errors import FileFormatError
+    d, _ = roman_loop
+    truth = str(d / "roman_loop_truth.fits")
+    dark = next(p for p in (d / "roman_loop_refs").iterdir() if "dark" in p.name)
+    for path, words in ((d / "roman_loop_l1.asdf", "ScienceRawModel, not an L2"),
+                        (dark, "DarkRefModel, not an L2")):
+        with pytest.raises(FileFormatError, match=words):
+            compare_files(str(path), truth)
+    data = (d / "roman_loop_l1.asdf").read_bytes()
+    cut = tmp_path / "cut_l1.asdf"
+    cut.write_bytes(data[:len(data) // 2])
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "pipeline", "roman",
+                          str(cut), "--refs", str(d / "roman_loop_refs"), "-o",
+                          str(tmp_path / "out.asdf")], capture_output=True, text=True)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cut_l1.asdf" in lines[0], res.stderr
+    assert not (tmp_path / "out.asdf").exists()

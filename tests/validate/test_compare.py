@@ -168,6 +168,25 @@ def test_a_subtracted_dark_is_graded_at_the_rate_the_pixels_collected(tmp_path):
     assert abs(row["chi2_rep"] - 1) < 5 * math.sqrt(2 / n)
 
 
+@pytest.mark.parametrize("cards", [{"REFTYPE": "DARK", "DATAMODL": "DarkModel"},
+                                   {"DATAMODL": "RampModel"}])
+def test_a_jwst_file_that_is_not_a_rate_file_is_refused(tmp_path, cards):
+    """A JWST dark reference (SCI, DQ, ERR like a rate file) was graded as slopes:
+    an empty table and photometry 0.0000."""
+    shape = (10, 10)
+    prim = fits.PrimaryHDU()
+    for key, value in cards.items():
+        prim.header[key] = value
+    fits.HDUList([prim, fits.ImageHDU(np.ones((3,) + shape, np.float32), name="SCI"),
+                  fits.ImageHDU(np.zeros(shape, np.uint32), name="DQ"),
+                  fits.ImageHDU(np.ones((3,) + shape, np.float32), name="ERR")]
+                 ).writeto(tmp_path / "ref.fits")
+    truth = _write_truth(tmp_path / "truth.fits", np.ones(shape), _header(1.0))
+    with pytest.raises(FileFormatError, match=r"ref\.fits' is a JWST .*not a rate "
+                                              r"\(ImageModel\) or rateints"):
+        compare_files(str(tmp_path / "ref.fits"), truth)
+
+
 def test_a_slope_file_of_another_exposure_is_refused(tmp_path):
     """compare graded a slope file against another run's truth without a word (bias
     -35 sigma, chi2 1270): the exposure cards both carry must agree."""
