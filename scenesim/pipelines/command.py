@@ -23,7 +23,6 @@ import glob
 import os
 
 from noise.errors import ParameterError
-from noise.fitsio import derived_path
 
 __all__ = ["pipeline_command", "write_run_products", "check_run_products",
            "product_paths", "reference_paths", "require_extra", "reference_families",
@@ -70,8 +69,7 @@ def product_paths(exposure):
     """``{'uncal', 'l1', 'reffiles'}`` paths derived from the exposure path
     (``stem_uncal.fits``, ``stem_l1.asdf``, ``stem_refs``)."""
     stem = _stem(exposure)
-    return {"uncal": derived_path(os.fspath(exposure), "_uncal").replace(".fits.gz",
-                                                                        ".fits"),
+    return {"uncal": stem + "_uncal.fits",      # never compressed: jwst reads it
             "l1": stem + "_l1.asdf", "reffiles": stem + "_refs"}
 
 
@@ -96,8 +94,10 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
     if l1 or roman_refs:
         require_extra("roman", "--l1" if l1 else "--reffiles (Roman reference files)")
     if (uncal or jwst_refs) and scene.instrument.subarray:
+        from scenesim.pipelines.instrument import resolve_instrument
         from scenesim.pipelines.jwst import check_subarray_name
-        check_subarray_name(scene.instrument.subarray)
+        check_subarray_name(scene.instrument.subarray, det,
+                            resolve_instrument(scene.instrument, det, ro.name)["name"])
     if uncal and (det.n_out_active not in (1, 4) or max(det.naxis1, det.naxis2) > 2048):
         raise ParameterError(
             f"--uncal: a JWST uncal needs a detector of at most 2048 x 2048 read through "
@@ -114,13 +114,13 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
     if l1:
         from scenesim.pipelines.roman import check_amp33_detector
         check_amp33_detector(det)
-    from scenesim.outputs import scene_inputs
+    from scenesim.outputs import check_not_dangling, scene_inputs
     inputs = scene_inputs(scene)               # never written, even with overwrite
     check_outputs({"JWST uncal": paths["uncal"] if uncal else None,
                    "Roman L1": paths["l1"] if l1 else None},
                   inputs=inputs, overwrite=overwrite)
     if reffiles:
-        refs = paths["reffiles"]
+        refs = check_not_dangling("--reffiles", paths["reffiles"])
         if os.path.exists(refs) and not os.path.isdir(refs):
             raise ParameterError(f"the reference directory {refs!r} is a file; remove it "
                                  f"or write the exposure under another name")

@@ -112,6 +112,7 @@ reads it.
 """
 
 import contextlib
+import math
 import os
 import tempfile
 
@@ -128,7 +129,7 @@ from scenesim.adapters.stcal import stcal_read_noise
 from scenesim.detector.dq import REFERENCE_PIXEL
 from scenesim.io.exposure import Exposure
 from scenesim.io.header import header_instrument, readout_from_table
-from scenesim.outputs import made_directory
+from scenesim.outputs import check_not_dangling, made_directory
 from scenesim.pipelines.instrument import resolve_instrument
 
 __all__ = ["write_uncal", "uncal_model", "irs2_to_dms", "irs2_filter",
@@ -171,11 +172,17 @@ def _datamodels():
     return datamodels
 
 
-def check_subarray_name(name):
+def check_subarray_name(name, detector=None, instrument=""):
     """Raise a one-line :class:`~noise.errors.ParameterError` unless ``name`` is a
     ``SUBARRAY`` value the JWST data models accept (``FULL``, ``GENERIC`` or a name
     of stdatamodels' ``subarray.schema.yaml``); the models would otherwise drop it
-    with a warning and the file would fail strict validation."""
+    with a warning and the file would fail strict validation.
+
+    With the ``detector`` (:class:`noise.clock.Detector`) the name must also fit its
+    readout: ``FULL`` only for a full frame, a named subarray only for a window, and
+    NIRCam's and NIRISS's square names (``SUB<N>`` and ``SUB<N>P``, e.g. ``SUB640``,
+    ``SUB64P``) only for an N x N window (a 32 x 32 window said ``SUB640``)."""
+    import re
     import warnings
     dm = _datamodels()
     model = dm.Level1bModel()
@@ -187,6 +194,25 @@ def check_subarray_name(name):
             f"[instrument] 'subarray' = {name!r} is not a JWST SUBARRAY name: use "
             f"'FULL', 'GENERIC' (any other window) or a name of the JWST subarray "
             f"lists (stdatamodels subarray.schema.yaml, e.g. 'SUB64P', 'SUB160')")
+    if detector is None or name == "GENERIC":
+        return name
+    full = detector.subarray is None
+    if name == "FULL" and not full:
+        raise ParameterError(
+            f"[instrument] 'subarray' = 'FULL', but the readout is a {detector.ny} x "
+            f"{detector.nx} window ([detector.subarray]); use 'GENERIC' or its JWST name")
+    if name != "FULL" and full:
+        raise ParameterError(
+            f"[instrument] 'subarray' = {name!r} names a subarray, but the readout is "
+            f"the full {detector.ny} x {detector.nx} frame; use 'FULL'")
+    square = re.fullmatch(r"SUB(\d+)P?", name)
+    if square and str(instrument).upper() in ("NIRCAM", "NIRISS"):
+        n = int(square.group(1))
+        if (detector.ny, detector.nx) != (n, n):
+            raise ParameterError(
+                f"[instrument] 'subarray' = {name!r} is a {n} x {n} subarray, but the "
+                f"window is {detector.ny} x {detector.nx}; use 'GENERIC' or the name of "
+                f"a window of that size")
     return name
 
 
@@ -277,7 +303,7 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     ro = readout_from_table(hdr, exp.reads)
     t_frame = float(hdr["TFRAME"])
     ident = resolve_instrument(header_instrument(hdr), det, ro.name)
-    check_subarray_name(ident["subarray"])
+    check_subarray_name(ident["subarray"], det, ident["name"])
     irs2 = det.interleave is not None
     check_irs2_detector(det, ident["detector"])
     if irs2 and zero_frame is not None:
@@ -316,9 +342,11 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     ex.group_time = float(ro.tgroup(t_frame))
     tbar = ro.mean_times(t_frame)
     ex.integration_time = float(tbar[-1] - tbar[0]) if ro.ngroups > 1 else float(tbar[0])
+    # EFFEXPTM and XPOSURE are both the effective exposure time in the DMS
+    # (integration time x integrations); DURATION is the whole span, resets included
     ex.effective_exposure_time = ex.integration_time * nints
-    ex.exposure_time = float(int_end[-1] - int_start[0])
-    ex.duration = ex.exposure_time
+    ex.exposure_time = ex.effective_exposure_time
+    ex.duration = float(int_end[-1] - int_start[0])
     ex.zero_frame = zero_frame is not None
     if zero_frame is not None:
         zero_frame = np.asarray(zero_frame)
@@ -328,8 +356,8 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
         m.zeroframe = np.ascontiguousarray(zero_frame, dtype=np.uint16)
     ex.noutputs = det.n_out_active
     ex.start_time = start.mjd
-    ex.mid_time = start.mjd + ex.exposure_time / 2 / day
-    ex.end_time = start.mjd + ex.exposure_time / day
+    ex.mid_time = start.mjd + ex.duration / 2 / day
+    ex.end_time = start.mjd + ex.duration / day
     sub = meta.subarray
     sub.name = ident["subarray"]
     sub.xstart, sub.ystart = det.x0 + 1, det.y0 + 1
@@ -732,6 +760,56 @@ def irs2_refpix_exposure(uncal, refpix_reference, exposure, **step_pars):
     return Exposure(sci, exp.header, exp.reads, f"{os.fspath(uncal)} (jwst refpix IRS2)")
 
 
+#: The image extension of each reference type whose size must be the uncal's.
+_REFERENCE_IMAGE = {"gain": "SCI", "readnoise": "SCI", "saturation": "SCI",
+                    "superbias": "SCI", "linearity": "COEFFS", "dark": "SCI",
+                    "mask": "DQ"}
+
+
+def _check_references_match(uncal, references, irs2):
+    """Raise unless every reference is of the uncal's detector and size and, where
+    the uncal records scenesim's gain (``GAIN``), the gain reference holds it (a set
+    written for another array broke inside jwst; another detector's set of the same
+    size ran without a word, gain 2.0 on a 1.8 e-/DN exposure).  A full-frame
+    reference (``SUBARRAY = 'FULL'``) fits any subarray (jwst cuts it); IRS2 uncals
+    have their own size rules (:func:`_check_irs2_references`)."""
+    from astropy.io import fits
+    with fits.open(os.fspath(uncal)) as hdul:
+        h0 = hdul[0].header
+        detector, gain = h0.get("DETECTOR"), h0.get("GAIN")
+        shape = (hdul["SCI"].header.get("NAXIS2"), hdul["SCI"].header.get("NAXIS1"))
+    for reftype, ext in _REFERENCE_IMAGE.items():
+        if reftype not in references:
+            continue
+        ref = os.fspath(references[reftype])
+        try:
+            with fits.open(ref) as hdul:
+                theirs = hdul[0].header.get("DETECTOR")
+                full = str(hdul[0].header.get("SUBARRAY", "")).upper() == "FULL"
+                h = hdul[ext].header
+                ref_shape = (h.get("NAXIS2"), h.get("NAXIS1"))
+                median = (float(np.median(hdul[ext].data))
+                          if reftype == "gain" and gain is not None else None)
+        except (OSError, KeyError, TypeError, ValueError) as exc:
+            raise FileFormatError(f"{reftype} reference {ref!r} is not a JWST reference "
+                                  f"file with a {ext!r} image ({exc})") from exc
+        if detector and theirs and theirs not in ("ANY", "MULTIPLE") and \
+                theirs != detector:
+            raise ParameterError(f"{reftype} reference {ref!r} is for detector "
+                                 f"{theirs!r}, the uncal {os.fspath(uncal)!r} for "
+                                 f"{detector!r}")
+        if not irs2 and ref_shape != shape and not full:   # jwst cuts a FULL one
+            raise ParameterError(
+                f"{reftype} reference {ref!r} is {ref_shape[0]} x {ref_shape[1]} pixels, "
+                f"the uncal {os.fspath(uncal)!r} {shape[0]} x {shape[1]}: references of "
+                f"another array (write them with 'scenesim run SCENE --reffiles')")
+        if median is not None and not math.isclose(median, float(gain), rel_tol=1e-4):
+            raise ParameterError(
+                f"gain reference {ref!r} holds {median:g} e-/DN, but the uncal "
+                f"{os.fspath(uncal)!r} was digitised at GAIN = {gain:g} e-/DN: "
+                f"references of another run")
+
+
 def _check_irs2_references(uncal, references):
     """Raise unless ``references`` are the IRS2 ones (module notes): a ``refpix``
     reference and a 3200 x 2048 (raw IRS2 layout) mask and superbias."""
@@ -820,7 +898,7 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
     uncal = check_uncal_file(uncal)
     irs2 = "NRS_NORM" in fits.getheader(os.fspath(uncal))
     products = detector1_products(uncal, output_dir, ramp=save_calibrated_ramp)
-    output_dir = os.fspath(output_dir)
+    output_dir = check_not_dangling("output_dir", os.fspath(output_dir))
     if os.path.isdir(output_dir):
         # never the uncal nor a reference, even with overwrite (an input named
         # x_rate.fits has the product x_rate.fits); an existing product only with it
@@ -839,6 +917,7 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
                              f"write_reference_files")
     if irs2:
         _check_irs2_references(uncal, references)
+    _check_references_match(uncal, references, irs2)
     cfg = {name: {"skip": True} for name in SKIPPED_STEPS}
     for step, reftypes in (("dq_init", ("mask",)),
                            ("saturation", ("saturation", "superbias")),

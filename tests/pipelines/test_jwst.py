@@ -282,6 +282,15 @@ def test_frame_keywords_and_int_times_against_the_clock(tmp_path):
     from astropy.io import fits
     hdr = fits.getheader(path)
     assert hdr["DRPFRMS1"] == 2 and hdr["FRMDIVSR"] == 2
+    # EFFEXPTM and XPOSURE (both "effective exposure time" in the schema) =
+    # EFFINTTM x NINTS; DURATION the whole span, 2 x 11 frames (before, EFFEXPTM was
+    # the duration)
+    with dm.RampModel(path) as m:
+        ex = m.meta.exposure
+        assert ex.exposure_time == pytest.approx(ex.integration_time * 2, rel=1e-12)
+        assert ex.effective_exposure_time == pytest.approx(ex.exposure_time, rel=1e-12)
+        assert ex.duration == pytest.approx(22 * t, rel=1e-9)
+    assert hdr["EFFEXPTM"] == pytest.approx(hdr["EFFINTTM"] * 2, rel=1e-12)
 
 
 def _refused(args, cwd):
@@ -314,6 +323,14 @@ def test_pipeline_jwst_never_replaces_an_input_and_checks_first(jwst_loop, tmp_p
     (w / "file").write_text("mine")
     shutil.copytree(d / "jwst_loop_refs", w / "refs")
     shutil.copy(d / "jwst_loop.fits", w / "exposure.fits")
+    # references of another run: another gain, another array size
+    from astropy.io import fits
+    shutil.copytree(d / "jwst_loop_refs", w / "refs_gain")
+    with fits.open(w / "refs_gain" / "jwst_gain.fits", mode="update") as hdul:
+        hdul["SCI"].data = hdul["SCI"].data * np.float32(1.1)
+    shutil.copytree(d / "jwst_loop_refs", w / "refs_size")
+    with fits.open(w / "refs_size" / "jwst_superbias.fits", mode="update") as hdul:
+        hdul["SCI"].data = hdul["SCI"].data[:-2]
     before = _digest(w)
     for args, words in (
             (["z_rate.fits", "--overwrite"], ["z_rate.fits", "reads"]),
@@ -325,8 +342,16 @@ def test_pipeline_jwst_never_replaces_an_input_and_checks_first(jwst_loop, tmp_p
             # a truth of the wrong kind (before: found after the rate files were
             # written)
             (["z_rate.fits", "-o", "new", "--truth", "exposure.fits"],
-             ["truth", "exposure.fits"])):
-        line = _refused(["pipeline", "jwst", *args, "--refs", "refs"], w)
+             ["truth", "exposure.fits"]),
+            # references of another run (before: ran without a word, or failed
+            # inside jwst with a traceback)
+            (["z_rate.fits", "-o", "new", "--refs", "refs_gain"],
+             ["gain reference", "GAIN"]),
+            (["z_rate.fits", "-o", "new", "--refs", "refs_size"],
+             ["superbias reference", "pixels"])):
+        if "--refs" not in args:
+            args = [*args, "--refs", "refs"]
+        line = _refused(["pipeline", "jwst", *args], w)
         assert all(word in line for word in words), line
     assert _digest(w) == before and not (w / "new").exists()
 
