@@ -567,6 +567,16 @@ _gzip_verified = {}          # (path, inode, size, mtime_ns) -> True, of this pr
 _gzip_lock = threading.Lock()
 
 
+def is_gzip_file(path):
+    """True if the file at ``path`` starts with the gzip magic bytes (whatever its
+    name: ``x.FITS.GZ`` is as compressed as ``x.fits.gz``)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(2) == _GZIP_MAGIC
+    except OSError:
+        return False
+
+
 def _check_gzip(path, what):
     """Refuse a gzip-compressed file whose stream is damaged.
 

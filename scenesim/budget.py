@@ -497,7 +497,7 @@ def _reference_sizes(scene, det, ro, products):
 def _product_outputs(scene, path, products, P, N, det, ro):
     """The pipeline products: their outputs (label, bytes) and the peak memory of
     writing them, on top of what the run keeps (module notes)."""
-    stem = path[:-len(".fits.gz")] if path.endswith(".fits.gz") else \
+    stem = path[:-len(".fits.gz")] if path.lower().endswith(".fits.gz") else \
         os.path.splitext(path)[0]
     nints, ngroups, ny = ro.nints, ro.ngroups, det.ny
     _, NR, X, Nraw = _raw_sizes(det, nints, ngroups)

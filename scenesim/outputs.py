@@ -24,7 +24,7 @@ from noise.fitsio import check_output_name, derived_path, remove_stale_temps
 from noise.validate import check_writable
 
 __all__ = ["PLOT_FILES", "scene_inputs", "check_outputs", "check_plot_dir",
-           "fit_path_for", "clean_stale_temps"]
+           "fit_path_for", "clean_stale_temps", "check_not_dangling"]
 
 #: The figures ``compare --plots DIR`` writes into ``DIR``.
 PLOT_FILES = ("slope.png", "residuals.png", "noise_vs_flux.png")
@@ -137,6 +137,18 @@ def check_outputs(outputs, *, inputs=(), overwrite=False, endings=None):
     return checked
 
 
+def check_not_dangling(name, path):
+    """Refuse an output directory ``path`` that is a symbolic link to nothing: it
+    neither exists (so it would be created) nor can be created (``makedirs`` fails on
+    the link).  Returns ``path``."""
+    if path is not None and os.path.islink(path) and not os.path.exists(path):
+        raise ParameterError(
+            f"{name!r} {os.fspath(path)!r} is a symbolic link to "
+            f"{os.readlink(path)!r}, which does not exist; remove the link or name a "
+            f"directory")
+    return path
+
+
 def check_plot_dir(directory, *, inputs=(), overwrite=False):
     """The figures ``compare`` would write into ``directory``, checked like outputs
     (:func:`check_outputs`: a figure that would replace one of ``inputs``, the files
@@ -145,7 +157,7 @@ def check_plot_dir(directory, *, inputs=(), overwrite=False):
     ``directory`` may not exist yet (it is created when the figures are written) but
     must not be a file.  Returns ``{name: path}`` of the figures.
     """
-    directory = os.fspath(directory)
+    directory = check_not_dangling("plots", os.fspath(directory))
     if os.path.exists(directory) and not os.path.isdir(directory):
         raise ParameterError(
             f"'plots' {directory!r} is a file; expected a directory for the figures")

@@ -56,6 +56,7 @@ from scenesim.batch.manifest import (Manifest, batch_lock, check_same_batch,
                                      load_record, read_manifest)
 from scenesim.batch.pool import pool_reports
 from scenesim.batch.tasks import run_task, warm_worker
+from scenesim.outputs import check_not_dangling
 
 __all__ = ["run_batch", "BatchResult", "BatchError", "check_scheduler"]
 
@@ -160,6 +161,7 @@ def _check_out_writable(out_dir):
     """Raise before any work unless ``out_dir`` (or, where it does not exist yet, the
     directory that would hold it) can be written: a read-only one (file system or
     mode) gives one line, not an OSError once the workers are up."""
+    check_not_dangling("out", out_dir)
     path = os.path.abspath(out_dir)
     while not os.path.exists(path):
         parent = os.path.dirname(path)

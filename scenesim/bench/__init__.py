@@ -51,7 +51,7 @@ import numpy as np
 from noise.errors import ParameterError
 from noise.fitsio import atomic_file, atomic_path
 from noise.validate import check_writable
-from scenesim.outputs import check_outputs
+from scenesim.outputs import check_not_dangling, check_outputs
 from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
 from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
@@ -427,7 +427,7 @@ def _report_files(names):
 def _check_out_dir(out_dir, names, overwrite):
     """Refuse, before any work, an output directory that is a file, whose parent is
     missing, or that holds an earlier run's report files (without ``overwrite``)."""
-    out_dir = os.fspath(out_dir)
+    out_dir = check_not_dangling("--out", os.fspath(out_dir))
     files = _report_files(names)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise ParameterError(f"'--out' {out_dir!r} is a file; expected a directory for "

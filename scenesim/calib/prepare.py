@@ -103,7 +103,7 @@ from astropy.io import fits
 
 from noise.clock import Detector, detector_from_header
 from noise.errors import ParameterError, ScenesimError
-from noise.fitsio import input_path, output_error, temp_file
+from noise.fitsio import input_path, is_gzip_file, output_error, temp_file
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
 from scenesim.calib.noise_model import common_mode, measure_read_noise
@@ -478,7 +478,7 @@ def _open_source(exposure):
     if not isinstance(exposure, (str, os.PathLike)):
         return None                              # prepare_exposure says why
     path = input_path(exposure, "exposure")
-    if str(path).endswith(".gz"):
+    if is_gzip_file(path):                  # by content: X.FITS.GZ too
         return None
     header, reads = read_exposure_header(path)
     gain = exposure_settings(header)["gain"]

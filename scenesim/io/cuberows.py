@@ -34,7 +34,7 @@ import os
 import numpy as np
 
 from noise.errors import FileFormatError, ParameterError
-from noise.fitsio import input_path, open_fits
+from noise.fitsio import input_path, is_gzip_file, open_fits
 from noise.validate import check_float, check_int
 
 from scenesim.io.exposure import _check_exposure
@@ -226,7 +226,7 @@ def exposure_rows(path, *, gain=None, nres=None):
         or 32/64-bit float data with ``BSCALE`` 1.
     """
     path = input_path(path, "exposure")
-    if str(path).endswith(".gz"):
+    if is_gzip_file(path):                    # by content: X.FITS.GZ too
         raise FileFormatError(f"{path!r}: row blocks need an uncompressed exposure "
                               f"file (gunzip it first)")
     with open_fits(path, "exposure") as hdul:

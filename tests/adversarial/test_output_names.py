@@ -48,17 +48,20 @@ def _is_gzip(path):
         return f.read(2) == b"\x1f\x8b"
 
 
-def test_run_scene_writes_gz_names_and_gzip(tmp_path):
-    res = run_scene(_scene(str(tmp_path / "out.fits.gz"), fit="ols", compare=True),
+@pytest.mark.parametrize("ending", [".fits.gz", ".FITS.GZ", ".Fits.Gz"])
+def test_run_scene_writes_gz_names_and_gzip(tmp_path, ending):
+    # an upper-case ending was written compressed, then read back as an uncompressed
+    # file by the fit ("truncated"): compression is told by content now
+    res = run_scene(_scene(str(tmp_path / f"out{ending}"), fit="ols", compare=True),
                     progress=False)
-    assert sorted(os.listdir(tmp_path)) == ["out.fits.gz", "out_ols.fits.gz",
-                                            "out_truth.fits.gz"]
-    assert res.truth == str(tmp_path / "out_truth.fits.gz")
+    assert sorted(os.listdir(tmp_path)) == sorted([f"out{ending}", f"out_ols{ending}",
+                                                   f"out_truth{ending}"])
+    assert res.truth == str(tmp_path / f"out_truth{ending}")
     for name in os.listdir(tmp_path):
         assert _is_gzip(tmp_path / name), name
         with fits.open(tmp_path / name) as hdul:
             hdul.verify("exception")
-    with gzip.open(tmp_path / "out_truth.fits.gz") as f:
+    with gzip.open(tmp_path / f"out_truth{ending}") as f:
         assert f.read(6) == b"SIMPLE"
     assert res.report is not None and res.report.rows
     assert compare_files(res.fit, res.truth).rows
@@ -111,3 +114,30 @@ def test_every_command_output_ends_in_its_format(tmp_path, command, ending):
 def test_the_default_slope_file_is_a_fits_name(exposure, slopes):
     from scenesim.outputs import fit_path_for
     assert fit_path_for(exposure, "gls") == slopes
+
+
+def test_an_output_directory_that_is_a_dangling_link_is_refused_first(tmp_path):
+    """--plots, bench --out, batch --out, pipeline -o and --reffiles on a symbolic link
+    to nothing: os.makedirs raised FileExistsError (a traceback, for `run` after its
+    files were written)."""
+    from noise.errors import ParameterError
+    from scenesim.batch.runner import _check_out_writable
+    from scenesim.bench import _check_out_dir
+    from scenesim.outputs import check_plot_dir
+    link = tmp_path / "figs"
+    os.symlink(tmp_path / "nothere", link)
+    for check in (lambda: check_plot_dir(link), lambda: _check_out_dir(link, (), False),
+                  lambda: _check_out_writable(str(link))):
+        with pytest.raises(ParameterError, match=r"is a symbolic link to .*nothere.*"
+                                                 r"does not exist"):
+            check()
+    (tmp_path / "s.toml").write_text(
+        'seed = 1\n[detector]\nnaxis1 = 16\nnaxis2 = 16\nref_border = 2\n[readout]\n'
+        'pattern = "RAPID"\nngroups = 3\n[output]\npath = "x.fits"\nfit = "ols"\n'
+        'compare = true\n')
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "s.toml", "-o",
+                          "x.fits", "--plots", "figs", "-q"], cwd=tmp_path,
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "symbolic link" in res.stderr, res.stderr
+    assert sorted(os.listdir(tmp_path)) == ["figs", "s.toml"]
+
