@@ -276,9 +276,10 @@ def _ending(command, exc):
     if isinstance(exc, MemoryError):
         # Reached only past the size check (scenesim.budget), e.g. with --force or
         # when other processes took the memory; the temporary files are already gone.
+        hint = ("see the size estimate: run without --force, or on a smaller array"
+                if command in ("run", "noise", "batch") else "try a smaller input")
         print(f"scenesim {command}: error: out of memory; no partial output was "
-              f"left (see the size estimate: run without --force, or on a smaller "
-              f"array)", file=sys.stderr)
+              f"left ({hint})", file=sys.stderr)
         return 1
     if isinstance(exc, BrokenPipeError):
         # stdout closed early (``scenesim ... | head``): not an error of the command.

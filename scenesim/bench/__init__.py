@@ -48,10 +48,11 @@ import time
 
 import numpy as np
 
-from noise.errors import ParameterError
+from noise.errors import OutputError, ParameterError, ScenesimError
+from noise.fast.memory import available_memory
 from noise.fitsio import atomic_file, atomic_path
 from noise.validate import check_writable
-from scenesim.outputs import check_not_dangling, check_outputs
+from scenesim.outputs import check_not_dangling, check_outputs, made_directory
 from scenesim.bench.floor import floor_counts, floor_seconds
 from scenesim.bench.limit import limit_seconds
 from scenesim.bench.peers import NOT_MEASURED, check_ng_path, peer_plan, run_peer
@@ -393,7 +394,6 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
         raise ParameterError("'fit_sizes'/'fit_resultants' set the fit workload's "
                              f"scaling grid: add the 'fit' workload (got {names})")
     _check_out_dir(out_dir, names, overwrite)
-    os.makedirs(out_dir, exist_ok=True)
     meta = dict(command=command or f"scenesim.bench.main({names!r}, quick={quick}, "
                                    f"threads={threads}, peers={peers}, ng={ng!r}, "
                                    f"scaling={scaling}, pairs={pairs})",
@@ -401,18 +401,34 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
                 nproc=os.cpu_count(), load_average_start=load_average(),
                 python=sys.version.split()[0], numpy=np.__version__,
                 date=time.strftime("%Y-%m-%d %H:%M:%S"))
+    plan = [(name, case, cases) for name in names
+            for cases in [grid if name == "fit" and grid else
+                          (WORKLOADS[name][2] if quick else WORKLOADS[name][1])]
+            for case in cases]
+    # until the last case is written, the report says how far it got
+    meta.update(cases_planned=len(plan), complete=False)
     rows = []
     exact = {}
     work = tempfile.mkdtemp(prefix="scenesim-bench-")
     try:
-        for name in names:
-            fn, full, small = WORKLOADS[name]
-            cases = grid if name == "fit" and grid else (small if quick else full)
-            for case in cases:
+        with made_directory(out_dir):     # removed again if nothing was written
+            # --overwrite replaces the earlier report: its figure too, when this run
+            # draws none (without it, a figure that is not in the way is kept)
+            stale = os.path.join(out_dir, "bench.png")
+            if overwrite and "bench.png" not in _report_files(names) and \
+                    os.path.isfile(stale):
+                os.unlink(stale)
+            for k, (name, case, cases) in enumerate(plan):
                 rows.append(_run_one(name, case, threads, work, scaling=scaling,
                                      peers=peers, ng=ng, exact=exact, cases=cases,
                                      pairs=pairs))
-                _write(rows, out_dir, meta)
+                _write(rows, out_dir, dict(meta, complete=k + 1 == len(plan)))
+    except OSError as exc:          # a temporary cube or a report: disk full, EFBIG
+        if isinstance(exc, ScenesimError):
+            raise
+        where = repr(exc.filename) if exc.filename else (
+            f"its temporary inputs in {work!r} or its report in {out_dir!r}")
+        raise OutputError(f"cannot write {where}: {exc.strerror or exc}") from exc
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0
@@ -439,20 +455,44 @@ def _check_out_dir(out_dir, names, overwrite):
         check_writable("--out", out_dir, overwrite=False)
 
 
+#: Largest array side and resultant count of the fit's scaling grid.
+FIT_MAX_SIZE, FIT_MAX_NRES = 8192, 1000
+#: Bytes per pixel the fit of a scaling case holds besides its row blocks (the
+#: per-pixel outputs, flags and the noise model's maps; the cube stays on disk and
+#: is read by row blocks): a generous bound, so that an impossible grid is refused
+#: before the first case, not after an hour.
+_FIT_BYTES_PER_PIXEL = 64
+
+
 def _fit_grid(sizes, nres):
-    """The fit's scaling cases asked for (checked), or None."""
+    """The fit's scaling cases asked for (checked), or None.  The largest case's
+    ramp file (uint16, in the system's temporary directory) must fit on that disk,
+    and its per-pixel arrays in the memory available now."""
     if sizes is None and nres is None:
         return None
     got = {}
-    for label, values, default, least in (
-            ("fit_sizes", sizes, FIT_SCALING_SIZES, 8),
-            ("fit_resultants", nres, FIT_SCALING_NRES, 2)):
+    for label, values, default, least, most in (
+            ("fit_sizes", sizes, FIT_SCALING_SIZES, 8, FIT_MAX_SIZE),
+            ("fit_resultants", nres, FIT_SCALING_NRES, 2, FIT_MAX_NRES)):
         values = default if values is None else list(values)
         if not values or any(isinstance(v, bool) or not isinstance(v, (int, np.integer))
-                             or v < least for v in values):
-            raise ParameterError(f"'{label}' must be integers >= {least}, got "
+                             or not least <= v <= most for v in values):
+            raise ParameterError(f"'{label}' must be integers in [{least}, {most}], got "
                                  f"{values!r}")
         got[label] = sorted(set(int(v) for v in values))
+    side, longest = max(got["fit_sizes"]), max(got["fit_resultants"])
+    what = f"'fit_sizes'/'fit_resultants': the largest case, {side}^2 x {longest} resultants,"
+    disk = side * side * longest * 2
+    free = shutil.disk_usage(tempfile.gettempdir()).free
+    if disk > free:
+        raise ParameterError(f"{what} writes a {disk / 2 ** 30:.1f} GiB ramp file and "
+                             f"{tempfile.gettempdir()!r} has {free / 2 ** 30:.1f} GiB "
+                             f"free; ask for a smaller grid")
+    memory, have = side * side * _FIT_BYTES_PER_PIXEL, available_memory()
+    if have is not None and memory > have:
+        raise ParameterError(f"{what} needs about {memory / 2 ** 30:.1f} GiB of memory "
+                             f"and {have / 2 ** 30:.1f} GiB is available; ask for a "
+                             f"smaller grid")
     return fit_scaling_cases(got["fit_sizes"], got["fit_resultants"])
 
 
@@ -576,12 +616,17 @@ def _versus_exact(row, arrays, exact):
 
 def _write(rows, out_dir, meta):
     """Write ``bench.json`` (with the end time and load), ``bench.md`` and the plot."""
-    meta = dict(meta, load_average_end=load_average(),
+    meta = dict(meta, load_average_end=load_average(), cases_done=len(rows),
                 end=time.strftime("%Y-%m-%d %H:%M:%S"))
     text = json.dumps(dict(meta=meta, rows=rows), indent=1)
     with atomic_file(os.path.join(out_dir, "bench.json"), overwrite=True) as f:
         f.write(text.encode())
     write_report(rows, out_dir, meta)
+
+
+def _threads(n):
+    """``'1 thread'``, ``'2 threads'``."""
+    return f"{n} thread{'' if n == 1 else 's'}"
 
 
 def write_report(rows, out_dir, meta):
@@ -590,7 +635,11 @@ def write_report(rows, out_dir, meta):
     peer_table = _peer_markdown(rows)
     with atomic_file(os.path.join(out_dir, "bench.md"), overwrite=True) as raw, \
             io.TextIOWrapper(raw, encoding="utf-8") as f:
-        f.write(f"Benchmarks ({meta['date']} - {meta['end']}, {meta['threads']} threads, "
+        if not meta.get("complete", True):
+            f.write(f"**Incomplete: {meta.get('cases_done', len(rows))} of "
+                    f"{meta.get('cases_planned', '?')} cases** (the run stopped before "
+                    f"the rest; their rows are missing).\n\n")
+        f.write(f"Benchmarks ({meta['date']} - {meta['end']}, {_threads(meta['threads'])}, "
                 f"{'quick' if meta['quick'] else 'full'}; load average "
                 f"{'/'.join(map(str, meta['load_average_start']))} at the start, "
                 f"{'/'.join(map(str, meta['load_average_end']))} at the end)\n\n"
@@ -601,13 +650,14 @@ def write_report(rows, out_dir, meta):
         scaling = _scaling_markdown(rows)
         if scaling:
             f.write("\nThe fit's scaling (cube read by row blocks from its file; "
-                    f"{meta['threads']} threads):\n\n" + scaling)
+                    f"{_threads(meta['threads'])}):\n\n" + scaling)
         if peer_table:
             f.write("\nPeers, process against process, on the same input:\n\n"
                     + peer_table)
         else:
-            f.write("\nPeers: none of these workloads has one (NG: noise, romanisim: "
-                    f"roman, stcal: fit); {NOT_MEASURED}.\n")
+            f.write("\nPeers: none in this report, " + NOT_MEASURED + " (they run "
+                    "with --peers: NG beside noise, romanisim beside roman, stcal "
+                    "beside the fit's standard cases).\n")
     if any(r["workload"] in ("options", "pink") for r in rows):
         try:
             _plot(rows, os.path.join(out_dir, "bench.png"))

@@ -139,14 +139,68 @@ def test_fit_scaling_grid_reports_time_memory_and_exponents(tmp_path):
     assert md.count("| 64x64 |") == 3
 
 
-def test_fit_scaling_grid_arguments_are_checked_before_work(tmp_path):
+def test_fit_scaling_grid_arguments_are_checked_before_work(tmp_path, monkeypatch):
     for kw in (dict(fit_sizes=[0]), dict(fit_resultants=[1]),
                dict(fit_sizes=[64.5]), dict(fit_resultants=[])):
         with pytest.raises(ParameterError, match="fit_"):
             bench.main(["fit"], out_dir=str(tmp_path / "x"), **kw)
     with pytest.raises(ParameterError, match="add the 'fit' workload"):
         bench.main(["noise"], out_dir=str(tmp_path / "x"), fit_sizes=[64])
+    # an impossible case is refused before the first one runs (before: a misleading
+    # 'out of memory ... --force' or an EFBIG traceback, and an empty --out left)
+    with pytest.raises(ParameterError, match=r"'fit_sizes' must be integers in "
+                                             r"\[8, 8192\]"):
+        bench.main(["fit"], out_dir=str(tmp_path / "x"), fit_sizes=[10 ** 9])
+    # the largest ramp file, 4096^2 x 200 uint16 = 6.25 GiB, on a disk with 1 GiB free
+    import collections
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(bench.shutil, "disk_usage",
+                        lambda path: usage(2 ** 31, 2 ** 30, 2 ** 30))
+    with pytest.raises(ParameterError, match=r"4096\^2 x 200 resultants, writes a "
+                                             r"6\.2 GiB ramp file .* 1\.0 GiB free"):
+        bench.main(["fit"], out_dir=str(tmp_path / "x"), fit_sizes=[512, 4096],
+                   fit_resultants=[5, 200])
     assert not os.path.exists(tmp_path / "x")
+
+
+def test_a_report_says_when_it_is_incomplete_and_drops_an_earlier_figure(
+        tmp_path, monkeypatch):
+    """Rewritten after every case, the report of an interrupted run looked complete;
+    with --overwrite an earlier run's bench.png stayed beside a report without one; a
+    failed write was a traceback that left an empty --out."""
+    d = tmp_path / "b"
+    d.mkdir()
+    for name in ("bench.json", "bench.md", "bench.png"):
+        (d / name).write_text("earlier")
+    assert bench.main(["fit"], out_dir=str(d), threads=1, fit_sizes=[16],
+                      fit_resultants=[3, 4], overwrite=True) == 0
+    assert sorted(os.listdir(d)) == ["bench.json", "bench.md"]
+    meta = json.loads((d / "bench.json").read_text())["meta"]
+    assert (meta["complete"], meta["cases_done"], meta["cases_planned"]) == (True, 2, 2)
+    assert "Incomplete" not in (d / "bench.md").read_text()
+    # the second case fails: the report written after the first says so
+    real, calls = bench._run_one, []
+
+    def second_fails(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(27, "File too large")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bench, "_run_one", second_fails)
+    with pytest.raises(noise.errors.OutputError, match="File too large"):
+        bench.main(["fit"], out_dir=str(d), threads=1, fit_sizes=[16],
+                   fit_resultants=[3, 4], overwrite=True)
+    meta = json.loads((d / "bench.json").read_text())["meta"]
+    assert (meta["complete"], meta["cases_done"], meta["cases_planned"]) == (False, 1, 2)
+    assert (d / "bench.md").read_text().startswith("**Incomplete: 1 of 2 cases**")
+    calls.clear()
+    monkeypatch.setattr(bench, "_run_one", lambda *a, **k: (_ for _ in ()).throw(
+        OSError(28, "No space left on device")))
+    with pytest.raises(noise.errors.OutputError, match="No space left"):
+        bench.main(["fit"], out_dir=str(tmp_path / "new"), threads=1, fit_sizes=[16],
+                   fit_resultants=[3])
+    assert not (tmp_path / "new").exists()
 
 
 def test_kernel_probe_times_every_kernel_and_refuses_unknown_names():
