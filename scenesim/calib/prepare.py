@@ -478,7 +478,7 @@ def _open_source(exposure):
     if not isinstance(exposure, (str, os.PathLike)):
         return None                              # prepare_exposure says why
     path = input_path(exposure, "exposure")
-    if is_gzip_file(path):                  # by content: X.FITS.GZ too
+    if str(path).lower().endswith(".gz") or is_gzip_file(path):   # X.FITS.GZ too
         return None
     header, reads = read_exposure_header(path)
     gain = exposure_settings(header)["gain"]

@@ -226,7 +226,7 @@ def exposure_rows(path, *, gain=None, nres=None):
         or 32/64-bit float data with ``BSCALE`` 1.
     """
     path = input_path(path, "exposure")
-    if is_gzip_file(path):                    # by content: X.FITS.GZ too
+    if str(path).lower().endswith(".gz") or is_gzip_file(path):   # X.FITS.GZ too
         raise FileFormatError(f"{path!r}: row blocks need an uncompressed exposure "
                               f"file (gunzip it first)")
     with open_fits(path, "exposure") as hdul:

@@ -548,11 +548,11 @@ SAME_RUN_CARDS = ("NINTS", "NGROUPS", "NFRAMES", "GROUPGAP", "READPATT", "TFRAME
                   "SEED", "SEEDENT")
 
 
-def _check_same_run(fit_hdr, truth_hdr):
+def _check_same_run(fit_hdr, truth_hdr, fit_path, truth_path):
     """Raise unless the slope file and the truth describe the same exposure: every
     card of :data:`SAME_RUN_CARDS` both carry agrees (``TFRAME`` to 1e-9; a JWST
     ``READPATT = 'ANY'`` stands for any pattern of scenesim's own, whose name is in
-    ``SSREADPT``)."""
+    ``SSREADPT``).  The message names both files and both values."""
     for key in SAME_RUN_CARDS:
         if key not in fit_hdr or key not in truth_hdr:
             continue
@@ -560,13 +560,17 @@ def _check_same_run(fit_hdr, truth_hdr):
         if key == "READPATT" and str(mine).strip().upper() == "ANY":
             mine = fit_hdr.get("SSREADPT", theirs)
         if key == "TFRAME":
-            same = math.isclose(float(mine), float(theirs), rel_tol=1e-9)
+            try:
+                same = math.isclose(float(mine), float(theirs), rel_tol=1e-9)
+            except (TypeError, ValueError):
+                same = False
         else:
             same = str(mine).strip() == str(theirs).strip()
         if not same:
             raise FileFormatError(
-                f"{key!r} = {mine!r} but the truth file has {theirs!r}: not the same "
-                f"exposure")
+                f"slope file {fit_path!r} and truth file {truth_path!r} are not of the "
+                f"same exposure: {key!r} = {mine!r} in the slope file, {theirs!r} in the "
+                f"truth file")
 
 
 def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
@@ -603,7 +607,6 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
     try:
         fit = read_slopes(fit_path, gain=gain)
         fit_hdr = fit_header(fit_path)             # FITS, or a Roman L2's cal steps
-        _check_same_run(fit_hdr, hdr)
         ipc_deconvolved = header_ipc_deconvolved(fit_hdr)
         dark, note = subtracted_dark_rate(fit_hdr, exposure_settings(hdr)["t_frame"],
                                           gain)
@@ -611,6 +614,7 @@ def compare_files(fit_path, truth_path, *, plots=None, exposure=None, psf=None,
             check_float("RNOISE", fit["read_noise"], minimum=0.0, maximum=MAX_AMPLITUDE)
     except (FileFormatError, ParameterError) as exc:
         raise _named("slope file", fit_path, exc) from exc
+    _check_same_run(fit_hdr, hdr, fit_path, truth_path)
     notes = [f"fit layout: {fit['layout']}"]
     if note:
         notes.append(note)
