@@ -219,6 +219,14 @@ _PINK_FIXED = 36 * _MB            # 1/f synthesis: once
 _PINK_RATE = 12 * _MB             # ... per distinct sample rate
 _PINK_SERIES = 3 * _MB            # ... per series
 _FIT_FIXED = 44 * _MB
+#: Bytes per resultant value of the row-block chunks a fit has in flight (the
+#: differences, weights, masks and the L D L^T recursion's arrays, float32 and
+#: float64), beyond the prepared cube's 8 per value.  Measured by a hostile probe
+#: (2026-11-27) on 256^2 x 20-200 RAPID resultants, gls and ols on two threads: the
+#: peak rose 29 (gls) to 36 (ols) bytes per added value where the estimate rose 8;
+#: the larger, so that the estimate bounds every fitter (256^2 x 200: 723 MB
+#: estimated, 595 MB gls and 677 MB ols measured, VmHWM with the interpreter).
+_FIT_CHUNK_BYTES = 36
 _PRODUCT_FIXED = 32 * _MB         # the data models' schemas and validation
 
 
@@ -527,6 +535,18 @@ def _product_outputs(scene, path, products, P, N, det, ro):
     return out, max(memory)
 
 
+def fit_values_in_flight(pixels, values_per_pixel, threads=None):
+    """Resultant values in the row-block chunks a fit holds at once: each of its
+    threads (``PrepareOptions``' default: the cores, at most 8) keeps
+    ``scenesim.rampfit.fitter._WINDOW`` chunks of
+    :func:`scenesim.rampfit.solver.chunk_pixels` pixels, at most every value."""
+    from scenesim.rampfit.fitter import _WINDOW
+    from scenesim.rampfit.solver import chunk_pixels
+    threads = min(os.cpu_count() or 1, 8) if threads is None else int(threads)
+    per = chunk_pixels(values_per_pixel, threads=threads, pixels=int(pixels))
+    return min(float(pixels), float(per) * _WINDOW * threads) * values_per_pixel
+
+
 def estimate_budget(scene, *, options=None, products=()):
     """The :class:`Budget` of running ``scene`` (module notes), without checking it.
 
@@ -590,7 +610,8 @@ def estimate_budget(scene, *, options=None, products=()):
         fit = kept + [(f"the {out.fit} fit of {N:.3g} resultant values ({size}, "
                        f"[detector] naxis1 x naxis2, [readout] ngroups x nints, [output] "
                        f"fit)",
-                       _FIT_FIXED + 72 * P + 8 * N + 4 * nints * P + ipc_copy)]
+                       _FIT_FIXED + 72 * P + 8 * N + 4 * nints * P + ipc_copy
+                       + _FIT_CHUNK_BYTES * fit_values_in_flight(P, nints * ngroups))]
         if out.refpix == "irs2":
             # the exposure's RAWREF 2 N_R, the raw resultants in float32 4 N_raw, one
             # output's samples in float32 and float64 12 N_raw / n_out (the corrected
