@@ -100,8 +100,10 @@ def _parser():
     f.add_argument("--fitter", default="gls",
                    help="cds, ols or gls; or stcal-ols_c / stcal-likely to run the JWST "
                         "calibration library's fitter (needs the [stcal] extra)")
-    f.add_argument("--jump-threshold", type=float, default=5.0,
-                   help="jump detection threshold in sigma (0 = off)")
+    f.add_argument("--jump-threshold", type=float, default=None,
+                   help="jump detection threshold in sigma (0 = off; default 5) of "
+                        "scenesim's fitters (stcal-likely uses its own 4.5 sigma, "
+                        "stcal-ols_c none)")
     f.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
     f.set_defaults(target="scenesim.commands:fit_command")
 

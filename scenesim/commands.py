@@ -159,6 +159,15 @@ def fit_command(args):
     from noise.validate import check_choice, check_float
     # 'GLS' as 'gls', 'STCAL-likely' as 'stcal-likely'; the stcal names in the list
     args.fitter = check_choice("--fitter", args.fitter, FIT_CHOICES, ignore_case=True)
+    if args.jump_threshold is not None and args.fitter.startswith("stcal-"):
+        # it would change nothing: say so (before, silently ignored)
+        raise ParameterError(
+            f"'--jump-threshold' {args.jump_threshold:g} applies to scenesim's fitters "
+            f"(cds, ols, gls): {args.fitter} "
+            + ("detects jumps with stcal's own 4.5 sigma" if args.fitter.endswith("likely")
+               else "fits without jump detection (stcal's jump step is not run)"))
+    if args.jump_threshold is None:
+        args.jump_threshold = 5.0
     check_float("--jump-threshold", args.jump_threshold, minimum=0.0)
     out = args.output or fit_path_for(args.exposure, args.fitter)
     check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite,

@@ -488,6 +488,14 @@ def test_fit_takes_the_fitter_in_any_case_and_lists_every_choice(workdir):
     res = _cli(["fit", "out.fits", "--jump-threshold", "-1", "-o", "b.fits"], workdir)
     assert res.returncode == 2
     _one_line(res.stderr, "'--jump-threshold'")
+    # stcal's fitters have their own jump rule (likely: 4.5 sigma; ols_c: none): a
+    # threshold given with them would change nothing (before: silently ignored)
+    for fitter, words in (("stcal-likely", "4.5 sigma"), ("stcal-ols_c", "without jump")):
+        res = _cli(["fit", "out.fits", "--fitter", fitter, "--jump-threshold", "0", "-o",
+                    "b.fits"], workdir)
+        assert res.returncode == 2
+        _one_line(res.stderr, "'--jump-threshold' 0 applies to scenesim's fitters")
+        assert words in res.stderr
     assert _snapshot(workdir) == before
 
 
