@@ -40,6 +40,8 @@ def check_kernel(kernel):
     try:
         k = np.asarray(kernel, dtype=np.float64) \
             if not isinstance(kernel, (str, bytes, dict)) else None
+        if k is not None and np.asarray(kernel).dtype.kind not in "iuf":
+            k = None                            # booleans or objects are not weights
     except (TypeError, ValueError):
         k = None
     if k is None:

@@ -728,8 +728,9 @@ class EffectsConfig:
             raise ParameterError(
                 f"'cosmic_ray_charge' must be [median_e, sigma_ln], got {crc!r}")
         set_(self, "cosmic_ray_charge",
-             (check_float("cosmic_ray_charge", crc[0], minimum=0.0, strict_min=True),
-              check_float("cosmic_ray_charge", crc[1], minimum=0.0)))
+             (check_float("cosmic_ray_charge[0] (median_e)", crc[0], minimum=0.0,
+                          strict_min=True),
+              check_float("cosmic_ray_charge[1] (sigma_ln)", crc[1], minimum=0.0)))
         median, sigma_ln = self.cosmic_ray_charge
         # the log-normal's mean median * exp(sigma_ln**2 / 2) (what the cosmic-ray
         # model takes) must be a charge the engine can count; the check is on logs,

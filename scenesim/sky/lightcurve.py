@@ -119,8 +119,8 @@ class LightCurve:
         if np.any(dt < 0):
             bad = int(np.flatnonzero(dt < 0)[0])
             raise ParameterError(
-                f"'time' must be non-decreasing, got time[{bad}]={t[bad]!r} > "
-                f"time[{bad + 1}]={t[bad + 1]!r}")
+                f"'time' must be non-decreasing, got time[{bad}]={float(t[bad])!r} > "
+                f"time[{bad + 1}]={float(t[bad + 1])!r}")
         if np.any((dt[:-1] == 0) & (dt[1:] == 0)):
             bad = int(np.flatnonzero((dt[:-1] == 0) & (dt[1:] == 0))[0])
             raise ParameterError(

@@ -117,7 +117,7 @@ from scipy.special import erf, j0, j1
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.fitsio import open_fits
 from noise.validate import (check_bool, check_float, check_instance, check_int,
-                            check_path, check_shape, describe)
+                            check_mask, check_path, check_shape, describe)
 
 __all__ = [
     "GaussianPSF",
@@ -508,8 +508,9 @@ class ImagePSF:
                 raise FileFormatError(
                     f"PSF file {path!r} has no HDU {ext!r}") from exc
         if header_os is not None:
-            if not (isinstance(header_os, numbers.Real) and float(header_os).is_integer()
-                    and header_os >= 1):
+            if isinstance(header_os, (bool, np.bool_)) or not (
+                    isinstance(header_os, numbers.Real)
+                    and float(header_os).is_integer() and header_os >= 1):
                 raise FileFormatError(
                     f"PSF file {path!r}: OVERSAMP = {header_os!r} is not an integer >= 1")
             header_os = int(header_os)
@@ -683,7 +684,7 @@ def _stamp_radii(psf, fl, stamp_radius, min_rate, max_stamp_radius):
 
 
 def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=0.0,
-                         max_stamp_radius=64):
+                         max_stamp_radius=64, blind=None):
     """Render point sources as pixel-integrated PSFs, conserving flux.
 
     Parameters
@@ -706,6 +707,9 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         is given.
     max_stamp_radius : int
         Cap on the adaptive radius, pixels (default 64).
+    blind : ndarray of bool, shape (ny, nx), optional
+        Pixels that collect nothing (the reference pixels): they get no flux and
+        their share counts as off the array.
 
     Returns
     -------
@@ -713,7 +717,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         Sum of the rendered sources.
     info : astropy.table.Table, one row per source in input order
         ``x``, ``y``, ``flux`` (as given); ``flux_on_array`` (e-/s actually added to
-        ``image``); ``frac_on_array`` (``flux_on_array / flux``, computed from the unit
+        ``image``, so none on ``blind`` pixels); ``frac_on_array`` (``flux_on_array / flux``, computed from the unit
         PSF so defined for zero flux); ``flux_lost_stamp`` (e-/s of PSF outside the
         stamp, wherever the stamp lies); ``stamp_radius`` (pixels); ``rendered``
         (False when the stamp misses the array: then nothing is added and the other
@@ -733,6 +737,9 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     max_stamp_radius = check_int("max_stamp_radius", max_stamp_radius, minimum=0)
     if stamp_radius is not None:
         stamp_radius = check_int("stamp_radius", stamp_radius, minimum=0)
+    blind_flat = None
+    if blind is not None:
+        blind_flat = check_mask("blind", blind, (ny, nx)).reshape(-1)
 
     n = xs.size
     image = np.zeros((ny, nx), dtype=np.float64)
@@ -771,6 +778,8 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
             oky = (rows >= 0) & (rows < ny)
             ok = oky[:, :, None] & okx[:, None, :]
             idx = rows[:, :, None] * nx + cols[:, None, :]
+            if blind_flat is not None:                 # reference pixels: nothing
+                ok[ok] = ~blind_flat[idx[ok]]
             weights = st * fl[sel][:, None, None]
             on_frac[sel] = np.where(ok, st, 0.0).sum(axis=(1, 2))
             np.add.at(flat_image, idx[ok], weights[ok])

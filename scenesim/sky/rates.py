@@ -98,7 +98,7 @@ def scene_rates(scene):
         if static.any():
             img, info = render_point_sources(
                 det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
-                psf, min_rate=src.psf.min_rate)
+                psf, min_rate=src.psf.min_rate, blind=refmask)
             rate = rate + light(img)
             info["light_curve"] = [""] * len(info)
             rendered_parts.append(info)
@@ -109,7 +109,7 @@ def scene_rates(scene):
                 curves[name] = src.light_curve(name).build()
             img, info = render_point_sources(
                 det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
-                min_rate=src.psf.min_rate)
+                min_rate=src.psf.min_rate, blind=refmask)
             img = light(img)
             idx = np.flatnonzero(img)
             variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))

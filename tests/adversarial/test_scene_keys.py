@@ -611,3 +611,16 @@ def test_light_curve_times_beyond_the_bound_are_refused(times, scene_dir):
     with pytest.raises(ParameterError, match=r"'time' must lie within"):
         LightCurve(times, [1.0, 1.0])
     LightCurve([-MAX_TIME, MAX_TIME], [1.0, 1.0])
+
+
+def test_list_keys_name_the_element_and_refuse_booleans():
+    """cosmic_ray_charge = [1000, -0.5] said "'cosmic_ray_charge' must be >= 0"
+    without saying which element; a boolean ipc_kernel was taken as weights (found by
+    a hostile probe)."""
+    with pytest.raises(ParameterError, match=r"\[effects\] 'cosmic_ray_charge\[1\] "
+                                             r"\(sigma_ln\)' must be >= 0, got -0\.5"):
+        parse_scene(_small(effects={"cosmic_ray_charge": [1000.0, -0.5]}))
+    kernel = [[False, False, False], [False, True, False], [False, False, False]]
+    with pytest.raises(ParameterError, match=r"'ipc_kernel' must be a 3x3 array of "
+                                             r"numbers"):
+        parse_scene(_small(effects={"ipc_kernel": kernel}))

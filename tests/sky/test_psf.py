@@ -345,6 +345,11 @@ def test_image_psf_value_semantics_and_fits(tmp_path):
         ImagePSF.from_fits(path, oversample=4)
     with pytest.raises(FileFormatError, match="does not exist"):
         ImagePSF.from_fits(tmp_path / "missing.fits")
+    # OVERSAMP = T (a boolean) was taken as 1
+    hdu.header["OVERSAMP"] = True
+    hdu.writeto(tmp_path / "bool.fits")
+    with pytest.raises(FileFormatError, match="OVERSAMP = True is not an integer"):
+        ImagePSF.from_fits(tmp_path / "bool.fits")
 
 
 def test_encircled_energy_gaussian_and_image():
@@ -397,3 +402,26 @@ def test_bad_inputs_raise_parameter_error():
         render_point_sources((10, 10), 1.0, 1.0, 5.0, "gaussian")
     with pytest.raises(ParameterError, match="radius"):
         encircled_energy(psf, -1.0)
+
+
+def test_blind_pixels_get_nothing_and_count_as_off_the_array():
+    """The truth's SOURCES counted as 'on the array' the flux that fell on reference
+    pixels, which collect nothing: two stars at the 4-pixel border put 772 e-/s into
+    the rate map and reported 1975 e-/s on the array."""
+    psf = GaussianPSF(fwhm=3.0)
+    blind = np.zeros((64, 64), bool)
+    blind[:, :4] = True
+    img, info = render_point_sources((64, 64), [4.0, 2.0, 30.0], [30.0, 40.0, 30.0],
+                                     [1000.0, 1000.0, 1000.0], psf, blind=blind)
+    assert not img[blind].any()
+    full, _ = render_point_sources((64, 64), [4.0, 2.0, 30.0], [30.0, 40.0, 30.0],
+                                   [1000.0, 1000.0, 1000.0], psf)
+    np.testing.assert_array_equal(img[~blind], full[~blind])
+    # each star's reported flux is what it put into the image (one star at a time)
+    for k in range(3):
+        one, i1 = render_point_sources((64, 64), [[4.0, 2.0, 30.0][k]],
+                                       [[30.0, 40.0, 30.0][k]], [1000.0], psf, blind=blind)
+        assert i1["flux_on_array"][0] == pytest.approx(one.sum(), rel=1e-12)
+        assert info["flux_on_array"][k] == pytest.approx(one.sum(), rel=1e-12)
+    assert info["flux_on_array"][2] == pytest.approx(1000.0, rel=1e-6)
+    assert info["flux_on_array"][:2].sum() < 0.5 * 2000.0
