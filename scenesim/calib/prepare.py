@@ -367,8 +367,14 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
         e = np.asarray(correct_irs2(raw, det), dtype=np.float32)
         del raw
     elif options.refpix != "none" and refmask.any():
+        blind = _references_near_saturation(_first_saturated(sat), sat.shape[1],
+                                            refmask, decon)
+        if blind is not None:
+            e[blind] = np.nan
         e = np.asarray(correct_reference(e, det, scheme=options.refpix),
                        dtype=np.float32)
+        if blind is not None:
+            e[blind] = 0.0
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:
         e = linearize_resultants(e, nl, tbar, read_times=ro.read_times(t_frame),
@@ -490,6 +496,49 @@ def _open_source(exposure):
     return _Source(Exposure(stand_in, header, reads, os.fspath(path)), gain, rows)
 
 
+#: Reference pixels within this many pixels of a saturated one are left out of the
+#: reference correction when IPC was undone: the undone kernel spreads a clipped
+#: pixel's error into its neighbours, falling by the kernel's coupling (~alpha) per
+#: pixel, so that at 3 pixels a 1e5 e- error is below one electron.
+_UNDONE_REACH = 3
+
+
+def _first_saturated(sat):
+    """``(nints, ny, nx)`` index of the first saturated resultant (``nres`` when none)
+    of sticky flags ``(nints, nres, ny, nx)``."""
+    nres = sat.shape[1]
+    return np.where(sat.any(axis=1), sat.argmax(axis=1), nres).astype(np.int32)
+
+
+def _references_near_saturation(first, nres, refmask, decon, per_integration=False):
+    """Which reference pixels to leave out of the reference correction, or None.
+
+    Only when IPC was undone (``decon``): a saturated pixel (ADC top or full well)
+    holds a clipped value, and undoing the kernel spreads its error into the
+    neighbours, reference pixels included; a side reference column next to a
+    clipped star then biased whole rows by its error (-170 e-/s, found by a hostile
+    probe).  ``first``: the first saturated resultant of each pixel (``nres`` when
+    none).  Returns, per integration, the first resultant at which a reference
+    pixel has a saturated pixel within :data:`_UNDONE_REACH` (``(nints, ny, nx)``,
+    a large number where never; with ``per_integration``), or the bool mask
+    ``(nints, nres, ny, nx)`` of the reference pixels to leave out.
+    """
+    nints = first.shape[0]
+    if not decon or not refmask.any() or not (first < nres).any():
+        return None
+    from scipy.ndimage import minimum_filter
+    size = 2 * _UNDONE_REACH + 1
+    near = np.stack([minimum_filter(first[k], size=size, mode="nearest")
+                     for k in range(nints)])
+    never = np.iinfo(np.int32).max
+    near = np.where(refmask[None], near, never).astype(np.int64)
+    if not (near < nres).any():
+        return None
+    if per_integration:
+        return near
+    return np.arange(nres)[None, :, None, None] >= near[:, None]
+
+
 class _FirstSaturated:
     """Sticky saturation flags kept as the first saturated resultant of each pixel
     and integration ((nints, ny, nx); ``nres`` when none), a row source of bool
@@ -587,11 +636,21 @@ def _prepare_to_file(src, path, options):
     # 4: reference correction, frame by frame
     if options.refpix != "none" and refmask.any():
         step = max(1, _BLOCK_VALUES // (ny * nx))
+        near = _references_near_saturation(first, nres, refmask, decon,
+                                           per_integration=True)
         for k in range(nints):
             for r0 in range(0, nres, step):
-                f = cube.frames(k, r0, min(r0 + step, nres))
-                cube.write_frames(k, r0, np.asarray(
-                    correct_reference(f, det, scheme=options.refpix), dtype=np.float32))
+                r1 = min(r0 + step, nres)
+                f = cube.frames(k, r0, r1)
+                blind = None if near is None else \
+                    np.arange(r0, r1)[:, None, None] >= near[k][None]
+                if blind is not None:
+                    f[blind] = np.nan
+                f = np.asarray(correct_reference(f, det, scheme=options.refpix),
+                               dtype=np.float32)
+                if blind is not None:
+                    f[blind] = 0.0
+                cube.write_frames(k, r0, f)
     # 5: linearisation, per resultant over all integrations, zero from 0 and 1
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:

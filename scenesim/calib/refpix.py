@@ -284,7 +284,8 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
         if scheme == "median":
             ref = by_out[:, rows].astype(np.float64)                # (F, nr, nout, ncol)
             ref = np.moveaxis(ref, 2, 1).reshape(nf, nout, -1)
-            med = np.median(ref, axis=-1)                           # (F, nout)
+            med = (np.nanmedian(ref, axis=-1) if np.isnan(ref).any()  # (F, nout)
+                   else np.median(ref, axis=-1))                   # (NaN: left out)
             by_out -= med[:, None, :, None].astype(dtype)
             continue
         if halves:
@@ -297,10 +298,29 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
                 mean /= len(halves)
                 by_out[:, :, :, parity::2] -= mean[:, None, :, None].astype(dtype)
         if cols.size:
-            side = blk[:, :, cols].astype(np.float64).mean(axis=-1)  # (F, ny)
-            smooth = running_mean(side, side_window)
+            values = blk[:, :, cols].astype(np.float64)
+            if np.isnan(values).any():    # reference pixels left out (NaN): the mean
+                smooth = _running_nanmean(values, side_window)   # of the rest
+            else:
+                smooth = running_mean(values.mean(axis=-1), side_window)  # (F, ny)
             blk -= smooth[:, :, None].astype(dtype)
     return out
+
+
+def _running_nanmean(values, window):
+    """Centred running mean over rows (axis 1) of the finite side values of each row
+    ``(F, ny, ncols)``: every finite value of the window weighs alike, as in the mean
+    of the row means when none is missing; 0 where a whole window has none."""
+    ok = np.isfinite(values)
+    total = np.where(ok, values, 0.0).sum(axis=-1)
+    count = ok.sum(axis=-1).astype(np.float64)
+    lo, hi = window_bounds(values.shape[1], window)
+    csum = np.concatenate([np.zeros(total.shape[:-1] + (1,)), np.cumsum(total, axis=-1)],
+                          axis=-1)
+    ccnt = np.concatenate([np.zeros(count.shape[:-1] + (1,)), np.cumsum(count, axis=-1)],
+                          axis=-1)
+    num, den = csum[..., hi] - csum[..., lo], ccnt[..., hi] - ccnt[..., lo]
+    return np.where(den > 0, num / np.maximum(den, 1.0), 0.0)
 
 
 def _irs2_plan(detector):
