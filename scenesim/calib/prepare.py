@@ -93,9 +93,9 @@ in ``docs/VALIDATION_FIT.md``.
 """
 
 import contextlib
+import dataclasses
 import math
 import os
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
