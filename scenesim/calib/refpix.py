@@ -227,7 +227,10 @@ def correct_reference(cube, detector, *, scheme="jwst", side_window=11, sigma=3.
     ----------
     cube : ndarray, shape (..., ny, nx), e- (or DN; the correction is linear)
         Frames or resultants read out with ``detector``; ``(ny, nx)`` must equal
-        ``detector.shape``.
+        ``detector.shape``.  A reference pixel that is NaN is left out of the
+        statistics (the side means count the others; :mod:`scenesim.calib.prepare`
+        leaves out those beside a saturated pixel once IPC is undone); it stays NaN
+        in the output.
     detector : noise.clock.Detector
         Geometry: outputs, reference border, subarray position.
     scheme : {'jwst', 'median', 'none', 'irs2'}
