@@ -179,7 +179,8 @@ def check_subarray_name(name, detector=None, instrument=""):
     with a warning and the file would fail strict validation.
 
     With the ``detector`` (:class:`noise.clock.Detector`) the name must also fit its
-    readout: ``FULL`` only for a full frame, a named subarray only for a window, and
+    readout: a full-frame name (``FULL``, ``FULLP``, ``FULL_...``) only for a full
+    frame, any other name only for a window, and
     NIRCam's and NIRISS's square names (``SUB<N>`` and ``SUB<N>P``, e.g. ``SUB640``,
     ``SUB64P``) only for an N x N window (a 32 x 32 window said ``SUB640``)."""
     import re
@@ -197,14 +198,17 @@ def check_subarray_name(name, detector=None, instrument=""):
     if detector is None or name == "GENERIC":
         return name
     full = detector.subarray is None
-    if name == "FULL" and not full:
+    full_name = name.startswith("FULL")      # FULL, NIRCam's FULLP, FULL_SUPSTP...
+    if full_name and not full:
         raise ParameterError(
-            f"[instrument] 'subarray' = 'FULL', but the readout is a {detector.ny} x "
-            f"{detector.nx} window ([detector.subarray]); use 'GENERIC' or its JWST name")
-    if name != "FULL" and full:
+            f"[instrument] 'subarray' = {name!r} is a full-frame name, but the readout "
+            f"is a {detector.ny} x {detector.nx} window ([detector.subarray]); use "
+            f"'GENERIC' or its JWST name")
+    if not full_name and full:
         raise ParameterError(
             f"[instrument] 'subarray' = {name!r} names a subarray, but the readout is "
-            f"the full {detector.ny} x {detector.nx} frame; use 'FULL'")
+            f"the full {detector.ny} x {detector.nx} frame; use 'FULL' (or another "
+            f"full-frame name such as 'FULLP')")
     square = re.fullmatch(r"SUB(\d+)P?", name)
     if square and str(instrument).upper() in ("NIRCAM", "NIRISS"):
         n = int(square.group(1))

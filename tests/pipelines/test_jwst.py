@@ -386,3 +386,25 @@ def test_run_products_never_replace_a_file_the_scene_reads(tmp_path):
         lines = res.stderr.strip().splitlines()
         assert len(lines) == 1 and all(w in lines[0] for w in words), res.stderr
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_a_subarray_name_must_fit_the_readout():
+    """A 32 x 32 window said SUB640 (a 640 x 640 NIRCam subarray) and FULL could name
+    a window; a full frame may carry any full-frame name (FULLP: a probe found it
+    refused by the first version of this check)."""
+    from noise.clock import Subarray, preset
+    from noise.errors import ParameterError
+    full = preset("NIRCAM")
+    win = preset("NIRCAM", subarray=Subarray("window", 0, 0, 32, 32))
+    sub64 = preset("NIRCAM", subarray=Subarray("window", 0, 0, 64, 64))
+    for name, det in (("FULL", full), ("FULLP", full), ("GENERIC", win),
+                      ("SUB64P", sub64), ("GENERIC", full)):
+        assert jwst.check_subarray_name(name, det, "NIRCAM") == name
+    for name, det, words in (("SUB640", win, "is a 640 x 640 subarray"),
+                             ("SUB64P", win, "is a 64 x 64 subarray"),
+                             ("FULL", win, "is a full-frame name"),
+                             ("FULLP", win, "is a full-frame name"),
+                             ("SUB64P", full, "names a subarray, but the readout is "
+                                              "the full")):
+        with pytest.raises(ParameterError, match=words):
+            jwst.check_subarray_name(name, det, "NIRCAM")
