@@ -122,8 +122,9 @@ def _parser():
     b = sub.add_parser("bench", help="benchmarks: run time against error; peers "
                                      "measured beside scenesim (--peers)")
     b.add_argument("workloads", nargs="*",
-                   help="workloads (default: all); 'peers' = noise, roman and fit with "
-                        "their peers")
+                   help="workloads (default: all): noise, jwst, roman, fit, timeseries, "
+                        "options, pink, skips, batch; 'peers' = noise, roman and fit "
+                        "with their peers")
     b.add_argument("--quick", action="store_true")
     b.add_argument("--out", default="bench_out",
                    help="directory for bench.json, bench.md (and bench.png)")
@@ -273,7 +274,16 @@ def _ending(command, exc):
         # the interrupt decides, whatever exception it turned into on the way out
         return _interrupted(f" {command}", interrupt)
     if isinstance(exc, ScenesimError):
-        print(f"scenesim {command}: error: {exc}", file=sys.stderr)
+        kept = ""
+        if isinstance(exc, OSError):      # an OutputError: what was finished stays
+            fitsio = sys.modules.get("noise.fitsio")
+            done = fitsio.completed_outputs() if fitsio is not None else []
+            if done and command != "batch":
+                names = ", ".join(repr(p) for p in done[:4])
+                more = f" and {len(done) - 4} more" if len(done) > 4 else ""
+                kept = (f"; the files it had finished are complete and kept "
+                        f"({names}{more})")
+        print(f"scenesim {command}: error: {exc}{kept}", file=sys.stderr)
         return 2
     if isinstance(exc, MemoryError):
         # Reached only past the size check (scenesim.budget), e.g. with --force or

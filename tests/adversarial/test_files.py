@@ -379,6 +379,11 @@ def test_file_size_limit_on_the_fit_of_a_run(tmp_path):
                preexec_fn=_limit_fsize(2 << 20))
     assert res.returncode == 2, res.stderr
     _one_line(res.stderr, "_ols.fits", "File too large")
+    # the files finished before the fit stay, and the line names them (before: the
+    # line did not say so)
+    kept = sorted(n for n in os.listdir(tmp_path) if not n.startswith("."))
+    assert kept == ["quick.fits", "quick_truth.fits"], kept
+    assert all(f"'{name}'" in res.stderr for name in kept), res.stderr
     assert _temps(tmp_path) == []
     assert not [n for n in os.listdir(tmp_path) if "_ols" in n]
     for name in os.listdir(tmp_path):                 # whatever is there is complete
