@@ -434,7 +434,7 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
     nx = det.nx
     crs = Table({"TIME": cr.time, "X": cr.index % nx, "Y": cr.index // nx,
                  "CHARGE": cr.charge, "SEEN": out["cr_seen"]})
-    replace = {c[0]: c for c in (filetype_card("truth"), nextend_card(6 + len(raws)))}
+    replace = {c[0]: c for c in (filetype_card("truth"), nextend_card(7 + len(raws)))}
     header = [replace.get(c[0], c) for c in header]
     with atomic_file(path, overwrite=overwrite, buffering=_WRITE_BUFFER) as f:
         s = StreamingFITS(f)
@@ -456,6 +456,11 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
         for col in src.itercols():
             col.unit = None        # units are documented (e-/s, pixels), not stored
         s.append_hdu(fits.BinTableHDU(src, name="SOURCES"))
+        # the read times of every resultant, as the exposure's: a truth graded without
+        # its exposure (slopes only, a pipeline's product) needs them for any readout
+        # that is not MULTIACCUM (an MA table, explicit resultants)
+        s.append_hdu(fits.BinTableHDU(ro.read_table(engine.detector.frame_time),
+                                      name="READS"))
         shape = (ro.nints, ro.ngroups) + det.shape
         for name, raw in raws.items():
             raw.copy_into(s, shape, name, [("BUNIT", "electron", "")])

@@ -429,3 +429,33 @@ def test_read_times_from_exposure(tmp_path):
     # with the header's single-read readout the ratio would be sqrt(V_opt / V_1read):
     v1 = 12 * sigma ** 2 / (TF ** 2 * NG * (NG ** 2 - 1)) / NINTS
     assert abs(math.sqrt(v_opt / v1) - 1) > 20 / math.sqrt(2 * n)
+
+
+def test_a_truth_grades_a_custom_readout_without_its_exposure(tmp_path):
+    """Without --exposure the read times were rebuilt as MULTIACCUM from the header
+    even for explicit resultants: std_opt 0.26 where the exposure's read times give
+    1.07 (found by a docs probe).  The truth now carries the READS table: the report
+    is the exposure's; a truth without it (written before) is refused for such a
+    readout."""
+    from scenesim.run import run_scene
+    from scenesim.scene import parse_scene
+    scene = parse_scene({
+        "seed": 4, "detector": {"preset": "H2RG", "naxis1": 64, "naxis2": 64},
+        "readout": {"resultants": [[0], [1, 3], [5, 6, 7], [10, 11, 12, 13]]},
+        "sources": {"background": 20.0},
+        "output": {"path": str(tmp_path / "x.fits"), "fit": "gls"}})
+    res = run_scene(scene, progress=False)
+    alone = compare_files(res.fit, res.truth)
+    given = compare_files(res.fit, res.truth, exposure=res.exposure)
+    assert "read times from the truth's READS table" in alone.notes
+    np.testing.assert_equal(alone.rows, given.rows)      # (NaN in empty bins alike)
+    old = tmp_path / "old_truth.fits"
+    with fits.open(res.truth) as hdul:
+        hdus = [h for h in hdul if h.name != "READS"]
+        hdus[0].header["NEXTEND"] = len(hdus) - 1       # as the truth files before
+        fits.HDUList(hdus).writeto(old)
+    with pytest.raises(FileFormatError, match=r"not MULTIACCUM .*NREADS = 14.* pass it "
+                                              r"\(--exposure\)"):
+        compare_files(res.fit, str(old))
+    np.testing.assert_equal(compare_files(res.fit, str(old), exposure=res.exposure).rows,
+                            given.rows)
