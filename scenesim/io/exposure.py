@@ -29,8 +29,10 @@ raw ramps recovers), ``SATREAD``
 -1 if none; only reads that some resultant uses are materialised, so a pixel that fills
 its well during skipped frames reports the next read that is actually taken),
 ``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
-read saw it), ``SOURCES`` (the catalogue as rendered), and optionally ``CHARGE``
-(noise-free charge resultants, e-) and ``NOISE`` (noise-only resultants, e-).
+read saw it), ``SOURCES`` (the catalogue as rendered), ``READS`` (the exposure's table
+of read indices and times, so that a truth grades a fit of any readout without its
+exposure), and optionally ``CHARGE`` (noise-free charge resultants, e-) and ``NOISE``
+(noise-only resultants, e-).
 
 What this plain writer lacks for the JWST pipeline (so ``calwebb_detector1`` does not
 take its files; with the ``jwst`` extra, :func:`scenesim.pipelines.jwst.write_uncal`
