@@ -64,7 +64,7 @@ from noise.errors import (FileFormatError, OutputError, ParameterError,
 __all__ = ["atomic_path", "atomic_file", "StreamingFITS", "WriteBehind",
            "WriterThread", "package_version", "write_noise_fits", "TEMP_PATTERN",
            "temp_file", "remove_stale_temps", "check_output_name", "derived_path",
-           "output_error", "input_path", "open_fits"]
+           "output_error", "input_path", "open_fits", "same_file", "is_gzip_file"]
 
 _BLOCK = 2880
 
@@ -553,12 +553,12 @@ def open_fits(path, what="file", *, memmap=None):
             raise FileFormatError(msg) from exc
 
 
-def _same_file(a, b):
-    """True if paths ``a`` and ``b`` name one existing file (any spelling or link)."""
-    try:
+def same_file(a, b):
+    """True if paths ``a`` and ``b`` name the same file (any spelling or link), or
+    would once created (the same real path)."""
+    if os.path.exists(a) and os.path.exists(b):
         return os.path.samefile(a, b)
-    except (OSError, TypeError, ValueError):
-        return False
+    return os.path.realpath(a) == os.path.realpath(b)
 
 
 _GZIP_MAGIC = b"\x1f\x8b"
@@ -587,10 +587,9 @@ def _check_gzip(path, what):
     before in this process, unchanged since (path, inode, size, modification time),
     is not decompressed again.
     """
+    if not is_gzip_file(path):
+        return
     try:
-        with open(path, "rb") as f:
-            if f.read(2) != _GZIP_MAGIC:
-                return
         st = os.stat(path)
     except OSError as exc:
         raise FileFormatError(f"cannot read {what} {path!r}: {_one_line(exc)}") from exc
@@ -842,7 +841,7 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
                                  f"comment]) tuples, got {describe(extra_cards)}")
     extra_cards = [_check_extra_card(c) for c in extra_cards]
     template = generator.params.pca0_file          # the one file the generator reads
-    if template is not None and _same_file(path, template):
+    if template is not None and same_file(path, template):
         raise ParameterError(
             f"'path' {os.fspath(path)!r} is the generator's 'pca0_file' (a file it "
             f"reads): it is never replaced, even with overwrite=True")

@@ -20,7 +20,7 @@ import contextlib
 import os
 
 from noise.errors import ParameterError
-from noise.fitsio import check_output_name, derived_path, remove_stale_temps
+from noise.fitsio import check_output_name, derived_path, remove_stale_temps, same_file
 from noise.validate import check_writable
 
 __all__ = ["PLOT_FILES", "scene_inputs", "check_outputs", "check_plot_dir",
@@ -62,13 +62,6 @@ def scene_inputs(scene):
     files += list(src.map_files.values()) + list(eff.map_files.values())
     files += [c.file for c in src.light_curves if c.kind == "file"]
     return [os.path.abspath(f) for f in files if isinstance(f, str)]
-
-
-def _same(a, b):
-    """True if paths ``a`` and ``b`` name the same file (or would, once created)."""
-    if os.path.exists(a) and os.path.exists(b):
-        return os.path.samefile(a, b)
-    return os.path.realpath(a) == os.path.realpath(b)
 
 
 #: The name endings of a FITS output (``.gz``: written gzip-compressed).
@@ -115,12 +108,12 @@ def check_outputs(outputs, *, inputs=(), overwrite=False, endings=None):
                 f"the {what} {path!r} must end in {' or '.join(allowed)} (the format "
                 f"it is written in)")
         for other, other_path in checked.items():
-            if _same(path, other_path):
+            if same_file(path, other_path):
                 raise ParameterError(
                     f"the {what} and the {other} would both be written to {path!r}; "
                     f"give them different names")
         for src in inputs:
-            if _same(path, src):
+            if same_file(path, src):
                 raise ParameterError(
                     f"the {what} {path!r} is a file this run reads; it is never "
                     f"overwritten, even with --overwrite: choose another output name")
