@@ -274,16 +274,11 @@ def _ending(command, exc):
         # the interrupt decides, whatever exception it turned into on the way out
         return _interrupted(f" {command}", interrupt)
     if isinstance(exc, ScenesimError):
-        kept = ""
-        if isinstance(exc, OSError):      # an OutputError: what was finished stays
-            fitsio = sys.modules.get("noise.fitsio")
-            done = fitsio.completed_outputs() if fitsio is not None else []
-            if done and command != "batch":
-                names = ", ".join(repr(p) for p in done[:4])
-                more = f" and {len(done) - 4} more" if len(done) > 4 else ""
-                kept = (f"; the files it had finished are complete and kept "
-                        f"({names}{more})")
-        print(f"scenesim {command}: error: {exc}{kept}", file=sys.stderr)
+        # an OutputError (disk full, file-size limit): what was finished stays
+        kept = _kept(f" {command}") if isinstance(exc, OSError) and \
+            command != "batch" else ""
+        print(f"scenesim {command}: error: {exc}{'; ' + kept if kept else ''}",
+              file=sys.stderr)
         return 2
     if isinstance(exc, MemoryError):
         # Reached only past the size check (scenesim.budget), e.g. with --force or
@@ -302,21 +297,26 @@ def _ending(command, exc):
     return None
 
 
+def _kept(command):
+    """What a stopped command leaves finished, for its one line: the files it had
+    renamed into place, or a batch's finished tasks; '' when none."""
+    fitsio = sys.modules.get("noise.fitsio")          # imported by every writer
+    done = fitsio.completed_outputs() if fitsio is not None else []
+    if not done:
+        return ""
+    if command == " batch":           # its workers' files are in its manifest
+        return "the finished tasks are kept (the same command resumes the batch)"
+    names = ", ".join(repr(p) for p in done[:4])
+    more = f" and {len(done) - 4} more" if len(done) > 4 else ""
+    return f"the files it had finished are complete and kept ({names}{more})"
+
+
 def _interrupted(command, exc):
     """The one line of an interrupted command; its exit status (128 + signal)."""
     signum = getattr(exc, "signum", signal.SIGINT)
-    kept = ""
-    fitsio = sys.modules.get("noise.fitsio")          # imported by every writer
-    done = fitsio.completed_outputs() if fitsio is not None else []
-    if command == " batch":           # its workers' files are in its manifest
-        kept = ("the finished tasks are kept (the same command resumes the batch); "
-                if done else "")
-    elif done:
-        names = ", ".join(repr(p) for p in done[:4])
-        more = f" and {len(done) - 4} more" if len(done) > 4 else ""
-        kept = f"the files it had finished are complete and kept ({names}{more}); "
+    kept = _kept(command)
     print(f"scenesim{command}: interrupted ({signal.Signals(signum).name}); "
-          f"{kept}no partial output was left", file=sys.stderr)
+          f"{kept + '; ' if kept else ''}no partial output was left", file=sys.stderr)
     return 128 + int(signum)
 
 

@@ -367,14 +367,9 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
         e = np.asarray(correct_irs2(raw, det), dtype=np.float32)
         del raw
     elif options.refpix != "none" and refmask.any():
-        blind = _references_near_saturation(_first_saturated(sat), sat.shape[1],
-                                            refmask, decon)
-        if blind is not None:
-            e[blind] = np.nan
-        e = np.asarray(correct_reference(e, det, scheme=options.refpix),
-                       dtype=np.float32)
-        if blind is not None:
-            e[blind] = 0.0
+        near = _references_near_saturation(_first_saturated(sat), sat.shape[1],
+                                           refmask, decon)
+        e = _corrected_without(e, det, options.refpix, near, 0)
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:
         e = linearize_resultants(e, nl, tbar, read_times=ro.read_times(t_frame),
@@ -510,7 +505,7 @@ def _first_saturated(sat):
     return np.where(sat.any(axis=1), sat.argmax(axis=1), nres).astype(np.int32)
 
 
-def _references_near_saturation(first, nres, refmask, decon, per_integration=False):
+def _references_near_saturation(first, nres, refmask, decon):
     """Which reference pixels to leave out of the reference correction, or None.
 
     Only when IPC was undone (``decon``): a saturated pixel (ADC top or full well)
@@ -520,8 +515,7 @@ def _references_near_saturation(first, nres, refmask, decon, per_integration=Fal
     probe).  ``first``: the first saturated resultant of each pixel (``nres`` when
     none).  Returns, per integration, the first resultant at which a reference
     pixel has a saturated pixel within :data:`_UNDONE_REACH` (``(nints, ny, nx)``,
-    a large number where never; with ``per_integration``), or the bool mask
-    ``(nints, nres, ny, nx)`` of the reference pixels to leave out.
+    a large number where never; :func:`_corrected_without` leaves it out from then).
     """
     nints = first.shape[0]
     if not decon or not refmask.any() or not (first < nres).any():
@@ -532,11 +526,23 @@ def _references_near_saturation(first, nres, refmask, decon, per_integration=Fal
                      for k in range(nints)])
     never = np.iinfo(np.int32).max
     near = np.where(refmask[None], near, never).astype(np.int64)
-    if not (near < nres).any():
-        return None
-    if per_integration:
-        return near
-    return np.arange(nres)[None, :, None, None] >= near[:, None]
+    return near if (near < nres).any() else None
+
+
+def _corrected_without(frames, det, scheme, near, r0):
+    """``correct_reference`` of resultants ``r0, r0 + 1, ...`` (axis -3 of
+    ``frames``), float32, with the reference pixels that :func:`_references_near_saturation`
+    gave (``near``, its array of these integrations, or None) left out (NaN in, 0
+    out)."""
+    blind = None
+    if near is not None:
+        index = np.arange(r0, r0 + frames.shape[-3])[:, None, None]
+        blind = index >= near[..., None, :, :]
+        frames[blind] = np.nan
+    out = np.asarray(correct_reference(frames, det, scheme=scheme), dtype=np.float32)
+    if blind is not None:
+        out[blind] = 0.0
+    return out
 
 
 class _FirstSaturated:
@@ -636,21 +642,12 @@ def _prepare_to_file(src, path, options):
     # 4: reference correction, frame by frame
     if options.refpix != "none" and refmask.any():
         step = max(1, _BLOCK_VALUES // (ny * nx))
-        near = _references_near_saturation(first, nres, refmask, decon,
-                                           per_integration=True)
+        near = _references_near_saturation(first, nres, refmask, decon)
         for k in range(nints):
             for r0 in range(0, nres, step):
-                r1 = min(r0 + step, nres)
-                f = cube.frames(k, r0, r1)
-                blind = None if near is None else \
-                    np.arange(r0, r1)[:, None, None] >= near[k][None]
-                if blind is not None:
-                    f[blind] = np.nan
-                f = np.asarray(correct_reference(f, det, scheme=options.refpix),
-                               dtype=np.float32)
-                if blind is not None:
-                    f[blind] = 0.0
-                cube.write_frames(k, r0, f)
+                f = cube.frames(k, r0, min(r0 + step, nres))
+                cube.write_frames(k, r0, _corrected_without(
+                    f, det, options.refpix, None if near is None else near[k], r0))
     # 5: linearisation, per resultant over all integrations, zero from 0 and 1
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:

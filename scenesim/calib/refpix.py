@@ -315,15 +315,9 @@ def _running_nanmean(values, window):
     ``(F, ny, ncols)``: every finite value of the window weighs alike, as in the mean
     of the row means when none is missing; 0 where a whole window has none."""
     ok = np.isfinite(values)
-    total = np.where(ok, values, 0.0).sum(axis=-1)
-    count = ok.sum(axis=-1).astype(np.float64)
-    lo, hi = window_bounds(values.shape[1], window)
-    csum = np.concatenate([np.zeros(total.shape[:-1] + (1,)), np.cumsum(total, axis=-1)],
-                          axis=-1)
-    ccnt = np.concatenate([np.zeros(count.shape[:-1] + (1,)), np.cumsum(count, axis=-1)],
-                          axis=-1)
-    num, den = csum[..., hi] - csum[..., lo], ccnt[..., hi] - ccnt[..., lo]
-    return np.where(den > 0, num / np.maximum(den, 1.0), 0.0)
+    total = running_mean(np.where(ok, values, 0.0).sum(axis=-1), window)
+    count = running_mean(ok.sum(axis=-1).astype(np.float64), window)
+    return np.where(count > 0, total / np.where(count > 0, count, 1.0), 0.0)
 
 
 def _irs2_plan(detector):
