@@ -245,3 +245,31 @@ def test_long_bright_ramps_keep_their_precision():
     g32 = fit_ramps(res.astype(np.float32), times, read_noise=10.0)
     assert g32.chi2.mean() > 1.02
     assert np.max(np.abs(g32.slope - g.slope) / np.sqrt(g.var)) < 0.05
+
+
+# ------------------------------------------------- photon counting, read noise 0
+def test_photon_counting_without_read_noise_flags_hits_not_electrons():
+    # Read noise 0, 10 e-/s read every 18 ms: 0.18 e- per difference, so the median
+    # difference is 0 (the old test rate: every electron then read as a jump, 80 %
+    # of pixels flagged and slopes of 0.2 e-/s against 10).  A quarter of the
+    # pixels get a 30 e- hit in the middle of the ramp.
+    times = jwst_times(100, t_frame=0.018)
+    rng = np.random.default_rng(139)
+    shape = (100, 200)
+    rate = 10.0
+    hit = np.zeros(shape, bool)
+    hit[:25] = True
+    th = np.where(hit, rng.uniform(times[40][0], times[60][0], shape), np.inf)
+    res = simulate(rng, rate, times, 0.0, shape, hits=(th, np.full(shape, 30.0)))
+    g = fit_ramps(res, times, read_noise=0.0, jump_threshold=5.0)
+    # Clean pixels: a 5-sigma test with the Poisson skewness allowed for needs
+    # (thr^2 - 1) / 6 = 4 e- above the rate's thr sigma, so a difference of >= 5 e-:
+    # P(Poisson(0.18) >= 5) = 1.6e-6, 99 differences, 15000 clean pixels: 2.4
+    # expected; at most 2.4 + 5 sqrt(2.4) = 10.
+    assert np.count_nonzero(g.n_jumps[~hit]) <= 10, np.count_nonzero(g.n_jumps[~hit])
+    # Hit pixels: 30 e- is far above that (Poisson(0.18) + 30 never reads below 7).
+    assert np.all(g.n_jumps[hit] >= 1)
+    # Slopes: sqrt(rate / T) = sqrt(10 / 1.8) = 2.4 e-/s per pixel; the mean of 20000
+    # has standard error 0.017, 5 sigma = 0.083.
+    assert abs(g.slope.mean() - rate) < 5 * np.sqrt(rate / (times[-1][0] - times[0][0])
+                                                    / g.slope.size), g.slope.mean()
