@@ -798,9 +798,10 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
         ``'e'``: float32 electrons.  ``'DN'``: uint16, electrons / ``gain``, rounded and
         clipped to [0, 65535].
     gain : float
-        e-/DN, used for ``unit='DN'`` and recorded in the header.  With ``'DN'`` no
-        noise amplitude (``rtn_amp`` apart) may exceed 100 times the 16-bit range in
-        electrons, ``gain * 65535``: above it every pixel clips at 0 or 65535
+        e-/DN, used for ``unit='DN'`` and recorded in the header.  With ``'DN'`` the
+        noise of the generator's detector must fit in the 16-bit range in electrons,
+        ``gain * 65535``, with the bias 5 rms spreads inside it at the bias
+        pattern's extremes, or the ADC would clip it
         (:meth:`noise.NoiseParams.check_adc`).
     overwrite : bool
         Replace an existing file (default: refuse it).
@@ -848,7 +849,7 @@ def write_noise_fits(path, generator, nframes, *, nints=1, unit="e", gain=1.0,
     if unit == "DN":
         # no noise clipped at the 16-bit ADC (noise.params module notes)
         try:
-            generator.params.check_adc(gain, 16)
+            generator.params.check_adc(gain, 16, generator.detector)
         except ParameterError as exc:
             raise ParameterError(f"unit='DN' (16-bit): {exc}") from exc
     det = generator.detector

@@ -22,8 +22,10 @@ amplitudes reproduce a NIRSpec-like single frame, as they did in the original fo
 
 ``pedestal`` is the standard deviation of a per-frame offset common to all pixels;
 ``ktc`` the per-pixel standard deviation of the reset level, redrawn each integration;
-``bias_offset`` a constant reset level; ``bias_amp`` multiplies the unit-sigma
-picture-frame template to make the fixed bias pattern (as the original did).
+``bias_offset`` a constant reset level; ``bias_amp`` multiplies the picture-frame
+template (zero median, unit *robust* sigma; far from Gaussian: the synthetic one
+spans -0.82 to +13.7 on a full H2RG, standard deviation 3.2) to make the fixed bias
+pattern (as the original did).
 
 Beyond the paper: random telegraph noise (``rtn_fraction`` of regular pixels switch
 between two levels ``rtn_amp`` apart, with mean dwell times ``rtn_tau_low`` and
@@ -44,22 +46,35 @@ that is known:
 * :meth:`NoiseParams.check_detector` (the noise generator, a scene): ``f_min`` must be
   below the Nyquist frequency of every 1/f series it shapes (``1 / (2 dt)`` for the
   pink series, ``1 / (4 dt)`` for ACN, ``1 / (2 row time)`` for picture-frame noise);
-* :meth:`NoiseParams.check_adc` (a scene, a DN noise file: where the gain and the ADC
-  bits are known): the reset level of a pixel without charge is ``bias_offset`` plus
-  the other components, whose rms spread ``s`` is the root sum of squares of every
-  amplitude that reaches every pixel (all but ``rtn_amp``; the white noise at the
-  larger of the regular and reference-pixel levels, :meth:`NoiseParams.spread`).  The
-  ADC clips below code 0 and above its top code, ``gain * (2**bits - 1)`` e-, so
-  ``bias_offset`` must lie :data:`BIAS_SPREAD_SIGMA` = 5 spreads inside that range,
-  in ``[5 s, range - 5 s]``: then at most 2.9e-7 of a Gaussian component's values
-  clip on each side.  Outside it the ADC silently flattens the noise a user asked
-  for: e.g. ``preset = "none"`` (``bias_offset = 0``) with ``rd_noise = 5`` put half
-  of every dark pixel's reads at code 0.  When ``10 s`` exceeds the range no bias
-  fits, and the error names the largest amplitude instead.  Charge, which only adds,
-  is not counted: reaching the top code is saturation.  Two more ends: the RTN
-  pixels' high state, ``bias_offset + rtn_amp``, must also lie 5 s below the top code
-  (when there are RTN pixels), and one ADC step (``gain``) may not exceed
-  ``bias_offset + 5 s``, where every read of a pixel without charge would be code 0.
+* :meth:`NoiseParams.check_adc` (a scene, the engine, a DN noise file: where the
+  gain, the ADC bits and the detector are known): the reset level of a pixel without
+  charge is ``bias_offset``, plus the fixed bias pattern ``bias_amp`` times the
+  template, plus the other components, whose rms spread ``s`` is the root sum of
+  squares of every amplitude that reaches every pixel (all but ``rtn_amp``; the white
+  noise at the larger of the regular and reference-pixel levels,
+  :meth:`NoiseParams.spread`).  On the detector, each 1/f amplitude (defined within
+  one frame, mean removed) counts at its process's whole rms, which also wanders
+  below one frame (x1.2 on a full H2RG frame, x1.7-1.9 on 18 ms frames at ``f_min =
+  1e-4``), picture-frame noise at the template's largest value, and the bias pattern,
+  deterministic and far from Gaussian (the synthetic template spans -0.82 to +13.7
+  robust sigmas on a full H2RG), by its extremes ``[b_lo, b_hi]``
+  (:meth:`NoiseParams.bias_pattern_range`).  The ADC clips below code 0 and above
+  its top code, ``gain * (2**bits - 1)`` e-, so ``bias_offset`` must lie in ``[5 s -
+  b_lo, range - 5 s - b_hi]`` (:data:`BIAS_SPREAD_SIGMA` = 5): then at most 2.9e-7
+  of a Gaussian component's values clip on each side, at the pattern's extreme
+  pixel.  Outside it the ADC silently flattens the noise a user asked for: e.g.
+  ``preset = "none"`` (``bias_offset = 0``) with ``rd_noise = 5`` put half of every
+  dark pixel's reads at code 0, and (before the pattern and the 1/f wander were
+  counted so) a 256 x 256 H2RG with ``bias_offset = 62000`` read 9.7 % of its reads
+  at the top code.  When ``10 s + b_hi - b_lo`` exceeds the range no bias fits, and
+  the error names the largest amplitude instead.  Charge, which only adds, is not
+  counted: reaching the top code is saturation (the truth's ``SATREAD``).  Two more
+  ends: the RTN pixels' high state, ``bias_offset + b_hi + rtn_amp``, must also lie 5
+  s below the top code (when there are RTN pixels), and one ADC step (``gain``) may
+  not exceed ``bias_offset + b_hi + 5 s``, where every read of a pixel without charge
+  would be code 0.  Without a detector, or on a full array over
+  :data:`TEMPLATE_CHECK_PIXELS`, the amplitudes are taken as they are and the bias
+  pattern as a Gaussian of rms ``bias_amp``.
 
 The 1/f synthesis bounds two options: ``f_min >= 1e-20`` Hz (:data:`MIN_F_MIN`; a
 flat PSD below a period of 3e12 years; lower values need hundreds of filter bands and
@@ -80,7 +95,7 @@ from noise.validate import check_float, describe, is_real, is_sequence
 from noise.errors import ParameterError, ParameterTypeError
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE", "MAX_AMPLITUDE",
-           "BIAS_SPREAD_SIGMA", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
+           "BIAS_SPREAD_SIGMA", "TEMPLATE_CHECK_PIXELS", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
 
 #: Largest amplitude (and ``|bias_offset|``, ``rd_noise * ref_ratio``), e-: float32
 #: frames stay finite (module notes).
@@ -88,6 +103,12 @@ MAX_AMPLITUDE = 1e30
 #: ``bias_offset`` must lie this many rms spreads of the other components inside
 #: the ADC range (module notes, :meth:`NoiseParams.check_adc`).
 BIAS_SPREAD_SIGMA = 5.0
+#: Largest full array (pixels) whose template :meth:`NoiseParams.check_adc` measures
+#: (16384^2, four times an H4RG): its statistics take ~0.1 s at 4096^2 and grow with
+#: the size, and a scene's checks run before its size budget refuses an array too
+#: large for the machine (``naxis = 400000``: 3 s); beyond it the bias pattern is
+#: taken for a Gaussian of rms ``bias_amp`` (module notes).
+TEMPLATE_CHECK_PIXELS = 2 ** 28
 #: Smallest ``f_min``, Hz (module notes).
 MIN_F_MIN = 1e-20
 #: ``pink_spectrum`` PSD values lie in ``[1 / PSD_RANGE, PSD_RANGE]`` (module notes).
@@ -304,86 +325,152 @@ class NoiseParams:
                     f"{detector.ncols_out} + {detector.nroh}; make 'nroh' even or set "
                     f"'acn' to 0")
 
-    def check_adc(self, gain, adc_bits):
+    def check_adc(self, gain, adc_bits, detector=None):
         """Raise :class:`~noise.errors.ParameterError` if an ADC of ``gain`` e-/DN and
         ``adc_bits`` bits would clip the noise of a pixel without charge (module
-        notes): ``bias_offset`` must lie in ``[5 s, range - 5 s]`` e-, ``s`` the
-        components' rms spread (:meth:`spread`), ``range = gain * (2**adc_bits - 1)``.
-        The error names ``bias_offset``, or the largest amplitude when ``10 s``
-        exceeds the range (no bias fits), or ``rtn_amp`` when the RTN pixels' high
-        state, ``bias_offset + rtn_amp``, is not 5 s below the top code, or ``gain``
-        when one ADC step exceeds ``bias_offset + 5 s`` (every read without charge
-        would be code 0; a noise-free detector with no bias, ``bias_offset + 5 s =
-        0``, takes any gain)."""
+        notes): ``bias_offset`` must lie in ``[5 s - b_lo, range - 5 s - b_hi]`` e-,
+        ``s`` the components' rms spread (:meth:`spread`), ``[b_lo, b_hi]`` the bias
+        pattern's extremes (:meth:`bias_pattern_range`; with no ``detector`` the
+        pattern counts as one more Gaussian term of ``s`` and ``b_lo = b_hi = 0``),
+        ``range = gain * (2**adc_bits - 1)``.  The error names ``bias_offset``, or
+        the largest amplitude when ``10 s + b_hi - b_lo`` exceeds the range (no bias
+        fits), or ``rtn_amp`` when the RTN pixels' high state, ``bias_offset + b_hi
+        + rtn_amp``, is not 5 s below the top code, or ``gain`` when one ADC step
+        exceeds ``bias_offset + b_hi + 5 s`` (every read without charge would be code
+        0; a noise-free detector with no bias, ``bias_offset + 5 s = 0``, takes any
+        gain)."""
         top = 2 ** int(adc_bits) - 1
         adc_range = float(gain) * top
         adc = (f"the ADC range [0, {adc_range:.6g}] e- ('gain' {float(gain):g} e-/DN x "
                f"{top} DN of 'adc_bits' {int(adc_bits)})")
-        spread = self.spread()
+        if detector is not None:
+            self.check_detector(detector)
+            if detector.naxis1 * detector.naxis2 > TEMPLATE_CHECK_PIXELS:
+                detector = None              # module notes: the pattern as a Gaussian
+        spread = self.spread(detector)
+        b_lo, b_hi = (0.0, 0.0) if detector is None else self.bias_pattern_range(detector)
+        pattern = ""
+        if b_hi > b_lo:
+            pattern = (f" and the bias pattern's extremes ('bias_amp' x the template) "
+                       f"[{b_lo:.6g}, {b_hi:.6g}] e-")
+        how = ("root sum of squares of the amplitudes" if detector is None else
+               "root sum of squares of the amplitudes, each 1/f one at its process's "
+               "whole rms")
         k = BIAS_SPREAD_SIGMA
-        if 2 * k * spread > adc_range:
-            name, value = self._largest_amplitude()
+        if 2 * k * spread + (b_hi - b_lo) > adc_range:
+            name, value = self._largest_amplitude(detector)
+            if b_hi - b_lo > 2 * k * spread:
+                name, value = "bias_amp", b_hi - b_lo
             who = f"{name!r} = {getattr(self, name)!r} e-"
             if name == "rd_noise" and self.ref_ratio > 1:
                 who = (f"'ref_ratio' x 'rd_noise' = {self.ref_ratio!r} x "
                        f"{getattr(self, name)!r} e- (the reference pixels' white noise)")
+            room = adc_range - (b_hi - b_lo)
+            need = (f"i.e. s <= {room / (2 * k):.6g} e-" if room > 0 else
+                    f"but the pattern alone spans {b_hi - b_lo:.6g} e-")
             raise ParameterError(
                 f"{who} is too large for the ADC: the "
-                f"noise's rms spread s = {spread:.6g} e- (root sum of squares of the "
-                f"amplitudes, {name!r} the largest at {value:.6g} e-) must fit "
-                f"{2 * k:g} times in {adc}, i.e. s <= "
-                f"{adc_range / (2 * k):.6g} e-, or the ADC clips it")
-        dark_top = self.bias_offset + k * spread
+                f"noise's rms spread s = {spread:.6g} e- ({how}){pattern} must fit "
+                f"in {adc} with {k:g} s to spare on each side, {need}, or the ADC "
+                f"clips it ({name!r} is the largest term, {value:.6g} e-)")
+        dark_top = self.bias_offset + b_hi + k * spread
         if 0 < dark_top < float(gain):
             raise ParameterError(
                 f"'gain' = {float(gain):g} e-/DN is coarser than the reads of a pixel "
-                f"without charge: 'bias_offset' {self.bias_offset!r} e- + {k:g} x the "
+                f"without charge: 'bias_offset' {self.bias_offset!r} e-{pattern and ' + the bias pattern'} + {k:g} x the "
                 f"noise's rms spread s = {spread:.6g} e- is {dark_top:.6g} e-, less than "
                 f"one ADC step, so every such read is code 0; 'gain' must be <= "
                 f"{dark_top:.6g} e-/DN")
-        lo, hi = k * spread, adc_range - k * spread
+        lo, hi = k * spread - b_lo, adc_range - k * spread - b_hi
         if not lo <= self.bias_offset <= hi:
             below = self.bias_offset < lo
-            z = ((self.bias_offset if below else adc_range - self.bias_offset)
+            z = ((self.bias_offset + b_lo if below else adc_range - self.bias_offset - b_hi)
                  / spread) if spread > 0 else -math.inf
             frac = 0.5 * math.erfc(z / math.sqrt(2.0))
             where = "below code 0" if below else "above the ADC's top code"
+            pixel = "a pixel without charge"
+            if b_hi > b_lo:
+                pixel = (f"the pixel without charge where the bias pattern is "
+                         f"{'lowest' if below else 'highest'}")
             raise ParameterError(
                 f"'bias_offset' = {self.bias_offset!r} e- puts {100 * frac:.3g} % of the reads "
-                f"of a pixel without charge {where}, where the ADC clips them: with "
-                f"the noise's rms spread s = {spread:.6g} e- it must lie {k:g} s inside "
-                f"{adc}, i.e. in [{lo:.6g}, {hi:.6g}] e-")
-        rtn_top = self.bias_offset + self.rtn_amp + k * spread
+                f"of {pixel} {where}, where the ADC clips them: with "
+                f"the noise's rms spread s = {spread:.6g} e- ({how}){pattern} it must "
+                f"lie {k:g} s inside {adc}, i.e. in [{lo:.6g}, {hi:.6g}] e-")
+        rtn_top = self.bias_offset + b_hi + self.rtn_amp + k * spread
         if self.rtn_fraction > 0 and rtn_top > adc_range:
             raise ParameterError(
                 f"'rtn_amp' = {self.rtn_amp!r} e- puts the high state of the RTN pixels "
                 f"('rtn_fraction' {self.rtn_fraction!r}) above the ADC's top code, where "
-                f"it clips: 'bias_offset' {self.bias_offset!r} + 'rtn_amp' + {k:g} x the "
+                f"it clips: 'bias_offset' {self.bias_offset!r}{pattern and ' + the bias pattern'} + 'rtn_amp' + {k:g} x the "
                 f"noise's rms spread s = {spread:.6g} e- is {rtn_top:.6g} e-, beyond "
                 f"{adc}; 'rtn_amp' must be <= "
-                f"{adc_range - self.bias_offset - k * spread:.6g} e-")
+                f"{adc_range - self.bias_offset - b_hi - k * spread:.6g} e-")
 
-    def _largest_amplitude(self):
+    def bias_pattern_range(self, detector):
+        """``(lo, hi)``, e-: the least and largest value of the fixed bias pattern,
+        ``bias_amp`` times the template (:func:`noise.template.template_for`, from
+        ``pca0_file`` or the synthetic one) over ``detector``'s read-out image.  The
+        template has unit *robust* sigma but is far from Gaussian: the synthetic
+        one spans -0.82 to +13.7 on a full H2RG, to +22 on small windows, so its
+        extremes, not a sigma, bound the reads (module notes)."""
+        if self.bias_amp == 0:
+            return 0.0, 0.0
+        from noise.template import template_range
+        lo, hi = template_range(detector, self.pca0_file)
+        return self.bias_amp * lo, self.bias_amp * hi
+
+    def _largest_amplitude(self, detector=None):
         """(name, e-) of the largest term of :meth:`spread`."""
-        terms = {name: value for name, value in self._spread_terms()}
+        terms = {name: value for name, value in self._spread_terms(detector)}
         name = max(terms, key=terms.get)
         return name, terms[name]
 
-    def _spread_terms(self):
+    def _spread_terms(self, detector=None):
+        scale = {} if detector is None else self._process_scales(detector)
         for f in dataclasses.fields(self):
             if f.name in _OPTIONS or f.name in ("rtn_amp", "bias_offset"):
                 continue
+            if detector is not None and f.name == "bias_amp":
+                continue                         # its extremes: bias_pattern_range
             value = max(abs(v) for v in self._values(f.name))
             if f.name == "rd_noise":
                 value *= max(1.0, float(self.ref_ratio))
-            yield f.name, float(value)
+            yield f.name, float(value) * scale.get(f.name, 1.0)
 
-    def spread(self):
+    def _process_scales(self, detector):
+        """Per 1/f component, the ratio of its process's whole rms to the amplitude
+        (defined within one frame, mean removed): a pixel's reads also wander with
+        the frequencies below one frame, 1.2x on a full H2RG frame and 1.7x on 18 ms
+        frames at ``f_min = 1e-4`` Hz (more at lower ``f_min``).  Picture-frame noise
+        also takes the template's largest ``|value|``, by which it multiplies."""
+        from noise.pink import _unit_frame_variance, _unit_total_variance
+        det, fm, sp = detector, self.f_min, self.pink_spectrum
+
+        def ratio(rate, n):
+            return math.sqrt(_unit_total_variance(rate, fm, sp)
+                             / _unit_frame_variance(rate, int(n), fm, sp))
+        out = {}
+        if self.enabled("c_pink") or self.enabled("u_pink"):
+            out["c_pink"] = out["u_pink"] = ratio(1 / det.dt, det.frame_samples)
+        if self.enabled("acn"):
+            out["acn"] = ratio(0.5 / det.dt, det.frame_samples // 2)
+        if self.pca0 > 0:
+            from noise.template import template_range
+            lo, hi = template_range(det, self.pca0_file)
+            out["pca0"] = ratio(1 / det.row_time, det.ny + det.nfoh) * max(-lo, hi)
+        return out
+
+    def spread(self, detector=None):
         """Rms spread (e-) of the components around the mean reset level
         ``bias_offset``: the root sum of squares of every amplitude that reaches
         every pixel (the largest per-output value; the white noise at the larger of
-        the regular and reference-pixel levels), ``rtn_amp`` left out."""
-        return math.sqrt(sum(v * v for _, v in self._spread_terms()))
+        the regular and reference-pixel levels), ``rtn_amp`` left out.  With
+        ``detector``, each 1/f amplitude is taken at its process's whole rms and
+        picture-frame noise at the template's largest value
+        (:meth:`_process_scales`), and the bias pattern, deterministic, is left to
+        :meth:`bias_pattern_range`."""
+        return math.sqrt(sum(v * v for _, v in self._spread_terms(detector)))
 
     def per_output(self, name, n_out):
         """Amplitude ``name`` as an array of ``n_out`` values (e-)."""

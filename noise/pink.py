@@ -284,6 +284,16 @@ def _unit_frame_variance(rate, n, f_min, spectrum=None):
     return float(np.trapezoid(integrand, f))
 
 
+@functools.lru_cache(maxsize=64)
+def _unit_total_variance(rate, f_min, spectrum=None):
+    """Variance of a unit-scale series itself (its realised PSD's integral), what a
+    sample wanders around the process's mean: more than :func:`unit_frame_variance`,
+    which leaves out the frequencies below one frame (cached; arguments as there)."""
+    f = np.geomspace(f_min * 1e-3, rate / 2, 40000)
+    s = _realised_psd(f, rate, f_min, spectrum)
+    return float(np.trapezoid(s, f) + s[0] * f[0])     # + the flat PSD below f[0]
+
+
 _FFT_WORKERS = [1]
 
 

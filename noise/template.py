@@ -21,7 +21,7 @@ from noise.errors import FileFormatError
 from noise.fitsio import open_fits
 from noise.validate import check_instance, check_int, check_path
 
-__all__ = ["synthetic_template", "load_template", "template_for"]
+__all__ = ["synthetic_template", "load_template", "template_for", "template_range"]
 
 
 def _normalise(img):
@@ -178,3 +178,29 @@ def template_for(detector, path=None):
     return _synthetic_region32(detector.naxis2, detector.naxis1,
                                detector.y0, detector.y0 + detector.ny,
                                detector.x0, detector.x0 + detector.nx)
+
+
+def template_range(detector, path=None):
+    """``(least, largest)`` value of :func:`template_for` ``(detector, path)``.
+
+    For the synthetic template, from its separable form without building the image
+    (O(ny + nx): a scene's checks may not allocate an array its size budget has not
+    yet allowed): over rows ``Y`` and columns ``X`` of ``max(ey, ex) + g``, the
+    largest is ``max(max_Y (ey + g), max_X ex + max_Y g)`` and the least ``min_Y
+    (max(ey, min_X ex) + g)``, then normalised as the image is (float32, as
+    :func:`template_for` gives it).  A template file is read.
+    """
+    check_instance("detector", detector, Detector, "a noise.Detector")
+    if path is not None and not (isinstance(path, str) and not path):
+        t = template_for(detector, path)
+        return float(t.min()), float(t.max())
+    med, sig = _synthetic_stats(detector.naxis2, detector.naxis1)
+    if not np.isfinite(sig) or sig <= 0:
+        return 0.0, 0.0
+    ey, ex, g = _profiles(detector.naxis2, detector.naxis1)
+    ys = slice(detector.y0, detector.y0 + detector.ny)
+    xs = slice(detector.x0, detector.x0 + detector.nx)
+    ey, ex, g = ey[ys], ex[xs], g[ys]
+    hi = max(float((ey + g).max()), float(ex.max() + g.max()))
+    lo = float((np.maximum(ey, ex.min()) + g).min())
+    return tuple(float(np.float32((v - med) / sig)) for v in (lo, hi))

@@ -69,7 +69,7 @@ def noise_command(args):
         rd_noise=nominal.rd_noise, bias_offset=nominal.bias_offset)
     if args.unit == "DN":                  # no noise clipped or lost at the 16-bit ADC
         try:
-            params.check_adc(gain, 16)
+            params.check_adc(gain, 16, det)
         except ParameterError as exc:
             raise type(exc)(f"'--unit DN' (16-bit ADC): {exc}") from exc
     check_outputs({"output": args.output}, overwrite=args.overwrite,

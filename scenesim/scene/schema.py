@@ -949,7 +949,7 @@ class Scene:
             # per-output values, f_min below every Nyquist frequency, no noise
             # clipped at the ADC (noise.params module notes)
             self.noise.check_detector(self.detector, where="[detector]")
-            self.noise.check_adc(eff.gain, eff.adc_bits)
+            self.noise.check_adc(eff.gain, eff.adc_bits, self.detector)
         except ParameterError as exc:
             table = "[effects]" if str(exc).startswith("'gain'") else "[noise]"
             raise type(exc)(f"{table} {exc}") from exc

@@ -1,14 +1,22 @@
 """Noise that the ADC would clip, refused by every way in.
 
 The ADC clips below code 0 and above its top code, ``gain * (2**bits - 1)`` e-.  The
-reset level of a pixel without charge is ``bias_offset`` plus the other components,
-of rms spread ``s`` (root sum of squares of the amplitudes that reach every pixel), so
-``bias_offset`` must lie 5 spreads inside the range, and ``10 s`` must fit in it
-(:meth:`noise.NoiseParams.check_adc`).  Before issue 12 ``c_pink = 1e300`` was
-accepted with only an overflow RuntimeWarning, ``c_pink = 1e7`` (or ``scenesim noise
---unit DN --gain 1e-5``, whose 5000 e- bias is 5e8 DN) wrote a ramp of clipped pixels
-without a word, and so did ``preset = "none"`` with ``rd_noise = 5`` (bias 0: half of
-every dark pixel's reads at code 0).
+reset level of a pixel without charge is ``bias_offset`` plus the fixed bias pattern
+(``bias_amp`` times the template, deterministic, between ``b_lo`` and ``b_hi``) plus
+the other components, of rms spread ``s`` (root sum of squares of the amplitudes that
+reach every pixel, each 1/f one at its process's whole rms), so ``bias_offset + b_lo``
+must lie 5 spreads above 0, ``bias_offset + b_hi`` 5 spreads below the top, and
+``10 s + b_hi - b_lo`` must fit in the range (:meth:`noise.NoiseParams.check_adc`).
+Before issue 12 ``c_pink = 1e300`` was accepted with only an overflow RuntimeWarning,
+``c_pink = 1e7`` (or ``scenesim noise --unit DN --gain 1e-5``, whose 5000 e- bias is
+5e8 DN) wrote a ramp of clipped pixels without a word, and so did ``preset = "none"``
+with ``rd_noise = 5`` (bias 0: half of every dark pixel's reads at code 0).  Until
+2026-11-27 the check took the bias pattern for a Gaussian of rms ``bias_amp`` and the
+1/f amplitudes (defined within one frame) for the rms of their processes: a 256 x 256
+H2RG with ``bias_offset = 62000`` passed and then read 9.7 % of its reads at code
+65535 (the template reaches 13.7 there), and ``c_pink = 200`` with ``f_min = 1e-6`` at
+``bias_offset = 5 s`` put 22 % of one exposure's reads at code 0
+(:func:`test_accepted_noise_is_not_clipped`).
 
 Every amplitude of :class:`noise.NoiseParams` (its dataclass fields, less the options
 of ``noise.params._OPTIONS`` and ``rtn_amp``, which reaches only the RTN pixels) is
@@ -18,7 +26,8 @@ given to each way in: a scene mapping (:func:`parse_scene`), a scene file
 with ``unit='DN'``, and the commands ``scenesim run`` and ``scenesim noise``.  Each
 must refuse it before any work in one line naming the key (and its table, for a
 scene), and accept the value just inside the limit.  The limits are derived here from
-the preset's amplitudes, not from the code under test.
+the preset's amplitudes, the template and the synthesised PSD, not from the check
+under test.
 """
 
 import dataclasses
@@ -27,6 +36,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import noise
@@ -44,33 +54,91 @@ MID = ADC_RANGE / 2                             # a bias with room on both sides
 VALUES = {"adc": 1e6, "float32": 1e300}
 
 
-def _terms(p):
+#: The scenes' detector ({"naxis1": 16, "naxis2": 16, "ref_border": 2}, H2RG clock).
+DET = noise.preset("H2RG", naxis1=16, naxis2=16, ref_border=2)
+
+
+def _wander(rate, n, f_min=noise.NIRSPEC_DEFAULTS.f_min):
+    """Whole rms of a 1/f process over its rms within ``n`` samples (the amplitude's
+    definition): the realised PSD integrated over all frequencies, by a fine log grid
+    here, against :func:`noise.unit_frame_variance`."""
+    f = np.geomspace(f_min * 1e-4, rate / 2, 400001)
+    psd = noise.realised_psd(f, rate, f_min)
+    total = np.trapezoid(psd, f) + psd[0] * f[0]     # the PSD is flat below f_min
+    return float(np.sqrt(total / noise.unit_frame_variance(rate, n, f_min)))
+
+
+def _template(det=DET):
+    t = noise.template_for(det)
+    return float(t.min()), float(t.max())
+
+
+def _scales(det=DET):
+    """Per 1/f amplitude, the factor to its process's whole rms on ``det`` (picture
+    frame: also the template's largest |value|, which it multiplies)."""
+    pink = _wander(1 / det.dt, det.frame_samples)
+    tlo, thi = _template(det)
+    return {"c_pink": pink, "u_pink": pink,
+            "acn": _wander(0.5 / det.dt, det.frame_samples // 2),
+            "pca0": _wander(1 / det.row_time, det.ny + det.nfoh) * max(-tlo, thi)}
+
+
+def _terms(p, det=DET):
     """The spread's terms (e-) of NoiseParams ``p``: every amplitude that reaches every
     pixel (largest per-output value), the white noise at the larger of the regular and
-    reference-pixel levels; the bias itself and RTN left out."""
-    out = {}
+    reference-pixel levels, the 1/f ones at their processes' whole rms; the bias
+    itself, its pattern and RTN left out."""
+    out, scale = {}, _scales(det)
     for name in AMPLITUDES:
-        if name == "bias_offset":
+        if name in ("bias_offset", "bias_amp"):
             continue
         v = getattr(p, name)
         v = max(v) if isinstance(v, tuple) else v
-        out[name] = v * max(1.0, p.ref_ratio) if name == "rd_noise" else v
+        v = v * max(1.0, p.ref_ratio) if name == "rd_noise" else v
+        out[name] = v * scale.get(name, 1.0)
     return out
 
 
-def _spread(p):
-    return sum(v * v for v in _terms(p).values()) ** 0.5
+def _spread(p, det=DET):
+    return sum(v * v for v in _terms(p, det).values()) ** 0.5
+
+
+def _pattern(p, det=DET):
+    """(b_lo, b_hi), e-: the bias pattern's extremes."""
+    tlo, thi = _template(det)
+    return p.bias_amp * tlo, p.bias_amp * thi
+
+
+def _centre(p, det=DET, adc_range=ADC_RANGE):
+    """The bias with equal room at both ends: bias + b_lo = range - bias - b_hi."""
+    b_lo, b_hi = _pattern(p, det)
+    return (adc_range - b_lo - b_hi) / 2
 
 
 def _limit(key, adc_range=ADC_RANGE):
-    """Largest value of amplitude ``key`` (the nirspec preset otherwise): the spread s
-    must fit 10 times in the range, s <= range / 10."""
-    rest = {k: v for k, v in _terms(noise.NIRSPEC_DEFAULTS).items() if k != key}
-    return ((adc_range / 10) ** 2 - sum(v * v for v in rest.values())) ** 0.5
+    """Largest value of amplitude ``key`` (the nirspec preset otherwise): 10 s plus
+    the pattern's span must fit in the range (with the bias at the centre, that is
+    also where a bias end is reached)."""
+    p = noise.NIRSPEC_DEFAULTS
+    if key == "bias_amp":
+        tlo, thi = _template()
+        return (adc_range - 10 * _spread(p)) / (thi - tlo)
+    b_lo, b_hi = _pattern(p)
+    rest = {k: v for k, v in _terms(p).items() if k != key}
+    room = ((adc_range - (b_hi - b_lo)) / 10) ** 2 - sum(v * v for v in rest.values())
+    return room ** 0.5 / _scales().get(key, 1.0) / (
+        max(1.0, p.ref_ratio) if key == "rd_noise" else 1.0)
 
 
 def _mapping(key, value):
-    table = {"preset": "nirspec", "bias_offset": MID, key: value}
+    """A scene with amplitude ``key`` at ``value`` and the bias at the centre of what
+    the nirspec preset so changed leaves (``MID`` with no pattern)."""
+    try:
+        bias = value if key == "bias_offset" else _centre(
+            noise.NIRSPEC_DEFAULTS.replace(**{key: value}))
+    except ParameterError:           # beyond the float32 frames: refused anyway
+        bias = MID
+    table = {"preset": "nirspec", "bias_offset": bias, key: value}
     return {"seed": 1, "detector": {"naxis1": 16, "naxis2": 16, "ref_border": 2},
             "noise": table,
             "readout": {"pattern": "RAPID", "ngroups": 2},
@@ -138,7 +206,8 @@ def test_a_bias_within_5_spreads_of_either_end_is_refused(side, preset, amps):
     p = (noise.NIRSPEC_DEFAULTS if preset == "nirspec" else noise.ZERO_NOISE).replace(
         **amps)
     s = _spread(p)
-    edge = ADC_RANGE - 5 * s if side == "top" else 5 * s
+    b_lo, b_hi = _pattern(p)
+    edge = ADC_RANGE - 5 * s - b_hi if side == "top" else 5 * s - b_lo
     step = 1e-5 * s                  # z = 5 - 1e-5: Q(z) still rounds to 2.87e-7
     inside = edge - step if side == "top" else edge + step
     outside = edge + step if side == "top" else edge - step
@@ -196,7 +265,7 @@ def test_library_scene_replace_refuses_it(key):
 
 @pytest.mark.parametrize("key", AMPLITUDES)
 def test_write_noise_fits_in_dn_refuses_it(key, tmp_path):
-    det = noise.preset("H2RG", naxis1=16, naxis2=16)
+    det = DET
     range16 = GAIN * 65535                           # the file's ADC: 16 bits
     params = noise.ZERO_NOISE.replace(**{key: 1.01 * range16})
     gen = noise.NoiseGenerator(det, params, rng=1, threads=1)
@@ -206,11 +275,18 @@ def test_write_noise_fits_in_dn_refuses_it(key, tmp_path):
     assert "unit='DN'" in str(info.value)
     assert os.listdir(tmp_path) == []
     # in electrons (float32) nothing clips; inside the limit the DN file is written:
-    # the bias alone at the top code, an amplitude with s = range / 10 at mid-range
+    # the bias alone at the top code, an amplitude with s = range / 10 at mid-range,
+    # the bias pattern spanning the range less 1e-6 with the bias centred
     noise.write_noise_fits(tmp_path / "e.fits", gen, 2, unit="e")
-    inside = ({"bias_offset": range16} if key == "bias_offset" else
-              {key: range16 / 10 * (1 - 1e-6),
-               "bias_offset": range16 / 2})
+    tlo, thi = _template()
+    if key == "bias_offset":
+        inside = {"bias_offset": range16}
+    elif key == "bias_amp":
+        amp = range16 / (thi - tlo) * (1 - 1e-6)
+        inside = {key: amp, "bias_offset": (range16 - amp * (tlo + thi)) / 2}
+    else:
+        inside = {key: range16 / 10 / _scales().get(key, 1.0) * (1 - 1e-6),
+                  "bias_offset": range16 / 2}
     at_limit = noise.NoiseGenerator(det, noise.ZERO_NOISE.replace(**inside),
                                     rng=1, threads=1)
     noise.write_noise_fits(tmp_path / "dn.fits", at_limit, 2, unit="DN", gain=GAIN)
@@ -268,7 +344,7 @@ def test_an_adc_step_above_the_dark_reads_is_refused(preset, amps, tmp_path):
     detector without bias has nothing to resolve and takes any gain."""
     p = (noise.NIRSPEC_DEFAULTS if preset == "nirspec" else noise.ZERO_NOISE).replace(
         **amps)
-    top = p.bias_offset + 5 * _spread(p)
+    top = p.bias_offset + _pattern(p)[1] + 5 * _spread(p)
     inside, outside = top * (1 - 1e-6), top * (1 + 1e-6)
 
     def mapping(gain):
@@ -284,8 +360,7 @@ def test_an_adc_step_above_the_dark_reads_is_refused(preset, amps, tmp_path):
         _check(str(info.value), "gain")
         assert str(info.value).startswith("[effects] 'gain'")
         assert "code 0" in str(info.value)
-    det = noise.preset("H2RG", naxis1=16, naxis2=16)
-    gen = noise.NoiseGenerator(det, p, rng=1)
+    gen = noise.NoiseGenerator(DET, p, rng=1)
     with pytest.raises(ParameterError) as info:
         noise.write_noise_fits(tmp_path / "n.fits", gen, 2, unit="DN", gain=outside)
     _check(str(info.value), "gain")
@@ -315,7 +390,7 @@ def test_the_rtn_pixels_high_state_must_stay_inside_the_adc():
     with rtn_fraction 0.5 clipped half the pixels at 65535 without a word).  Without
     RTN pixels the amplitude is not bounded."""
     p = noise.NIRSPEC_DEFAULTS.replace(bias_offset=MID, rtn_fraction=0.01)
-    edge = ADC_RANGE - MID - 5 * _spread(p)
+    edge = ADC_RANGE - MID - _pattern(p)[1] - 5 * _spread(p)
     inside, outside = edge * (1 - 1e-6), edge * (1 + 1e-6)
 
     def mapping(amp, fraction=0.01):
@@ -329,3 +404,41 @@ def test_the_rtn_pixels_high_state_must_stay_inside_the_adc():
     _check(str(info.value), "rtn_amp")
     assert "top code" in str(info.value)
     assert parse_scene(mapping(1e9, fraction=0.0)).noise.rtn_amp == 1e9
+
+
+def test_accepted_noise_is_not_clipped(tmp_path):
+    """What the check accepts, the ADC does not clip (the two cases of the module
+    notes, which it accepted before and which then clipped 9.7 % and 22 % of reads)."""
+    # (1) the bias pattern: a 256 x 256 H2RG with the paper's amplitudes.  62000 e-
+    # is refused; the highest bias accepted puts the top of the pattern 5 s below
+    # the top code, where Q(5) = 2.9e-7 of that one pixel's reads clip: over 2 reads
+    # of 65536 pixels, 0 expected, so none may read 65535 (a pixel of the old case
+    # read it on every read).
+    det = noise.preset("H2RG", naxis1=256, naxis2=256)
+    p = noise.NIRSPEC_DEFAULTS
+    with pytest.raises(ParameterError) as info:
+        p.replace(bias_offset=62000.0).check_adc(1.0, 16, det)
+    _check(str(info.value), "bias_offset")
+    assert "top code" in str(info.value)
+    top = 65535 - _pattern(p, det)[1] - 5 * _spread(p, det)
+    gen = noise.NoiseGenerator(det, p.replace(bias_offset=top - 1e-3), rng=3)
+    noise.write_noise_fits(tmp_path / "b.fits", gen, 2, unit="DN", gain=1.0)
+    from astropy.io import fits
+    assert np.count_nonzero(fits.getdata(tmp_path / "b.fits") == 65535) == 0
+    # (2) 1/f wander below one frame: c_pink = 200 e- at f_min = 1e-6 Hz on 18 ms
+    # frames wanders 1.9 x 200 e- (the amplitude is defined within one frame).  The
+    # old check accepted a bias of 5 x 200 e-, where 14 of 40 exposures of 20
+    # frames clipped; the lowest bias accepted now is 5 whole rms above 0, where no
+    # sample of 40 such exposures may fall below code 0 (each sample 2.9e-7; the
+    # 1/f process is so correlated that an exposure is a few independent draws).
+    det = noise.preset("H2RG").window(500, 500, 64, 64)
+    p = noise.ZERO_NOISE.replace(c_pink=200.0, f_min=1e-6)
+    with pytest.raises(ParameterError):
+        p.replace(bias_offset=1000.0).check_adc(1.0, 16, det)
+    low = 5 * 200.0 * _wander(1 / det.dt, det.frame_samples, 1e-6)
+    p = p.replace(bias_offset=low * (1 + 1e-6))
+    p.check_adc(1.0, 16, det)
+    for seed in range(40):
+        x = noise.NoiseGenerator(det, p, rng=seed, threads=1).timeline(
+            "pink", 0, 0, 20 * det.frame_samples)
+        assert np.all(x + p.bias_offset >= -0.5), seed

@@ -413,16 +413,20 @@ def test_noise_that_clips_every_pixel_is_refused():
                                              r"<= 1e\+30 e-"):
         parse_scene(_small(noise={"c_pink": 1e300}))
     # the noise's rms spread s must fit 10 times in the ADC range (gain 1 e-/DN x
-    # 65535 DN): s <= 6553.5 e-
+    # 65535 DN) less the bias pattern's span: on this 16 x 16 array the synthetic
+    # template spans -0.695 to 3.763 (noise.template_for), 500 e- of it 2229.2 e-, so
+    # s <= (65535 - 2229.2) / 10 = 6330.58 e-
     with pytest.raises(ParameterError, match=r"\[noise\] 'c_pink' = 10000000.0 e- is too "
-                                             r"large for the ADC.*s <= 6553\.5 e-"):
+                                             r"large for the ADC.*s <= 6330\.58 e-"):
         parse_scene(_small(noise={"c_pink": 1e7}))
-    # s = sqrt(6000^2 + ~500^2) = 6021 e-: fits, with the bias at mid-range (>= 5 s)
-    parse_scene(_small(noise={"c_pink": 6000.0, "bias_offset": 32767.5}))
+    # c_pink = 3000 e- within a 4.9 ms frame wanders 1.9 x that over the process
+    # (noise.realised_psd): s = sqrt(5699^2 + ~30^2) = 5699 e- fits, with the bias at
+    # mid-range (32767.5 - 348 and 65535 - 32767.5 - 1882 both >= 5 s = 28495)
+    parse_scene(_small(noise={"c_pink": 3000.0, "bias_offset": 32767.5}))
     # a 4-bit ADC (15 DN x 2 e-/DN = 30 e-) cannot hold the paper's 500 e- of bias
-    # structure (its largest amplitude)
+    # structure (its largest amplitude), whose pattern alone spans 2229 e- here
     with pytest.raises(ParameterError, match=r"'bias_amp' = 500\.0 e- is too large .*"
-                                             r"'adc_bits' 4.*s <= 3 e-"):
+                                             r"'adc_bits' 4.*pattern alone spans"):
         parse_scene(_small(effects={"gain": 2.0, "adc_bits": 4}))
     # only RTN pixels see rtn_amp, but their high state clips as surely (before: it
     # was accepted, and those pixels sat at the top code); without RTN pixels, fine

@@ -322,6 +322,17 @@ def test_ktc_and_bias_per_integration():
     assert abs(np.corrcoef(k0.ravel(), k1.ravel())[0, 1]) < 5 / np.sqrt(n)
 
 
+@pytest.mark.parametrize("window", [None, (500, 500, 64, 64), (0, 2000, 48, 30),
+                                    (2040, 0, 8, 2048)])
+def test_template_range_is_the_templates_least_and_largest_value(window):
+    # template_range works from the separable form (no image): it must give the
+    # image's own extremes, exactly (both are float32 of the same float64 values)
+    from noise.template import template_range
+    det = preset("H2RG") if window is None else preset("H2RG").window(*window)
+    t = template_for(det)
+    assert template_range(det) == (float(t.min()), float(t.max()))
+
+
 def test_bias_pattern_is_template():
     params = ZERO_NOISE.replace(bias_offset=1000.0, bias_amp=300.0)
     img = _gen(params, rng=43).cube(1)[0, 0]
