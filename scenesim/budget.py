@@ -64,8 +64,8 @@ IPC                            ``16 P`` with IPC: the convolved frame (float64 a
 FITS maps                      ``8 naxis1 naxis2 + 8 P`` per map file (dark current,
                                background, flat, full well): the file's data (the full
                                array at most) and its window (float64)
-saturation                     ``6 nints P``: first saturated read and resultant (int16)
-                               and a temporary
+saturation                     ``6 nints P``: first saturated read and resultant (int16;
+                               int32 beyond 32767 reads, twice that) and a temporary
 saved cubes                    ``28 P`` per ``save_charge`` / ``save_noise``: the float64
                                sum, its mean, the float32 and big-endian copies written
 raw samples                    (IRS2, reference output) ``36 R``: their noise and its
@@ -589,7 +589,8 @@ def estimate_budget(scene, *, options=None, products=()):
          16 * P if eff.ipc() is not None else 0.0),
         ("the FITS maps ([sources] dark_current, background, [effects] flat, full_well)",
          (8 * float(det.naxis1) * det.naxis2 + 8 * P) * maps),
-        ("the saturation maps ([readout] nints)", 6 * nints * P),
+        ("the saturation maps ([readout] nints)",
+         3 * (2 if ro.nreads < 2 ** 15 else 4) * nints * P),      # read_index_dtype
         ("the saved cubes ([output] save_charge, save_noise)",
          28 * P * (out.save_charge + out.save_noise)),
         ("the hot pixels ([sources] hot_pixel_fraction)", 24 * src.hot_pixel_fraction * P),

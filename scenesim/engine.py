@@ -73,7 +73,7 @@ from noise.streams import root_seed
 from noise.fast.poisson import poisson
 from scenesim.detector.ipc import apply_ipc, check_kernel
 from scenesim.detector.nonlinearity import Nonlinearity
-from scenesim.detector.readout import Readout, check_pattern_detector
+from scenesim.detector.readout import Readout, check_pattern_detector, read_index_dtype
 from scenesim.detector.saturation import FullWell
 
 __all__ = ["VariableSource", "CosmicRayHits", "EngineOptions", "ChargeEngine",
@@ -208,8 +208,10 @@ class EngineRun:
 
     Attributes
     ----------
-    sat_read : ndarray (nints, ny, nx), int16
-        First saturated read index (-1: never); complete when the run is exhausted.
+    sat_read : ndarray (nints, ny, nx), int16 (int32 beyond 32767 reads)
+        First saturated read index (-1: never): the first read whose charge reached
+        the full well, or whose charge and noise read the ADC's top code (the ADC
+        clips it as surely); complete when the run is exhausted.
     cr_seen : ndarray of bool
         Per cosmic-ray deposit, True if any read saw it; complete at the end.
     zero_frame : ndarray (nints, ny, nx), uint16, or None
@@ -220,7 +222,8 @@ class EngineRun:
 
     def __init__(self, engine, *, save_charge, save_noise, progress, zero_frame=False):
         shape = engine.detector.shape
-        self.sat_read = np.full((engine.readout.nints,) + shape, -1, dtype=np.int16)
+        self.sat_read = np.full((engine.readout.nints,) + shape, -1,
+                                dtype=read_index_dtype(engine.readout.nreads))
         self.zero_frame = (np.zeros((engine.readout.nints,) + shape, dtype=np.uint16)
                            if zero_frame else None)
         self.cr_seen = np.zeros(engine.cosmic_rays.time.size, dtype=bool)
@@ -332,7 +335,7 @@ class ChargeEngine:
         self.adc = ADC(self.gain, self.adc_bits)
         if noise_params is not None:
             # no noise clipped at the ADC (noise.params module notes)
-            noise_params.check_adc(self.gain, self.adc_bits)
+            noise_params.check_adc(self.gain, self.adc_bits, detector)
         self.full_well = None if full_well is None else FullWell(full_well, shape)
         self.nonlinearity = nonlinearity if (nonlinearity is not None
                                              and not nonlinearity.is_linear) else None
@@ -739,9 +742,13 @@ class ChargeEngine:
         run.each(lambda b: self._pointwise(acc, q, run.sat_read, i, k, b))
         return self._ipc(q)
 
-    def _digitise(self, b, rr, first, charge, nframe, save_charge, save_noise):
+    def _digitise(self, b, rr, first, charge, nframe, save_charge, save_noise, sat,
+                  read):
         """Rows ``b`` of one read: charge + noise, through the ADC, into the DN sum
-        of its resultant ``rr`` (copied for its first read, added after)."""
+        of its resultant ``rr`` (copied for its first read, added after).  A pixel
+        with charge whose code is the top one is clipped: its first such ``read``
+        goes into ``sat`` (ny, nx) where it has none yet (the noise alone never
+        reaches the top: :meth:`noise.NoiseParams.check_adc`)."""
         if charge is not None and nframe is not None:
             f = np.add(charge[b], nframe[b])
         elif charge is not None:
@@ -751,6 +758,9 @@ class ChargeEngine:
         else:
             f = np.zeros(rr.dn_sum[b].shape, dtype=np.float32)
         codes = self.adc.codes(f)
+        if charge is not None and codes.max(initial=0.0) >= self.adc.top:
+            sr = sat[b]
+            sr[(codes >= self.adc.top) & (sr < 0)] = read
         if first:
             np.copyto(rr.dn_sum[b], codes, casting="unsafe")
         else:
@@ -829,10 +839,11 @@ class ChargeEngine:
                     np.add(rr.raw_sum, self.adc.codes(extra_f), out=rr.raw_sum,
                            casting="unsafe")
 
-                def rows(b, charge=charge, nframe=nframe, rr=rr, first=first):
+                def rows(b, charge=charge, nframe=nframe, rr=rr, first=first, k=k):
                     if charge is q and q is not None and self.ipc_kernel is None:
                         self._pointwise(acc, q, run.sat_read, i, k, b)
-                    self._digitise(b, rr, first, charge, nframe, save_charge, save_noise)
+                    self._digitise(b, rr, first, charge, nframe, save_charge, save_noise,
+                                   run.sat_read[i], k)
 
                 run.each(rows)
                 if first and r_index == 0 and run.zero_frame is not None:

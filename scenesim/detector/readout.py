@@ -103,6 +103,7 @@ from noise.validate import (check_choice, check_float, check_int, check_str, des
 
 __all__ = [
     "Readout",
+    "read_index_dtype",
     "NAMED_PATTERNS",
     "IRS2_PATTERNS",
     "NIRSPEC_PATTERNS",
@@ -119,6 +120,13 @@ __all__ = [
 #: a readout (a tuple per resultant) cheap; a 64x64 window reads one in ~5 ms, so the
 #: limit is ~1.4 hours of continuous reads in one integration.
 MAX_READS = 2 ** 20
+
+
+def read_index_dtype(nreads):
+    """The integer type of read and resultant indices (``-1``: none) of a readout of
+    ``nreads`` reads: int16, or int32 beyond 32767 reads (up to :data:`MAX_READS`;
+    int16 overflowed at read 32768 of such a readout)."""
+    return np.dtype(np.int16 if nreads <= np.iinfo(np.int16).max else np.int32)
 
 #: Reset modes accepted by :class:`Readout`.
 RESET_MODES = ("rolling", "global")

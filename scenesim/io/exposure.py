@@ -26,8 +26,10 @@ Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s of collected charge per p
 the QE flat included, before IPC), ``RATE_IPC`` (after IPC: what a linear fit of the
 raw ramps recovers), ``SATREAD``
 (first saturated read per pixel and integration, as a frame index counted from reset,
--1 if none; only reads that some resultant uses are materialised, so a pixel that fills
-its well during skipped frames reports the next read that is actually taken),
+-1 if none: the first read whose charge reached the full well or whose charge and
+noise read the ADC's top code; only reads that some resultant uses are materialised,
+so a pixel that fills its well during skipped frames reports the next read that is
+actually taken; int16, int32 for a readout of more than 32767 reads),
 ``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
 read saw it), ``SOURCES`` (the catalogue as rendered), ``READS`` (the exposure's table
 of read indices and times, so that a truth grades a fit of any readout without its
@@ -75,6 +77,7 @@ from noise.fitsio import (StreamingFITS, WriteBehind, WriterThread, atomic_file,
                           check_output_name, derived_path, input_path, open_fits,
                           output_error, temp_file)
 
+from scenesim.detector.readout import read_index_dtype
 from scenesim.io.header import (check_file_kind, exposure_cards, filetype_card,
                                 nextend_card)
 
@@ -428,10 +431,11 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
     rate_ipc = engine.measured_rate(rate)
     read_to_res = {k: r for r, reads in enumerate(ro.resultants) for k in reads}
     sat = out["sat_read"]
-    lut = np.full(ro.nreads + 1, -1, dtype=np.int16)
+    index = read_index_dtype(ro.nreads)
+    lut = np.full(ro.nreads + 1, -1, dtype=index)
     for k, r in read_to_res.items():
         lut[k] = r
-    satgroup = np.where(sat >= 0, lut[np.clip(sat, 0, ro.nreads)], -1).astype(np.int16)
+    satgroup = np.where(sat >= 0, lut[np.clip(sat, 0, ro.nreads)], -1).astype(index)
     cr = engine.cosmic_rays
     nx = det.nx
     crs = Table({"TIME": cr.time, "X": cr.index % nx, "Y": cr.index // nx,
@@ -448,7 +452,7 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
             s.write(data.astype(np.float32))
             s.end_image()
         for name, data in (("SATREAD", sat), ("SATGROUP", satgroup)):
-            s.begin_image(data.shape, np.int16, [("BUNIT", "index", "-1: never")],
+            s.begin_image(data.shape, data.dtype, [("BUNIT", "index", "-1: never")],
                           name=name)
             s.write(data)
             s.end_image()
