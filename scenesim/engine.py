@@ -663,7 +663,8 @@ class ChargeEngine:
 
     def _ipc(self, q):
         """Effect (3), IPC (it couples rows: done on the whole frame)."""
-        return apply_ipc(q, self.ipc_kernel).astype(np.float32, copy=False)
+        return apply_ipc(q, self.ipc_kernel, refmask=self.refmask).astype(np.float32,
+                                                                         copy=False)
 
     def _blocks(self):
         """Row blocks of the per-read array passes (results do not depend on them)."""
@@ -876,7 +877,7 @@ class ChargeEngine:
         """``rate`` after IPC (what a linear fit of the raw ramps recovers), e-/s."""
         out = np.asarray(rate, dtype=np.float64)
         if self.ipc_kernel is not None:
-            out = apply_ipc(out, self.ipc_kernel)
+            out = apply_ipc(out, self.ipc_kernel, refmask=self.refmask)
         return out
 
 

@@ -50,8 +50,9 @@ neighbours that hold different charges.  ``K`` is linear, so ``K^-1`` of a resul
 is exactly the mean over its reads of ``p(q)``; the linearisation then inverts ``p``
 (with the reads' spread within a multi-read resultant taken out, from the read
 times).  :func:`undo_ipc` is the exact inverse of
-:func:`scenesim.detector.ipc.apply_ipc`, edges included (the engine applies IPC to
-the reference pixels too, so they get back to their own signal), iterated to 1e-3
+:func:`scenesim.detector.ipc.apply_ipc`, edges included, on the regular pixels (the
+reference pixels are not coupled, in the engine or here: the reference correction
+sees no signal, and no clipped pixel's error spreads into them), iterated to 1e-3
 of the noise of one read, ``sqrt(RDNOISE^2 + GAIN^2 / 12)``.  The fit then reports
 each pixel's *own* rate (truth ``RATE`` without a flat; ``K^-1`` of ``RATE_IPC`` in
 general), not ``RATE_IPC``.  Consequences:
@@ -367,9 +368,8 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
         e = np.asarray(correct_irs2(raw, det), dtype=np.float32)
         del raw
     elif options.refpix != "none" and refmask.any():
-        near = _references_near_saturation(_first_saturated(sat), sat.shape[1],
-                                           refmask, decon)
-        e = _corrected_without(e, det, options.refpix, near, 0)
+        e = np.asarray(correct_reference(e, det, scheme=options.refpix),
+                       dtype=np.float32)
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:
         e = linearize_resultants(e, nl, tbar, read_times=ro.read_times(t_frame),
@@ -404,7 +404,7 @@ def _undo_ipc_and_flag_saturation(e, name, hdr, cfg, ro, tbar, kernel, decon, rd
             ceiling_flags = saturation_flags(
                 e, tbar, SaturationOptions(0.0, ceiling, grow=1), t_last=t_last,
                 n_reads=n_reads)
-        _undo_recorded_ipc(e, kernel, name, rdn, gain, threads)
+        _undo_recorded_ipc(e, kernel, name, rdn, gain, threads, refmask)
         rn_gain = ipc_noise_gain(kernel)
     # growth hides the bend that a saturating pixel puts in its neighbours through
     # IPC; not needed once IPC is undone
@@ -418,11 +418,13 @@ def _undo_ipc_and_flag_saturation(e, name, hdr, cfg, ro, tbar, kernel, decon, rd
     return sat, rn_gain
 
 
-def _undo_recorded_ipc(e, kernel, name, read_noise, gain, threads):
-    """Undo the header's IPC kernel on ``e`` in place, to 1e-3 of one read's noise."""
+def _undo_recorded_ipc(e, kernel, name, read_noise, gain, threads, refmask):
+    """Undo the header's IPC kernel on ``e`` in place, to 1e-3 of one read's noise,
+    on the regular pixels (the reference pixels are not coupled:
+    :mod:`scenesim.detector.ipc`)."""
     tolerance = _IPC_TOLERANCE * math.hypot(read_noise, gain / math.sqrt(12))
     try:
-        undo_ipc(e, kernel, tolerance=tolerance, out=e,
+        undo_ipc(e, kernel, tolerance=tolerance, out=e, refmask=refmask,
                  threads=min(os.cpu_count() or 1, 8) if threads is None else threads)
     except ParameterError as exc:
         raise ParameterError(
@@ -489,60 +491,6 @@ def _open_source(exposure):
         return None
     stand_in = np.broadcast_to(np.uint16(0), rows.shape)
     return _Source(Exposure(stand_in, header, reads, os.fspath(path)), gain, rows)
-
-
-#: Reference pixels within this many pixels of a saturated one are left out of the
-#: reference correction when IPC was undone: the undone kernel spreads a clipped
-#: pixel's error into its neighbours, falling by the kernel's coupling (~alpha) per
-#: pixel, so that at 3 pixels a 1e5 e- error is below one electron.
-_UNDONE_REACH = 3
-
-
-def _first_saturated(sat):
-    """``(nints, ny, nx)`` index of the first saturated resultant (``nres`` when none)
-    of sticky flags ``(nints, nres, ny, nx)``."""
-    nres = sat.shape[1]
-    return np.where(sat.any(axis=1), sat.argmax(axis=1), nres).astype(np.int32)
-
-
-def _references_near_saturation(first, nres, refmask, decon):
-    """Which reference pixels to leave out of the reference correction, or None.
-
-    Only when IPC was undone (``decon``): a saturated pixel (ADC top or full well)
-    holds a clipped value, and undoing the kernel spreads its error into the
-    neighbours, reference pixels included; a side reference column next to a
-    clipped star then biased whole rows by its error (-170 e-/s, found by a hostile
-    probe).  ``first``: the first saturated resultant of each pixel (``nres`` when
-    none).  Returns, per integration, the first resultant at which a reference
-    pixel has a saturated pixel within :data:`_UNDONE_REACH` (``(nints, ny, nx)``,
-    a large number where never; :func:`_corrected_without` leaves it out from then).
-    """
-    nints = first.shape[0]
-    if not decon or not refmask.any() or not (first < nres).any():
-        return None
-    from scipy.ndimage import minimum_filter
-    size = 2 * _UNDONE_REACH + 1
-    near = np.stack([minimum_filter(first[k], size=size, mode="nearest")
-                     for k in range(nints)])
-    never = np.iinfo(np.int32).max
-    near = np.where(refmask[None], near, never).astype(np.int64)
-    return near if (near < nres).any() else None
-
-
-def _corrected_without(frames, det, scheme, near, r0):
-    """``correct_reference`` of resultants ``r0, r0 + 1, ...`` (axis -3 of
-    ``frames``), float32, with the reference pixels that :func:`_references_near_saturation`
-    gave (``near``, its array of these integrations, or None) left out (NaN in, 0
-    out)."""
-    blind = None
-    if near is not None:
-        index = np.arange(r0, r0 + frames.shape[-3])[:, None, None]
-        blind = index >= near[..., None, :, :]
-        frames[blind] = np.nan
-    out = np.asarray(correct_reference(frames, det, scheme=scheme), dtype=np.float32)
-    if blind is not None:
-        out[blind] = 0.0
-    return out
 
 
 class _FirstSaturated:
@@ -632,7 +580,7 @@ def _prepare_to_file(src, path, options):
         for r0 in range(0, nres, batch):
             f = src.frames(k, r0, min(r0 + batch, nres))
             if decon:
-                _undo_recorded_ipc(f, kernel, exp.name, rdn, gain, threads)
+                _undo_recorded_ipc(f, kernel, exp.name, rdn, gain, threads, refmask)
             cube.write_frames(k, r0, f)
     rn_gain = ipc_noise_gain(kernel) if decon else 1.0
     # 3: saturation flags by row blocks (halo for the growth)
@@ -642,12 +590,11 @@ def _prepare_to_file(src, path, options):
     # 4: reference correction, frame by frame
     if options.refpix != "none" and refmask.any():
         step = max(1, _BLOCK_VALUES // (ny * nx))
-        near = _references_near_saturation(first, nres, refmask, decon)
         for k in range(nints):
             for r0 in range(0, nres, step):
                 f = cube.frames(k, r0, min(r0 + step, nres))
-                cube.write_frames(k, r0, _corrected_without(
-                    f, det, options.refpix, None if near is None else near[k], r0))
+                cube.write_frames(k, r0, np.asarray(
+                    correct_reference(f, det, scheme=options.refpix), dtype=np.float32))
     # 5: linearisation, per resultant over all integrations, zero from 0 and 1
     nl = header_nonlinearity(hdr) if options.linearize else None
     if nl is not None:

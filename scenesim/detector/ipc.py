@@ -15,6 +15,13 @@ it correlates the Poisson noise of neighbours; that is the physical behaviour.  
 edge of the read-out array the charge that would flow off the array **stays in its own
 pixel**, so the total charge is conserved exactly.  (For a subarray this is an
 approximation: in the real device charge would couple to unread neighbours.)
+Reference pixels have no photodiode and are not coupled: with ``refmask`` the kernel
+acts on the regular pixels only (:func:`regular_region`, a rectangle), whose border
+with the reference pixels is an edge like the array's, and the reference pixels are
+left as they are.  That is how the JWST pipeline's ipc step treats them (their values
+unchanged, contributing nothing to their neighbours); before, a star next to the
+4-pixel reference border put 752 DN into a reference pixel and contaminated the
+reference correction.
 
 Inverse: :func:`undo_ipc` is the exact inverse of :func:`apply_ipc`, edges included,
 solved iteratively to a stated tolerance.  White noise added after IPC (read noise)
@@ -30,7 +37,8 @@ import numpy as np
 from noise.errors import ParameterError, ParameterTypeError
 from noise.validate import check_image, describe
 
-__all__ = ['ipc_kernel', 'apply_ipc', 'ipc_keep', 'undo_ipc', 'ipc_noise_gain', 'check_kernel']
+__all__ = ['ipc_kernel', 'apply_ipc', 'ipc_keep', 'undo_ipc', 'ipc_noise_gain', 'check_kernel',
+           'regular_region']
 
 
 # -------------------------------------------------------------------------------- IPC
@@ -127,7 +135,32 @@ def ipc_keep(kernel, ny, nx):
     return keep
 
 
-def apply_ipc(image, kernel):
+def regular_region(refmask):
+    """``(rows, cols)`` slices of the regular (non-reference) pixels of a read-out image
+    whose reference pixels are ``refmask`` (ny, nx) bool: the rows and columns that
+    are not reference pixels throughout (a window's regular pixels are a rectangle);
+    empty slices when every pixel is a reference pixel."""
+    m = np.asarray(refmask, dtype=bool)
+    rows = np.flatnonzero(~m.all(axis=1))
+    cols = np.flatnonzero(~m.all(axis=0))
+    if rows.size == 0 or cols.size == 0:
+        return slice(0, 0), slice(0, 0)
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
+def _region(refmask, shape):
+    """The slices :func:`apply_ipc` and :func:`undo_ipc` act on (all of ``shape`` when
+    ``refmask`` is None), or a ParameterError for a mask of another shape."""
+    if refmask is None:
+        return slice(None), slice(None)
+    m = np.asarray(refmask)
+    if m.shape != tuple(shape) or m.dtype != bool:
+        raise ParameterError(f"'refmask' must be a bool array of the image's shape "
+                             f"{tuple(shape)}, got {m.dtype} shape {m.shape}")
+    return regular_region(m)
+
+
+def apply_ipc(image, kernel, *, refmask=None):
     """Convolve the last two axes with a 3x3 IPC kernel, conserving charge.
 
     ``out[y + dy, x + dx] += kernel[1 + dy, 1 + dx] * image[y, x]`` for the 9 offsets
@@ -140,6 +173,9 @@ def apply_ipc(image, kernel):
     image : ndarray, shape (..., ny, nx), int or float, e-
     kernel : array_like, shape (3, 3)
         Finite, >= 0, summing to 1 (within 1e-9; it is then renormalised exactly).
+    refmask : ndarray of bool, shape (ny, nx), keyword-only, optional
+        Reference pixels: not coupled (module notes); the kernel acts on the
+        regular pixels' rectangle only, whose border is an edge.
 
     Returns
     -------
@@ -156,6 +192,16 @@ def apply_ipc(image, kernel):
     k = check_kernel(kernel)
     dtype = np.result_type(img.dtype, np.float32)
     img = img.astype(dtype, copy=False)
+    ys, xs = _region(refmask, img.shape[-2:])
+    if refmask is not None:
+        out = img.copy()
+        out[..., ys, xs] = _convolve(img[..., ys, xs], k, dtype)
+        return out
+    return _convolve(img, k, dtype)
+
+
+def _convolve(img, k, dtype):
+    """:func:`apply_ipc` of the whole of ``img`` (checked, of ``dtype``)."""
     ny, nx = img.shape[-2:]
     keep = ipc_keep(k, ny, nx)
     out = img * keep.astype(dtype)
@@ -329,7 +375,7 @@ def _deconvolve_frames(frames, kernel, tolerance, threads=1):
     return n
 
 
-def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1, out=None):
+def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1, out=None, refmask=None):
     """Undo :func:`scenesim.detector.ipc.apply_ipc`: the ``x`` with ``apply_ipc(x, kernel)
     == image`` on the last two axes, edges included.
 
@@ -363,11 +409,15 @@ def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1, out=None):
         Largest error allowed (unit of ``image``), > 0.
     threads : int, keyword-only
         Worker threads over the frames, >= 1.
+    out : ndarray, keyword-only, optional
+        Where to write the result (may be ``image`` itself).
+    refmask : ndarray of bool, shape (ny, nx), keyword-only, optional
+        Reference pixels, as :func:`apply_ipc` takes them: left as they are.
 
     Returns
     -------
     ndarray, shape of ``image``
-        float32 for float32 input, float64 otherwise (a new array).
+        float32 for float32 input, float64 otherwise (a new array, or ``out``).
 
     Raises
     ------
@@ -411,7 +461,8 @@ def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1, out=None):
             f"{out.dtype} shape {out.shape}")
     elif out is not img:
         np.copyto(out, img)
-    _deconvolve_frames(out, k, float(tolerance), int(threads))
+    ys, xs = _region(refmask, img.shape[-2:])
+    _deconvolve_frames(out[..., ys, xs], k, float(tolerance), int(threads))
     return out
 
 

@@ -35,6 +35,7 @@ from noise.errors import FileFormatError, ParameterError
 
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.detector.ipc import apply_ipc
+from noise.clock import detector_from_header
 
 # scenesim.io.header is imported inside the functions: scenesim.io's package
 # imports fitfile, which imports this module (for Roman L2 files), so a top-level
@@ -168,7 +169,8 @@ def subtract_dark(truth, dark):
     if "RATE_IPC" in out:
         from scenesim.io.header import header_ipc_kernel
         kernel = header_ipc_kernel(truth["header"])
-        seen = dark if kernel is None else apply_ipc(dark, kernel)
+        seen = dark if kernel is None else apply_ipc(
+            dark, kernel, refmask=_refmask(truth["header"], dark.shape))
         out["RATE_IPC"] = np.asarray(out["RATE_IPC"], dtype=np.float64) - seen
     return out
 
@@ -266,7 +268,8 @@ def slope_agreement(product, reference, exposure):
     if dark is not None:
         kernel = header_ipc_kernel(h)
         deconvolved = header_ipc_deconvolved(rh)
-        ref -= dark if (kernel is None or deconvolved) else apply_ipc(dark, kernel)
+        ref -= dark if (kernel is None or deconvolved) else apply_ipc(
+            dark, kernel, refmask=_refmask(h, dark.shape))
     ok = (p["dq"] == 0) & (r["dq"] == 0) & np.isfinite(p["slope"]) & np.isfinite(ref)
     for var in (p["var"], r["var"]):
         ok &= np.isfinite(var) & (var > 0)
@@ -276,3 +279,13 @@ def slope_agreement(product, reference, exposure):
     return {"n": int(ok.sum()), "mean": float(z.mean()),
             "rms": float(np.sqrt(np.mean(z * z))),
             "sigma_ratio": float(np.median(np.sqrt(p["var"][ok] / r["var"][ok])))}
+
+
+def _refmask(header, shape):
+    """The reference pixels of the detector ``header`` records, which IPC does not
+    couple (:mod:`scenesim.detector.ipc`); ``shape`` must be its image's."""
+    m = detector_from_header(header).reference_mask()
+    if m.shape != tuple(shape):
+        raise FileFormatError(f"the dark rate has shape {tuple(shape)} but the detector "
+                              f"of the header {m.shape}: not the same detector")
+    return m

@@ -318,7 +318,9 @@ def _true_rate(truth, ipc_deconvolved, notes):
     if ipc_deconvolved and "RATE_IPC" in truth:
         kernel = header_ipc_kernel(truth["header"])
         if kernel is not None:
-            rate = undo_ipc(rate, kernel, tolerance=1e-9 * max(1.0, np.abs(rate).max()))
+            refmask = detector_from_header(truth["header"]).reference_mask()
+            rate = undo_ipc(rate, kernel, tolerance=1e-9 * max(1.0, np.abs(rate).max()),
+                            refmask=refmask)
             notes.append("fit undid IPC (IPCDECON): compared with RATE_IPC with the "
                          "IPCKERN kernel undone")
     return rate, kernel

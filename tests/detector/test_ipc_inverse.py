@@ -99,3 +99,54 @@ def test_undo_ipc_rejects_bad_arguments(kwargs, match):
     image, kernel = args.pop("image"), args.pop("kernel")
     with pytest.raises(ParameterError, match=match):
         undo_ipc(image, kernel, **args)
+
+
+# ------------------------------------------------ reference pixels are not coupled
+def test_reference_pixels_are_not_coupled():
+    # A point charge next to a 2-pixel reference border: by hand, 2 % into each
+    # regular nearest neighbour, none into the reference pixel above it, whose
+    # share stays in the source (the border is an edge); the reference pixels keep
+    # their values (here a reference level of 7), and undo_ipc inverts it.
+    from scenesim.detector.ipc import apply_ipc, regular_region
+    ref = np.zeros((8, 9), bool)
+    ref[:2], ref[-2:], ref[:, :2], ref[:, -2:] = True, True, True, True
+    assert regular_region(ref) == (slice(2, 6), slice(2, 7))
+    img = np.where(ref, 7.0, 0.0)
+    img[2, 4] = 100.0
+    k = ipc_kernel(0.02)
+    out = apply_ipc(img, k, refmask=ref)
+    assert np.all(out[ref] == 7.0)
+    assert out[2, 4] == pytest.approx(100 * (1 - 3 * 0.02))
+    for y, x in ((3, 4), (2, 3), (2, 5)):
+        assert out[y, x] == pytest.approx(2.0)
+    assert out[~ref].sum() == pytest.approx(100.0)
+    back = undo_ipc(out, k, tolerance=1e-12, refmask=ref)
+    np.testing.assert_allclose(back, img, atol=1e-10)
+    with pytest.raises(ParameterError, match="'refmask'"):
+        apply_ipc(img, k, refmask=ref[:-1])
+
+
+def test_the_engine_leaves_reference_pixels_without_signal(tmp_path):
+    # The probe's case: a 2e4 e-/s star at x = 4.6, beside the 4-pixel reference
+    # border, with 2 % IPC and no noise (bias 0): the reference pixels read 0 DN on
+    # every read (they read 752 DN before), the truth's RATE_IPC is 0 on them, and
+    # it conserves the rate of the regular pixels.
+    from astropy.io import fits
+    from scenesim.engine import EngineOptions
+    from scenesim.run import run_scene
+    from scenesim.scene import parse_scene
+    scene = parse_scene({
+        "seed": 3, "detector": {"preset": "H2RG", "naxis1": 32, "naxis2": 32},
+        "noise": {"preset": "none"}, "readout": {"pattern": "RAPID", "ngroups": 4},
+        "sources": {"psf": {"kind": "gaussian", "fwhm": 2.0},
+                    "stars": [{"x": 4.6, "y": 15.0, "flux": 2e4}]},
+        "effects": {"ipc_alpha": 0.02},
+        "output": {"path": str(tmp_path / "e.fits"), "truth": True, "fit": ""}})
+    run_scene(scene, progress=False, options=EngineOptions(threads=1))
+    ref = scene.detector.reference_mask()
+    with fits.open(tmp_path / "e.fits") as e, fits.open(tmp_path / "e_truth.fits") as t:
+        sci = e["SCI"].data
+        rate, rate_ipc = t["RATE"].data, t["RATE_IPC"].data
+    assert np.all(sci[..., ref] == 0)
+    assert np.all(rate_ipc[ref] == 0)
+    assert rate_ipc.sum(dtype=float) == pytest.approx(rate.sum(dtype=float), rel=1e-6)

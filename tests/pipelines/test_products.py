@@ -44,15 +44,24 @@ def test_no_dark_step_no_subtraction_and_missing_file_noted(tmp_path):
 
 
 def test_subtract_dark_before_and_after_ipc():
+    import noise
     k = ipc_kernel(0.02)
+    det = noise.preset("H2RG", naxis1=8, naxis2=8, ref_border=2)
     hdr = fits.Header({"IPC": True, "IPCKERN": ",".join(f"{v:.10g}" for v in k.ravel())})
-    rate = np.full((8, 8), 10.0)
+    for key, value, _ in det.to_header_cards():
+        hdr[key] = value
+    ref = det.reference_mask()
+    rate = np.where(ref, 0.0, 10.0)
     dark = np.zeros((8, 8))
-    dark[4, 4] = 5.0
-    truth = {"header": hdr, "RATE": rate, "RATE_IPC": apply_ipc(rate, k)}
+    dark[2, 4] = 5.0                                  # next to the reference rows
+    truth = {"header": hdr, "RATE": rate, "RATE_IPC": apply_ipc(rate, k, refmask=ref)}
     out = subtract_dark(truth, dark)
     assert np.allclose(out["RATE"], rate - dark)
-    assert np.allclose(out["RATE_IPC"], apply_ipc(rate, k) - apply_ipc(dark, k))
+    # the pipeline's dark is seen through the same IPC, which leaves the reference
+    # pixels alone: 2 % of 5 e-/s into each regular neighbour, none into row 1
+    seen = apply_ipc(dark, k, refmask=ref)
+    assert seen[1, 4] == 0.0 and np.isclose(seen[3, 4], 0.1) and np.isclose(seen.sum(), 5)
+    assert np.allclose(out["RATE_IPC"], truth["RATE_IPC"] - seen)
     assert truth["RATE"] is rate                    # the input is not changed
 
 
