@@ -117,7 +117,7 @@ from scipy.special import erf, j0, j1
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.fitsio import open_fits
 from noise.validate import (check_bool, check_float, check_instance, check_int,
-                            check_mask, check_path, check_shape, describe)
+                            check_map, check_mask, check_path, check_shape, describe)
 
 __all__ = [
     "GaussianPSF",
@@ -684,7 +684,7 @@ def _stamp_radii(psf, fl, stamp_radius, min_rate, max_stamp_radius):
 
 
 def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=0.0,
-                         max_stamp_radius=64, blind=None):
+                         max_stamp_radius=64, blind=None, qe=None):
     """Render point sources as pixel-integrated PSFs, conserving flux.
 
     Parameters
@@ -710,6 +710,10 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     blind : ndarray of bool, shape (ny, nx), optional
         Pixels that collect nothing (the reference pixels): they get no flux and
         their share counts as off the array.
+    qe : ndarray, shape (ny, nx), optional
+        Relative quantum efficiency (the flat field, finite and >= 0): each pixel
+        collects its share times its QE, and ``flux_on_array`` counts what it
+        collects (the rate a photometry of the slopes finds).
 
     Returns
     -------
@@ -722,7 +726,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         stamp, wherever the stamp lies); ``stamp_radius`` (pixels); ``rendered``
         (False when the stamp misses the array: then nothing is added and the other
         numbers are 0).  ``flux - flux_on_array - flux_lost_stamp`` is the flux of the
-        stamp that fell off the array.
+        stamp that fell off the array (without ``qe``).
 
     Raises
     ------
@@ -740,6 +744,10 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     blind_flat = None
     if blind is not None:
         blind_flat = check_mask("blind", blind, (ny, nx)).reshape(-1)
+    qe_flat = None
+    if qe is not None:
+        qe_flat = np.broadcast_to(check_map("qe", qe, (ny, nx), minimum=0.0),
+                                  (ny, nx)).reshape(-1)
 
     n = xs.size
     image = np.zeros((ny, nx), dtype=np.float64)
@@ -780,6 +788,8 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
             idx = rows[:, :, None] * nx + cols[:, None, :]
             if blind_flat is not None:                 # reference pixels: nothing
                 ok[ok] = ~blind_flat[idx[ok]]
+            if qe_flat is not None:
+                st = st * np.where(ok, qe_flat[np.where(ok, idx, 0)], 0.0)
             weights = st * fl[sel][:, None, None]
             on_frac[sel] = np.where(ok, st, 0.0).sum(axis=(1, 2))
             np.add.at(flat_image, idx[ok], weights[ok])

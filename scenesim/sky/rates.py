@@ -16,7 +16,9 @@
   :class:`~scenesim.sky.lightcurve.LightCurve` built once per light-curve name);
 * the **rendered catalogue**: the ``info`` table of the rendering (flux on the
   array, flux lost outside the stamp, ...) of every star, constant ones first, with
-  its ``light_curve`` name; written to the truth file.
+  its ``light_curve`` name; written to the truth file.  ``flux_on_array`` is the rate
+  the array collects, the QE flat included (before, it left the flat out: a star on
+  a flat of 0.5 was recorded at twice what its pixels collected).
 
 :func:`cosmic_ray_hits` turns ``[effects] cosmic_ray_rate`` and
 ``cosmic_ray_charge`` into the engine's :class:`scenesim.engine.CosmicRayHits`
@@ -98,8 +100,8 @@ def scene_rates(scene):
         if static.any():
             img, info = render_point_sources(
                 det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
-                psf, min_rate=src.psf.min_rate, blind=refmask)
-            rate = rate + light(img)
+                psf, min_rate=src.psf.min_rate, blind=refmask, qe=qe)
+            rate = rate + img                        # the QE flat is in (qe=)
             info["light_curve"] = [""] * len(info)
             rendered_parts.append(info)
         curves = {}
@@ -109,8 +111,7 @@ def scene_rates(scene):
                 curves[name] = src.light_curve(name).build()
             img, info = render_point_sources(
                 det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
-                min_rate=src.psf.min_rate, blind=refmask)
-            img = light(img)
+                min_rate=src.psf.min_rate, blind=refmask, qe=qe)
             idx = np.flatnonzero(img)
             variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))
             info["light_curve"] = [name]

@@ -8,6 +8,7 @@ collection would instead give variance ``F**2 r t`` (old behaviour: the engine s
 the charge by the flat after IPC, so ``var / mean`` was ``F``, not 1).
 """
 
+import dataclasses
 import os
 import tempfile
 
@@ -76,3 +77,27 @@ def test_unit_flat_changes_nothing():
         "noise": {"preset": "none"}, "readout": {"pattern": "RAPID", "ngroups": 12},
         "sources": {"dark_current": 0.0, "background": 50.0}}))
     np.testing.assert_array_equal(a, b)
+
+
+def test_the_rendered_catalogue_counts_what_the_flat_lets_in():
+    # A 1000 e-/s star on a flat of 0.5 (scalar) and on a map that is 0.25 on its
+    # right half: the catalogue's flux_on_array is what its pixels collect, the sum
+    # of the star's rate map (before, 1000 on both: the flat was left out).
+    from scenesim.sky.rates import scene_rates
+    flat_map = np.full((128, 128), 1.0)
+    flat_map[:, 64:] = 0.25
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "flat.fits")
+        fits.PrimaryHDU(flat_map).writeto(path)
+        for flat in (0.5, path):
+            scene = _scene(flat).replace(sources=parse_scene({
+                "seed": 1, "readout": {"pattern": "RAPID", "ngroups": 2},
+                "sources": {"stars": [{"x": 64.0, "y": 60.3, "flux": 1000.0}]}}).sources)
+            rate, _, rendered = scene_rates(scene)
+            on = float(rendered["flux_on_array"][0])
+            assert abs(on - rate.sum()) < 1e-9 * on
+            # the star rendered without a flat, times the flat pixel by pixel
+            plain, _, _ = scene_rates(scene.replace(
+                effects=dataclasses.replace(scene.effects, flat=1.0)))
+            qe = 0.5 if flat == 0.5 else flat_map
+            assert abs(on - float((plain * qe).sum())) < 1e-9 * on
