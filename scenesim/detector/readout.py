@@ -155,7 +155,27 @@ IRS2_PATTERNS = ("NRSIRS2RAPID", "NRSIRS2")
 NIRSPEC_PATTERNS = ("NRSRAPID", "NRS")
 
 
-def check_pattern_detector(pattern, detector):
+def _check_label(name, nframes=None, groupgap=None, what="an MA table or read lists"):
+    """Refuse a custom readout's label that is a JWST pattern name it is not: files
+    carry it as ``READPATT``, which JWST software selects by, beside ``NFRAMES`` and
+    ``GROUPGAP`` cards that would contradict it (a probe's ``nframes = 4`` named
+    ``'RAPID'``; an MA table named ``'DEEP8'``)."""
+    key = str(name).strip().upper()
+    if key not in NAMED_PATTERNS:
+        return
+    nf, gg = NAMED_PATTERNS[key]
+    if nframes is None:
+        raise ParameterError(
+            f"'name' = {name!r} is a JWST MULTIACCUM pattern (NFRAMES {nf}, GROUPGAP "
+            f"{gg}), but this readout is {what}; give it another name")
+    if (nframes, groupgap) != (nf, gg):
+        raise ParameterError(
+            f"'name' = {name!r} is the JWST pattern of NFRAMES {nf}, GROUPGAP {gg}, but "
+            f"this readout has 'nframes' = {nframes}, 'groupgap' = {groupgap}; use "
+            f"that pattern's numbers, or another name")
+
+
+def check_pattern_detector(pattern, detector, *, key="pattern"):
     """Refuse a named pattern that contradicts the detector's readout: an IRS2
     pattern without interleaved reference samples, or NIRSpec's traditional
     ``NRSRAPID``/``NRS`` on a detector that interleaves them (NIRSpec reads either
@@ -166,25 +186,28 @@ def check_pattern_detector(pattern, detector):
     Parameters
     ----------
     pattern : str or None
-        Upper-case pattern name (:data:`NAMED_PATTERNS`), or None.
+        Pattern name (:data:`NAMED_PATTERNS`, any case), or None.
     detector : noise.clock.Detector
+    key : str, keyword-only
+        The key that named it, for the message (``'name'`` for a custom readout).
 
     Raises
     ------
     noise.errors.ParameterError
         Naming the pattern, the detector and the patterns it allows.
     """
-    if pattern is None or pattern not in NAMED_PATTERNS:
+    if pattern is None or str(pattern).strip().upper() not in NAMED_PATTERNS:
         return
+    pattern = str(pattern).strip().upper()
     irs2 = detector.interleave is not None
     if pattern in IRS2_PATTERNS and not irs2:
         raise ParameterError(
-            f"'pattern' = {pattern!r} is an IRS2 pattern, but detector "
+            f"{key!r} = {pattern!r} is an IRS2 pattern, but detector "
             f"{detector.name!r} has no interleaved reference samples ('interleave'); "
             f"use preset 'NIRSPEC-IRS2', or pattern 'NRSRAPID'/'NRS'")
     if irs2 and pattern in NIRSPEC_PATTERNS:
         raise ParameterError(
-            f"'pattern' = {pattern!r} is not an IRS2 pattern, but detector "
+            f"{key!r} = {pattern!r} is not an IRS2 pattern, but detector "
             f"{detector.name!r} interleaves reference samples; use NIRSpec's IRS2 "
             f"pattern {' or '.join(repr(p) for p in IRS2_PATTERNS)}")
 
@@ -403,6 +426,7 @@ class Readout:
                 f"'ngroups' = {ngroups} groups of 'nframes' = {nframes} frames (+ "
                 f"'groupgap' = {groupgap}, 'nskip' = {nskip}) take {nreads} reads per "
                 f"integration; at most {MAX_READS} are allowed")
+        _check_label(name, nframes, groupgap)
         return cls(_multiaccum_reads(nframes, ngroups, groupgap, nskip), nints=nints,
                    reset_mode=reset_mode, name=name, nframes=nframes,
                    groupgap=groupgap, nskip=nskip)
@@ -480,6 +504,7 @@ class Readout:
                     f"beyond the limit of {MAX_READS} reads per integration")
             reads.append(tuple(range(first, first + n)))
             previous_last = first + n - 1
+        _check_label(name, what="an MA table")
         return cls(tuple(reads), nints=nints, reset_mode=reset_mode, name=name)
 
     @classmethod
@@ -499,6 +524,7 @@ class Readout:
         -------
         Readout
         """
+        _check_label(name, what="read lists")
         return cls(_check_resultants("read_lists", read_lists), nints=nints,
                    reset_mode=reset_mode, name=name)
 
@@ -697,7 +723,6 @@ class Readout:
         list of (str, int | float | str, str)
         """
         t_frame = _check_t_frame(t_frame)
-        tbar = self.mean_times(t_frame)
         nframes = self.nframes if self.is_multiaccum else len(self.resultants[0])
         return [
             ("NINTS", self.nints, "integrations in exposure"),
@@ -710,9 +735,17 @@ class Readout:
             ("TGROUP", self.tgroup(t_frame), "[s] time between group starts"),
             ("RESETMD", self.reset_mode, "reset mode (rolling or global)"),
             ("NREADS", self.nreads, "frames per integration to last read used"),
-            ("EFFINTTM", float(tbar[-1] - tbar[0]),
-             "[s] effective integration time tbar_last - tbar_first"),
+            ("EFFINTTM", self.effective_integration_time(t_frame),
+             "[s] effective integration time (tbar_last - tbar_first)"),
         ]
+
+    def effective_integration_time(self, t_frame):
+        """``EFFINTTM``, s: the span of the resultants' mean times, ``tbar_last -
+        tbar_first``, over which a slope is measured; with one resultant, its mean
+        time from reset, ``tbar_0`` (the time a one-group slope divides by; 0 there
+        before, while the JWST uncal of the same exposure said ``tbar_0``)."""
+        tbar = self.mean_times(t_frame)
+        return float(tbar[-1] - tbar[0]) if self.ngroups > 1 else float(tbar[0])
 
     def read_table(self, t_frame):
         """Table describing every resultant, one row each.

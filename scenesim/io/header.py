@@ -368,12 +368,16 @@ def readout_from_header(header):
         raise FileFormatError(
             "truth header lacks 'NGROUPS'; pass the exposure file to get the read times")
     try:
-        return Readout.multiaccum(int(header.get("NFRAMES", 1)), int(header["NGROUPS"]),
-                                  groupgap=int(header.get("GROUPGAP", 0)),
-                                  nskip=int(header.get("DROPFRM1", 0)),
-                                  nints=int(header.get("NINTS", 1)),
-                                  reset_mode=str(header.get("RESETMD", "rolling")),
-                                  name=str(header.get("READPATT", "CUSTOM")))
+        ro = Readout.multiaccum(int(header.get("NFRAMES", 1)), int(header["NGROUPS"]),
+                                groupgap=int(header.get("GROUPGAP", 0)),
+                                nskip=int(header.get("DROPFRM1", 0)),
+                                nints=int(header.get("NINTS", 1)),
+                                reset_mode=str(header.get("RESETMD", "rolling")))
+        # the file's own label, as written (a scene may no longer give a custom
+        # readout a JWST pattern's name, but files written before may carry one)
+        return Readout(ro.resultants, nints=ro.nints, reset_mode=ro.reset_mode,
+                       name=str(header.get("READPATT", "CUSTOM")), nframes=ro.nframes,
+                       groupgap=ro.groupgap, nskip=ro.nskip)
     except ParameterError as exc:
         raise FileFormatError(f"truth header describes an invalid readout: {exc}") from exc
 

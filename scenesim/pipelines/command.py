@@ -98,6 +98,12 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
         from scenesim.pipelines.jwst import check_subarray_name
         check_subarray_name(scene.instrument.subarray, det,
                             resolve_instrument(scene.instrument, det, ro.name)["name"])
+    if uncal:
+        from scenesim.pipelines.jwst import check_uncal_readout
+        try:
+            check_uncal_readout(ro, "the scene")
+        except ParameterError as exc:
+            raise ParameterError(f"--uncal: {exc}") from exc
     if uncal and (det.n_out_active not in (1, 4) or max(det.naxis1, det.naxis2) > 2048):
         raise ParameterError(
             f"--uncal: a JWST uncal needs a detector of at most 2048 x 2048 read through "

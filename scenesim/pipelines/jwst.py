@@ -56,7 +56,9 @@ most 2048 x 2048, so an H4RG exposure (Roman) has no JWST uncal
 (:mod:`scenesim.pipelines.roman` writes its Level 1 file).
 
 Clock: the uncal records scenesim's own ``TFRAME`` and ``TGROUP``, so the pipeline
-fits with the times the charge was simulated at.  JWST's frame time (JDox, "NIRCam
+fits with the times the charge was simulated at.  Only a MULTIACCUM readout has an
+uncal (:func:`check_uncal_readout`): an MA table or explicit read lists are not
+evenly spaced groups, and jwst would fit them with the wrong times.  JWST's frame time (JDox, "NIRCam
 Detector Subarrays") is ``((ncols/4 + 12) (nrows + 1) + 1) x 10 us`` with 4 outputs
 and ``(ncols + 12) (nrows + 2) x 10 us`` with 1: the ``H2RG`` preset (``nroh = 12``,
 ``nfoh = 1``) is one pixel time (10 us, 1 ppm) short on full frames and stripes, and a
@@ -305,6 +307,7 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     det = detector_from_header(hdr)
     _check_jwst_detector(det)
     ro = readout_from_table(hdr, exp.reads)
+    check_uncal_readout(ro)
     t_frame = float(hdr["TFRAME"])
     ident = resolve_instrument(header_instrument(hdr), det, ro.name)
     check_subarray_name(ident["subarray"], det, ident["name"])
@@ -336,16 +339,15 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     ex.readpatt = ident["readpatt"]
     ex.nints = nints
     ex.ngroups = ro.ngroups
-    ex.nframes = int(ro.nframes if ro.is_multiaccum else len(ro.resultants[0]))
-    ex.groupgap = int(ro.groupgap if ro.is_multiaccum else hdr.get("GROUPGAP", 0))
+    ex.nframes = int(ro.nframes)                 # MULTIACCUM: check_uncal_readout
+    ex.groupgap = int(ro.groupgap)
     ex.drop_frames1 = int(ro.nskip)
     ex.frame_divisor = ex.nframes
     ex.nresets_at_start = 1
     ex.nresets_between_ints = 1
     ex.frame_time = t_frame
     ex.group_time = float(ro.tgroup(t_frame))
-    tbar = ro.mean_times(t_frame)
-    ex.integration_time = float(tbar[-1] - tbar[0]) if ro.ngroups > 1 else float(tbar[0])
+    ex.integration_time = ro.effective_integration_time(t_frame)
     # EFFEXPTM and XPOSURE are both the effective exposure time in the DMS
     # (integration time x integrations); DURATION is the whole span, resets included
     ex.effective_exposure_time = ex.integration_time * nints
@@ -397,6 +399,20 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
         "READS": {"data": reads.as_array(), "header": reads_cards},
     }
     return m
+
+
+def check_uncal_readout(readout, what="the exposure"):
+    """Refuse a readout a JWST uncal cannot describe: it records ``NFRAMES``-frame
+    groups ``GROUPGAP`` apart, evenly spaced, which jwst's ramp fitting (stcal)
+    assumes; an MA table or read lists written as such were fitted with the wrong
+    times (a probe's ``[[0], [2], [3], [9]]``: -2.5 %, 18 sigma)."""
+    if not readout.is_multiaccum:
+        raise ParameterError(
+            f"a JWST uncal describes MULTIACCUM groups (NFRAMES frames, GROUPGAP "
+            f"apart, evenly spaced), which jwst's ramp fitting assumes; {what}'s "
+            f"readout {readout.name!r} is an MA table or read lists, which jwst would "
+            f"fit with the wrong times: use the 'pattern' or 'nframes' form, or --l1 "
+            f"for a Roman L1 file")
 
 
 def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=False):

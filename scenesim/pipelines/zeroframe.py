@@ -78,7 +78,7 @@ def zero_frames(scene, exposure_sci, *, options=None):
     split = split_first_group(ro)
     nsplit = len(ro.resultants[0])
     cfg = ReadoutConfig(resultants=split, nints=ro.nints, reset=ro.reset_mode,
-                        name=ro.name)
+                        name=f"{ro.name}_SPLIT")     # read lists: not the pattern's name
     engine, _ = build_engine(scene.replace(readout=cfg),
                              options=options if options is not None else EngineOptions())
     sci = np.asarray(exposure_sci)

@@ -954,7 +954,9 @@ class Scene:
             table = "[effects]" if str(exc).startswith("'gain'") else "[noise]"
             raise type(exc)(f"{table} {exc}") from exc
         try:
-            check_pattern_detector(self.readout.pattern, self.detector)
+            ro = self.readout
+            check_pattern_detector(ro.pattern or ro.name, self.detector,
+                                   key="pattern" if ro.pattern else "name")
         except ParameterError as exc:
             raise type(exc)(f"[readout] {exc}") from exc
         try:        # 'median' without reference rows, 'irs2' without interleaving

@@ -359,7 +359,7 @@ def _read_times(hdr, readout, notes, reads=None):
         # before: a report from the wrong read times (std_opt 0.26-0.29 where the
         # right ones give 1.07-1.5) with only a note
         rebuilt = {"NREADS": readout.nreads,
-                   "EFFINTTM": float(np.ptp(readout.mean_times(t_frame)))}
+                   "EFFINTTM": readout.effective_integration_time(t_frame)}
         for key, value in rebuilt.items():
             if key in hdr and not math.isclose(float(hdr[key]), value, rel_tol=1e-6,
                                                abs_tol=1e-9):

@@ -406,3 +406,47 @@ def test_a_named_pattern_that_contradicts_the_detector_is_refused(det_name, patt
     ChargeEngine(det, Readout.named("RAPID", ngroups=2), rng=1)
     good = "NRSIRS2RAPID" if det.interleave is not None else "NRSRAPID"
     ChargeEngine(det, Readout.named(good, ngroups=2), rng=1)
+
+
+def test_a_custom_readout_may_not_take_a_jwst_patterns_name_it_is_not():
+    # Files carry the name as READPATT, which JWST software selects by, beside
+    # NFRAMES / GROUPGAP cards: a probe's nframes = 4 named 'RAPID' (NFRAMES 1) and an
+    # MA table named 'DEEP8' were written as such.  Any case; a matching MULTIACCUM,
+    # and any other label, are accepted.
+    import pytest
+    from noise.errors import ParameterError
+    with pytest.raises(ParameterError, match=r"'name' = 'RAPID' is the JWST pattern of "
+                                             r"NFRAMES 1, GROUPGAP 0.*'nframes' = 4"):
+        Readout.multiaccum(4, 3, name="RAPID")
+    with pytest.raises(ParameterError, match=r"'name' = 'deep8' .* an MA table"):
+        Readout.from_ma_table([[0, 1], [1, 2]], name="deep8")
+    with pytest.raises(ParameterError, match=r"'name' = 'MEDIUM8' .* read lists"):
+        Readout.from_reads([[0], [2]], name="MEDIUM8")
+    assert Readout.multiaccum(8, 3, groupgap=2, name="MEDIUM8").name == "MEDIUM8"
+    assert Readout.from_ma_table([[0, 1], [1, 2]], name="MY_TABLE").name == "MY_TABLE"
+
+
+def test_a_custom_readouts_name_is_checked_against_the_detector_by_its_key():
+    # an IRS2 name on a custom readout of the right numbers, on an H2RG: refused,
+    # and the message names the key the user gave ('name', not 'pattern')
+    import pytest
+    from noise.errors import ParameterError
+    from scenesim.detector.readout import NAMED_PATTERNS
+    from scenesim.scene import parse_scene
+    nf, gg = NAMED_PATTERNS["NRSIRS2"]
+    with pytest.raises(ParameterError, match=r"\[readout\] 'name' = 'NRSIRS2' is an IRS2"):
+        parse_scene({"seed": 1, "detector": {"naxis1": 16, "naxis2": 16},
+                     "noise": {"preset": "none"},
+                     "readout": {"nframes": nf, "groupgap": gg, "ngroups": 2,
+                                 "name": "NRSIRS2"}})
+
+
+def test_one_group_effinttm_is_the_groups_mean_time_in_every_file():
+    # MEDIUM8 x 1 group: the exposure said EFFINTTM = 0 (tbar_last - tbar_first)
+    # while its JWST uncal said tbar_0 = 4.5 frames (frames 1..8 averaged, read k at
+    # (k + 1) t_frame: mean 4.5 t_frame).  Both now give the mean time.
+    ro = Readout.named("MEDIUM8", 1)
+    cards = {k: v for k, v, _ in ro.to_header_cards(2.0)}
+    assert cards["EFFINTTM"] == ro.effective_integration_time(2.0) == 9.0
+    ro2 = Readout.named("MEDIUM8", 3)        # group means at 4.5, 14.5, 24.5 frames
+    assert ro2.effective_integration_time(2.0) == 40.0

@@ -408,3 +408,32 @@ def test_a_subarray_name_must_fit_the_readout():
                                               "the full")):
         with pytest.raises(ParameterError, match=words):
             jwst.check_subarray_name(name, det, "NIRCAM")
+
+
+def test_a_readout_that_is_not_multiaccum_has_no_uncal(tmp_path):
+    # A probe's explicit reads [[0], [2], [3], [9]] were written as NFRAMES 1,
+    # GROUPGAP 1, TGROUP 3 frames, and jwst's ramp fit found 974.7 e-/s for 1000
+    # (-2.5 %, 18 sigma).  Refused before the run (nothing written), and by the
+    # library's writer.
+    import os
+    import subprocess
+    import sys
+    scene = tmp_path / "n6.toml"
+    scene.write_text(
+        'seed = 1\n[detector]\nnaxis1 = 64\nnaxis2 = 64\n[noise]\npreset = "none"\n'
+        '[readout]\nresultants = [[0], [2], [3], [9]]\n[sources]\ndark_current = 1000.0\n'
+        '[output]\npath = "n6.fits"\n')
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "n6.toml",
+                          "--uncal", "-q"], cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--uncal" in lines[0] and "MULTIACCUM" in lines[0]
+    assert sorted(os.listdir(tmp_path)) == ["n6.toml"]
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "n6.toml", "-q"],
+                         cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    from noise.errors import ParameterError
+    from scenesim.pipelines.jwst import write_uncal
+    with pytest.raises(ParameterError, match="MULTIACCUM"):
+        write_uncal(tmp_path / "n6.fits", tmp_path / "u.fits")
+    assert not (tmp_path / "u.fits").exists()
