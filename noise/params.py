@@ -18,7 +18,11 @@ how many frames are simulated: a 1-frame and a 100-frame cube share the same PSD
 the original NG program each realisation was rescaled to a sample sigma over the whole
 cube, so its PSD level fell as the cube grew.  With this definition the paper's default
 amplitudes reproduce a NIRSpec-like single frame, as they did in the original for a
-1-frame cube.
+1-frame cube.  ACN's ``n`` is that of each of its two parity series (even and odd
+columns, each normalised on its own), so the frame's ACN image, whose two parities
+also differ in their means, has a larger spread than ``acn`` (0.59-0.89 e- for
+``acn = 0.5`` on 37 ms frames).  Over many frames each 1/f process also wanders
+below one frame (``NoiseParams.check_adc`` counts that).
 
 ``pedestal`` is the standard deviation of a per-frame offset common to all pixels;
 ``ktc`` the per-pixel standard deviation of the reset level, redrawn each integration;

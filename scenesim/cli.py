@@ -44,7 +44,9 @@ def _parser():
     sub = p.add_subparsers(dest="command", required=True)
 
     q = sub.add_parser("noise", help="write an empty (noise-only) HxRG ramp")
-    q.add_argument("--preset", default="H2RG", help="H1RG, H2RG, H4RG-10, H4RG-15")
+    q.add_argument("--preset", default="H2RG",
+                   help="detector preset: H1RG, H2RG, H4RG-10, H4RG-15, NIRCAM, NIRSPEC, "
+                        "NIRSPEC-IRS2 or WFI (noise.clock.PRESETS)")
     q.add_argument("--frames", type=int, default=5, help="read frames per integration")
     q.add_argument("--nints", type=int, default=1, help="integrations")
     q.add_argument("--naxis", type=int, default=None,
@@ -105,6 +107,8 @@ def _parser():
                         "scenesim's fitters (stcal-likely uses its own 4.5 sigma, "
                         "stcal-ols_c none)")
     f.add_argument("--overwrite", action="store_true", help=_OVERWRITE)
+    f.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors (as run and noise)")
     f.set_defaults(target="scenesim.commands:fit_command")
 
     c = sub.add_parser("compare", help="compare a slope file with the truth file")

@@ -173,7 +173,7 @@ def fit_command(args):
     check_outputs({"slope file": out}, inputs=[args.exposure], overwrite=args.overwrite,
                   endings={"slope file": FITS_ENDINGS})
     cleaned = clean_stale_temps([out])          # e.g. a killed fit's prepared cube
-    if cleaned:
+    if cleaned and not args.quiet:
         print(cleaned)
     if args.fitter.lower().startswith("stcal-"):
         fit_exposure_stcal(args.exposure, out, algorithm=args.fitter[6:].upper(),
@@ -183,7 +183,8 @@ def fit_command(args):
         fit_exposure_file(args.exposure, out, fitter=args.fitter,
                           options=PrepareOptions(refpix=args.refpix),
                           jump_threshold=args.jump_threshold, overwrite=args.overwrite)
-    print(f"wrote {out}")
+    if not args.quiet:
+        print(f"wrote {out}")
     return 0
 
 

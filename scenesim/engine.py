@@ -51,7 +51,12 @@ window draws its 5 RAPID reads in one call; 2048^2 and 4096^2 frames one read pe
 call), which removes the per-read Python overhead of small frames.  Chunks, groups
 and keys depend only on the detector, the readout and the rate map, never on the
 thread count or on the row blocks of the per-read passes, so neither changes the
-result.
+result.  The rate map does change them: which pixels a chunk draws, and the group
+size (from the chunk that draws the most), so adding a source, even in another
+chunk, redraws the Poisson arrivals of the others (a probe's far star changed 1640
+samples of another's stamp); the noise, hot pixels and cosmic rays, on their own
+streams, are unchanged.  Paired runs that must share the arrivals of the common
+sources need the same rate map.
 """
 
 import os

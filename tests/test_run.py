@@ -85,3 +85,27 @@ def test_run_scene_names_a_path_argument_of_the_wrong_type(kwargs, match, tmp_pa
     with pytest.raises(ParameterTypeError, match=match):
         run_scene(scene, progress=False, **kwargs)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_commands_help_and_quiet_flags_are_in_step(tmp_path):
+    # `noise --help` named 4 of the 8 presets it accepts; `fit` refused -q, which
+    # `run` and `noise` take.
+    import subprocess
+    import sys
+    from noise.clock import PRESETS
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "scenesim.cli", *args],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    helptext = " ".join(cli("noise", "--help").stdout.split())
+    for name in PRESETS:
+        assert name in helptext, name
+    (tmp_path / "s.toml").write_text(
+        'seed = 1\n[detector]\nnaxis1 = 32\nnaxis2 = 32\n[noise]\npreset = "none"\n'
+        '[readout]\npattern = "RAPID"\nngroups = 3\n[sources]\ndark_current = 1.0\n'
+        '[output]\npath = "e.fits"\n')
+    res = cli("run", "s.toml", "-q")
+    assert res.returncode == 0, res.stderr
+    res = cli("fit", "e.fits", "--fitter", "ols", "--refpix", "none", "-q")
+    assert res.returncode == 0 and res.stdout == "", (res.stdout, res.stderr)
+    assert (tmp_path / "e_ols.fits").exists()

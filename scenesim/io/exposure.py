@@ -33,7 +33,9 @@ actually taken; int16, int32 for a readout of more than 32767 reads),
 ``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
 read saw it), ``SOURCES`` (the catalogue as rendered), ``READS`` (the exposure's table
 of read indices and times, so that a truth grades a fit of any readout without its
-exposure), and optionally ``CHARGE`` (noise-free charge resultants, e-) and ``NOISE``
+exposure), and optionally ``CHARGE`` (noise-free signal resultants, e-: the collected
+charge after saturation, nonlinearity and IPC, before the noise and the ADC, i.e.
+``K(p(min(q, FW)))``, not the collected charge ``q``) and ``NOISE``
 (noise-only resultants, e-).
 
 What this plain writer lacks for the JWST pipeline (so ``calwebb_detector1`` does not

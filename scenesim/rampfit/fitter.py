@@ -135,7 +135,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ParameterTypeError
 from noise.validate import check_choice, check_float, check_int, check_map, check_mask
 
 from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
@@ -187,7 +187,11 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     ----------
     resultants : ndarray, shape (nres, ny, nx) or (nints, nres, ny, nx), e-, or a row source
         Resultants of one or several integrations, in electrons (DN times gain;
-        nothing else subtracted).  Any real dtype; differences are taken in the
+        nothing else subtracted: with a dark ramp subtracted the net rate may be
+        negative while the Poisson variance is that of the collected charge, and the
+        covariance, taken at a rate >= 0, understates it; pass the collected rate
+        as ``variance_rate``: a probe's -1 e-/s net ramps reported E[z^2] = 9.3
+        with 'local', 1.03 with the collected rate).  Any real dtype; differences are taken in the
         input dtype (float64 for integers), the rest in float32 (module notes:
         keep resultants above ~1e9 e- in float64).  A *row source*
         (:mod:`scenesim.io.cuberows`, e.g. :func:`scenesim.io.cuberows.exposure_rows`
@@ -339,6 +343,13 @@ def _check_resultants(resultants, saturated):
 
 def _resultant_array(resultants):
     """``resultants`` as a 3-D or 4-D real ndarray (checked)."""
+    if isinstance(resultants, np.ma.MaskedArray):
+        # its mask would be ignored: the values under it fitted as data (a probe's
+        # masked 1e9 read gave -2.4e6 e-/s with DQ 0)
+        raise ParameterTypeError(
+            "'resultants' is a masked array, whose mask fit_ramps does not read: pass "
+            "the data (np.ma.getdata) and the masked reads as 'saturated' (they and "
+            "the later reads of the pixel are then left out)")
     if not isinstance(resultants, np.ndarray):
         try:
             resultants = np.asarray(resultants)

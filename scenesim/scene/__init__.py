@@ -182,8 +182,9 @@ Every key is optional and inferred when absent:
 * ``path``: exposure file, ``.fits`` or ``.fits.gz``; default ``"exposure.fits"``
   (see *Paths*).
 * ``truth``: also write ``<stem>_truth.fits``; default true.
-* ``save_charge``, ``save_noise``: put the noise-free charge / the noise-only
-  resultants in the truth file (need ``truth``); default false.
+* ``save_charge``, ``save_noise``: put the noise-free signal (the charge after
+  saturation, nonlinearity and IPC) / the noise-only resultants in the truth file
+  (need ``truth``); default false.
 * ``ramp``: write the ramp file; default true (false keeps only the slopes and needs
   ``fit``).
 * ``fit``: ``""`` (none, default), ``"cds"``, ``"ols"`` or ``"gls"``.

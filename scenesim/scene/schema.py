@@ -842,7 +842,8 @@ class OutputConfig:
         Also write ``<stem>_truth.fits`` (:attr:`truth_path`; ``<stem>_truth.fits.gz``
         for a ``.fits.gz`` path).
     save_charge : bool
-        Put the noise-free charge resultants in the truth file (needs ``truth``).
+        Put the noise-free signal resultants (the charge after saturation,
+        nonlinearity and IPC) in the truth file (needs ``truth``).
     save_noise : bool
         Put the noise-only resultants in the truth file (needs ``truth``).
     ramp : bool

@@ -66,9 +66,11 @@ PSF models
     ``oversample**2``); a clear error names the mismatch.  Rendering treats the flux of
     a sub-pixel as spread uniformly over its square and gives each detector pixel the
     overlapping share (area-weighted rebinning).  The overlap weights along each axis
-    sum to 1 for every sub-pixel and are linear in the sub-pixel's position (a tent), so
-    the rendering conserves the flux *and* the first moments (centroid) exactly, at any
-    sub-pixel position.  It is computed from the cumulative sums of the image,
+    sum to 1 for every sub-pixel, so the rendering conserves the flux exactly at any
+    sub-pixel position; the centroid it conserves only where a sub-pixel straddles no
+    pixel edge (the weights are a trapezoid, not a tent: a PSF whose flux is all in
+    one sub-pixel of 1/4 pixel renders at the pixel centre for any offset within
+    it).  The rendering is the exact pixel integral of the uniform-sub-pixel model.  It is computed from the cumulative sums of the image,
     interpolated at the pixel edges (first along x, then along y), vectorised over
     sources.  Where sub-pixel edges line up with pixel edges (position a multiple of
     ``1/oversample`` from the aligned one) the result is the exact pixel integral of the
@@ -721,8 +723,10 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
         Sum of the rendered sources.
     info : astropy.table.Table, one row per source in input order
         ``x``, ``y``, ``flux`` (as given); ``flux_on_array`` (e-/s actually added to
-        ``image``, so none on ``blind`` pixels); ``frac_on_array`` (``flux_on_array / flux``, computed from the unit
-        PSF so defined for zero flux); ``flux_lost_stamp`` (e-/s of PSF outside the
+        ``image``, so none on ``blind`` pixels, the ``qe`` included);
+        ``frac_on_array`` (the PSF's fraction on the collecting pixels, computed from
+        the unit PSF so defined for zero flux: ``flux_on_array / flux`` without
+        ``qe``); ``flux_lost_stamp`` (e-/s of PSF outside the
         stamp, wherever the stamp lies); ``stamp_radius`` (pixels); ``rendered``
         (False when the stamp misses the array: then nothing is added and the other
         numbers are 0).  ``flux - flux_on_array - flux_lost_stamp`` is the flux of the
@@ -752,6 +756,7 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     n = xs.size
     image = np.zeros((ny, nx), dtype=np.float64)
     on_frac = np.zeros(n)
+    on_qe = on_frac if qe is None else np.zeros(n)      # the share collected, QE in
     stamp_frac = np.zeros(n)
     rendered = np.zeros(n, dtype=bool)
     radius = _stamp_radii(psf, fl, stamp_radius, min_rate, max_stamp_radius)
@@ -761,7 +766,8 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
     overlaps = ((ix0 + radius >= 0) & (ix0 - radius <= nx - 1)
                 & (iy0 + radius >= 0) & (iy0 - radius <= ny - 1))
     if not overlaps.any():
-        return image, _info_table(xs, ys, fl, on_frac, stamp_frac, radius, rendered)
+        return image, _info_table(xs, ys, fl, on_frac, on_qe, stamp_frac, radius,
+                                  rendered)
 
     rmax = int(radius[overlaps].max())
     stamps = psf._stamp_factory(rmax)
@@ -788,22 +794,23 @@ def render_point_sources(shape, x, y, flux, psf, *, stamp_radius=None, min_rate=
             idx = rows[:, :, None] * nx + cols[:, None, :]
             if blind_flat is not None:                 # reference pixels: nothing
                 ok[ok] = ~blind_flat[idx[ok]]
+            on_frac[sel] = np.where(ok, st, 0.0).sum(axis=(1, 2))
             if qe_flat is not None:
                 st = st * np.where(ok, qe_flat[np.where(ok, idx, 0)], 0.0)
+                on_qe[sel] = np.where(ok, st, 0.0).sum(axis=(1, 2))
             weights = st * fl[sel][:, None, None]
-            on_frac[sel] = np.where(ok, st, 0.0).sum(axis=(1, 2))
             np.add.at(flat_image, idx[ok], weights[ok])
             rendered[sel] = True
-    return image, _info_table(xs, ys, fl, on_frac, stamp_frac, radius, rendered)
+    return image, _info_table(xs, ys, fl, on_frac, on_qe, stamp_frac, radius, rendered)
 
 
-def _info_table(xs, ys, fl, on_frac, stamp_frac, radius, rendered):
+def _info_table(xs, ys, fl, on_frac, on_qe, stamp_frac, radius, rendered):
     lost = np.where(rendered, fl * (1.0 - stamp_frac), 0.0)
     table = Table()
     table["x"] = xs
     table["y"] = ys
     table["flux"] = fl
-    table["flux_on_array"] = fl * on_frac
+    table["flux_on_array"] = fl * on_qe
     table["frac_on_array"] = on_frac
     table["flux_lost_stamp"] = lost
     table["stamp_radius"] = np.asarray(radius, dtype=np.int64)

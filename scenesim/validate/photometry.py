@@ -75,10 +75,21 @@ def source_photometry(slope, var, bad, sources, psf, radius, notes):
     bkg = annulus_medians(slope, ann, bad)
     measured = (raw - bkg * ap.area) / ee
     noise = np.sqrt(np.maximum(vsum, 0.0)) / ee
-    inj = flux[inside]
-    bright = inj > 10.0 * noise
+    # a source whose aperture holds an unmeasured pixel (DO_NOT_USE: a saturated
+    # core) would count it as 0 e-/s: left out, and said (a probe's saturated star
+    # read 0.32 of its flux into the median)
+    holed = np.asarray(ap.do_photometry(np.asarray(bad, dtype=float),
+                                        method="exact")[0], dtype=float) > 0
+    if holed.any():
+        notes.append(f"photometry: {int(holed.sum())} source(s) left out: unmeasured "
+                     f"(DO_NOT_USE) pixels in the aperture")
+    # what the array collected (the QE flat in), when the catalogue says
+    inj = (np.asarray(sources["flux_on_array"], dtype=float) if "flux_on_array" in
+           sources.colnames else flux)[inside]
+    bright = (inj > 10.0 * noise) & ~holed
     if not bright.any():
-        notes.append("photometry: no source brighter than 10x its aperture noise")
+        notes.append("photometry: no usable source (brighter than 10x its aperture "
+                     "noise, every aperture pixel measured)")
         return out
     ratio = measured[bright] / inj[bright]
     out["sources"] = [{"x": float(a), "y": float(b), "flux": float(f), "measured": float(m),

@@ -96,3 +96,26 @@ def test_annulus_medians_are_photutils_aperture_stats_medians():
     got = annulus_medians(img, ann, bad)
     assert np.isnan(got[0])
     np.testing.assert_array_equal(got, want)
+
+
+def test_a_source_with_unmeasured_pixels_in_its_aperture_is_left_out():
+    # A saturated core is DO_NOT_USE; counted as 0 e-/s it read 0.32 of a probe's
+    # star into the median.  Two noise-free stars, one with its peak pixel bad: the
+    # other alone is measured (ratio 1 to 1e-3: the Gaussian outside 3 r, at 4.7
+    # sigma, and pixel integration), and a note says one was left out.  With a flat,
+    # the injected flux is what the array collected (flux_on_array).
+    from scenesim.sky.psf import GaussianPSF
+    from scenesim.validate.photometry import source_photometry
+    shape, flux, radius = (80, 80), 1e5, 4.0
+    psf = GaussianPSF(2.0)
+    xs, ys = np.array([20.3, 60.4]), np.array([40.2, 40.6])
+    img, info = render_point_sources(shape, xs, ys, np.full(2, flux), psf,
+                                     stamp_radius=20, qe=np.full(shape, 0.5))
+    bad = np.zeros(shape, bool)
+    bad[40, 20] = True
+    notes = []
+    p = source_photometry(img, np.full(shape, 1.0), bad, info, psf, radius, notes)
+    assert p["n"] == 1 and p["sources"][0]["x"] == pytest.approx(60.4)
+    assert p["sources"][0]["flux"] == pytest.approx(0.5 * flux, rel=1e-6)
+    assert abs(p["median_ratio"] - 1) < 1e-3, p["median_ratio"]
+    assert any("1 source(s) left out" in n for n in notes), notes
