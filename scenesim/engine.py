@@ -863,18 +863,41 @@ class ChargeEngine:
                 if progress is not None:
                     progress(done)
 
+    def integration_windows(self):
+        """``(start, end)`` (nints,) arrays, s from the start of the exposure: the span
+        each integration's slope measures, from its first resultant's mean read time
+        to its last's (from its reset to its one resultant's mean time with one
+        group), on the frame clock (a pixel's own offset, under one frame, left out).
+        """
+        ro, tf = self.readout, self.detector.frame_time
+        tbar = ro.mean_times(tf)
+        t0 = np.arange(ro.nints) * exposure_slots(1, ro.nreads) * tf    # resets
+        first = tbar[0] if ro.ngroups > 1 else 0.0
+        return t0 + first, t0 + tbar[-1]
+
+    def light_curve_means(self):
+        """Mean relative flux of every variable source over each integration's window
+        (:meth:`integration_windows`): (n_variable, nints) float64."""
+        t1, t2 = self.integration_windows()
+        return np.array([v.light_curve.integral(t1, t2) / (t2 - t1)
+                         for v in self.variable]).reshape(len(self.variable), t1.size)
+
     def expected_rate(self, t1=None, t2=None):
         """Expected rate of collected charge (e-/s) per pixel, before IPC (after the
-        QE flat, which is in the rates); light curves averaged over ``[t1, t2]``
-        (default: the whole exposure).  Shape (ny, nx), float64."""
-        det, ro = self.detector, self.readout
-        if t1 is None:
-            t1 = 0.0
-        if t2 is None:
-            t2 = exposure_slots(ro.nints, ro.nreads) * det.frame_time
+        QE flat, which is in the rates); light curves averaged over ``[t1, t2]``, by
+        default over the integrations' windows (the mean of their means,
+        :meth:`integration_windows`: what the slopes measure; the exposure's span
+        would count resets and gaps no read sees).  Shape (ny, nx), float64."""
         rate = self.rate.copy()
-        for v in self.variable:
-            mean = float(v.light_curve.integral(np.array([t1]), np.array([t2]))[0]) / (t2 - t1)
+        if t1 is None and t2 is None:
+            means = self.light_curve_means().mean(axis=1) if self.variable else []
+        else:
+            det, ro = self.detector, self.readout
+            t1 = 0.0 if t1 is None else t1
+            t2 = exposure_slots(ro.nints, ro.nreads) * det.frame_time if t2 is None else t2
+            means = [float(v.light_curve.integral(np.array([t1]), np.array([t2]))[0])
+                     / (t2 - t1) for v in self.variable]
+        for v, mean in zip(self.variable, means):
             np.add.at(rate.ravel(), v.index, v.weight * mean)
         return rate
 

@@ -23,15 +23,18 @@ calibration library's ramp fitting without changing its layout:
   together are every sample read (:func:`raw_resultants`).
 
 Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s of collected charge per pixel,
-the QE flat included, before IPC), ``RATE_IPC`` (after IPC: what a linear fit of the
-raw ramps recovers), ``SATREAD``
+the QE flat included, before IPC; a variable source at its light curve's mean over
+the integrations' windows, the spans their slopes measure), ``RATE_IPC`` (after IPC:
+what a linear fit of the raw ramps recovers), ``SATREAD``
 (first saturated read per pixel and integration, as a frame index counted from reset,
 -1 if none: the first read whose charge reached the full well or whose charge and
 noise read the ADC's top code; only reads that some resultant uses are materialised,
 so a pixel that fills its well during skipped frames reports the next read that is
 actually taken; int16, int32 for a readout of more than 32767 reads),
 ``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
-read saw it), ``SOURCES`` (the catalogue as rendered), ``READS`` (the exposure's table
+read saw it), ``SOURCES`` (the catalogue as rendered), ``LCINTS`` (with variable
+sources: each one's light-curve mean and collected rate in every integration's
+window, the truth of per-integration slopes), ``READS`` (the exposure's table
 of read indices and times, so that a truth grades a fit of any readout without its
 exposure), and optionally ``CHARGE`` (noise-free signal resultants, e-: the collected
 charge after saturation, nonlinearity and IPC, before the noise and the ADC, i.e.
@@ -427,6 +430,31 @@ def _read_back_table(table, name):
         return Table.read(hdul[name])
 
 
+def _light_curve_table(engine, sources):
+    """The ``LCINTS`` table of the variable sources (None without any): per source
+    and integration, the window its slope measures (s from the exposure's start,
+    :meth:`scenesim.engine.ChargeEngine.integration_windows`), the light curve's mean
+    over it and the rate the array collects then (``FLUX``, e-/s: ``flux_on_array``
+    times that mean), the truth of per-integration slopes (``SLOPEINT``)."""
+    if not engine.variable:
+        return None
+    t1, t2 = engine.integration_windows()
+    means = engine.light_curve_means()
+    nint = t1.size
+    src = Table(sources)
+    rows = np.flatnonzero(np.asarray(src["light_curve"]) != "") \
+        if "light_curve" in src.colnames else np.arange(len(engine.variable))
+    rows = rows[-len(engine.variable):]            # constant stars come first
+    on = np.asarray(src["flux_on_array" if "flux_on_array" in src.colnames else "flux"],
+                    dtype=float)[rows]
+    return Table({"SOURCE": np.repeat(rows, nint),
+                  "X": np.repeat(np.asarray(src["x"], dtype=float)[rows], nint),
+                  "Y": np.repeat(np.asarray(src["y"], dtype=float)[rows], nint),
+                  "INTEGRATION": np.tile(np.arange(nint), rows.size),
+                  "T_START": np.tile(t1, rows.size), "T_END": np.tile(t2, rows.size),
+                  "LC_MEAN": means.ravel(), "FLUX": (on[:, None] * means).ravel()})
+
+
 def _write_truth(engine, path, header, out, raws, sources, overwrite):
     det, ro = engine.detector, engine.readout
     rate = engine.expected_rate()
@@ -442,7 +470,9 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
     nx = det.nx
     crs = Table({"TIME": cr.time, "X": cr.index % nx, "Y": cr.index // nx,
                  "CHARGE": cr.charge, "SEEN": out["cr_seen"]})
-    replace = {c[0]: c for c in (filetype_card("truth"), nextend_card(7 + len(raws)))}
+    lcints = _light_curve_table(engine, sources)
+    replace = {c[0]: c for c in (filetype_card("truth"),
+                                 nextend_card(7 + len(raws) + (lcints is not None)))}
     header = [replace.get(c[0], c) for c in header]
     with atomic_file(path, overwrite=overwrite, buffering=_WRITE_BUFFER) as f:
         s = StreamingFITS(f)
@@ -464,6 +494,8 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
         for col in src.itercols():
             col.unit = None        # units are documented (e-/s, pixels), not stored
         s.append_hdu(fits.BinTableHDU(src, name="SOURCES"))
+        if lcints is not None:
+            s.append_hdu(fits.BinTableHDU(lcints, name="LCINTS"))
         # the read times of every resultant, as the exposure's: a truth graded without
         # its exposure (slopes only, a pipeline's product) needs them for any readout
         # that is not MULTIACCUM (an MA table, explicit resultants)
