@@ -74,9 +74,9 @@ that is known:
   the error names the largest amplitude instead.  Charge, which only adds, is not
   counted: reaching the top code is saturation (the truth's ``SATREAD``).  Two more
   ends: the RTN pixels' high state, ``bias_offset + b_hi + rtn_amp``, must also lie 5
-  s below the top code (when there are RTN pixels), and one ADC step (``gain``) may
-  not exceed ``bias_offset + b_hi + 5 s``, where every read of a pixel without charge
-  would be code 0.  Without a detector, or on a full array over
+  s below the top code (when there are RTN pixels), and half an ADC step (``gain /
+  2``) may not exceed ``bias_offset + b_hi + 5 s``, where every read of a pixel
+  without charge would round to code 0.  Without a detector, or on a full array over
   :data:`TEMPLATE_CHECK_PIXELS`, the amplitudes are taken as they are and the bias
   pattern as a Gaussian of rms ``bias_amp``.
 
@@ -339,10 +339,10 @@ class NoiseParams:
         ``range = gain * (2**adc_bits - 1)``.  The error names ``bias_offset``, or
         the largest amplitude when ``10 s + b_hi - b_lo`` exceeds the range (no bias
         fits), or ``rtn_amp`` when the RTN pixels' high state, ``bias_offset + b_hi
-        + rtn_amp``, is not 5 s below the top code, or ``gain`` when one ADC step
-        exceeds ``bias_offset + b_hi + 5 s`` (every read without charge would be code
-        0; a noise-free detector with no bias, ``bias_offset + 5 s = 0``, takes any
-        gain)."""
+        + rtn_amp``, is not 5 s below the top code, or ``gain`` when half an ADC
+        step exceeds ``bias_offset + b_hi + 5 s`` (every read without charge would
+        round to code 0; a noise-free detector with no bias, ``bias_offset + 5 s =
+        0``, takes any gain)."""
         top = 2 ** int(adc_bits) - 1
         adc_range = float(gain) * top
         adc = (f"the ADC range [0, {adc_range:.6g}] e- ('gain' {float(gain):g} e-/DN x "
@@ -378,13 +378,13 @@ class NoiseParams:
                 f"in {adc} with {k:g} s to spare on each side, {need}, or the ADC "
                 f"clips it ({name!r} is the largest term, {value:.6g} e-)")
         dark_top = self.bias_offset + b_hi + k * spread
-        if 0 < dark_top < float(gain):
+        if 0 < dark_top < float(gain) / 2:
             raise ParameterError(
                 f"'gain' = {float(gain):g} e-/DN is coarser than the reads of a pixel "
                 f"without charge: 'bias_offset' {self.bias_offset!r} e-{pattern and ' + the bias pattern'} + {k:g} x the "
                 f"noise's rms spread s = {spread:.6g} e- is {dark_top:.6g} e-, less than "
-                f"one ADC step, so every such read is code 0; 'gain' must be <= "
-                f"{dark_top:.6g} e-/DN")
+                f"half an ADC step, so every such read rounds to code 0; 'gain' must be "
+                f"<= {2 * dark_top:.6g} e-/DN")
         lo, hi = k * spread - b_lo, adc_range - k * spread - b_hi
         if not lo <= self.bias_offset <= hi:
             below = self.bias_offset < lo

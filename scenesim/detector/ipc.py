@@ -195,7 +195,9 @@ def apply_ipc(image, kernel, *, refmask=None):
     ys, xs = _region(refmask, img.shape[-2:])
     if refmask is not None:
         out = img.copy()
-        out[..., ys, xs] = _convolve(img[..., ys, xs], k, dtype)
+        sub = img[..., ys, xs]
+        if sub.shape[-1] and sub.shape[-2]:      # else every pixel is a reference one
+            out[..., ys, xs] = _convolve(sub, k, dtype)
         return out
     return _convolve(img, k, dtype)
 
@@ -462,7 +464,9 @@ def undo_ipc(image, kernel, *, tolerance=1e-3, threads=1, out=None, refmask=None
     elif out is not img:
         np.copyto(out, img)
     ys, xs = _region(refmask, img.shape[-2:])
-    _deconvolve_frames(out[..., ys, xs], k, float(tolerance), int(threads))
+    view = out[..., ys, xs]
+    if view.size:                                # else every pixel is a reference one
+        _deconvolve_frames(view, k, float(tolerance), int(threads))
     return out
 
 

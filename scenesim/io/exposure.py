@@ -34,7 +34,8 @@ actually taken; int16, int32 for a readout of more than 32767 reads),
 ``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
 read saw it), ``SOURCES`` (the catalogue as rendered), ``LCINTS`` (with variable
 sources: each one's light-curve mean and collected rate in every integration's
-window, the truth of per-integration slopes), ``READS`` (the exposure's table
+window, the truth of per-integration slopes where the light curve is flat over the
+window, and of CDS slopes always: :func:`_light_curve_table`), ``READS`` (the exposure's table
 of read indices and times, so that a truth grades a fit of any readout without its
 exposure), and optionally ``CHARGE`` (noise-free signal resultants, e-: the collected
 charge after saturation, nonlinearity and IPC, before the noise and the ADC, i.e.
@@ -435,7 +436,12 @@ def _light_curve_table(engine, sources):
     and integration, the window its slope measures (s from the exposure's start,
     :meth:`scenesim.engine.ChargeEngine.integration_windows`), the light curve's mean
     over it and the rate the array collects then (``FLUX``, e-/s: ``flux_on_array``
-    times that mean), the truth of per-integration slopes (``SLOPEINT``)."""
+    times that mean).  That box mean is what a CDS slope, or a shot-noise dominated
+    GLS slope, of the integration measures; an OLS or read-noise dominated GLS slope
+    weights the window's middle more (a parabola), so where the light curve changes
+    within an integration they differ (a step at a quarter of the window: OLS +3.8
+    %, a probe's noise-free case).  Where it is flat over the window every fitter
+    measures ``FLUX``."""
     if not engine.variable:
         return None
     t1, t2 = engine.integration_windows()

@@ -70,6 +70,16 @@ resultant are the part of the ramp it touches.
   single-read resultants (JWST NFRAMES=1) neither the pairs nor the neighbours
   apply.
 
+Known limits (measured by a probe, 2026-11-27, not fixed).  With 3 usable
+differences of multi-read groups, a hit inside a group puts half its charge into
+two of the three: the median and the trimmed mean both take the hit's rate, the
+covariance is taken ~90x too high, and a 50 e- hit at 0.3 e- per read (4 groups x
+NFRAMES 8, read noise 0-5 e-) is flagged in < 1 % of pixels (slope 7.5x too high);
+200 e- is always flagged, and from 6 groups on 50 e- is.  In photon-counting ramps
+of multi-read groups (read noise 0, 0.2 e- per read, 5 groups x NFRAMES 4) the
+skewness allowance, exact for single reads only, leaves 5.6e-4 false pixels where
+the tests give 2e-6.
+
 Two hits mask each other: each raises the common rate of the other's test (in a
 10-group RAPID ramp two 10 sigma hits far apart both read ~5.3 sigma).  A pixel with
 no statistic above the threshold but one above half of it is therefore tested again

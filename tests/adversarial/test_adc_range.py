@@ -337,14 +337,16 @@ def test_noise_command_refuses_a_gain_that_clips_every_pixel(tmp_path):
                                           ("none", {"bias_offset": 100.0}),
                                           ("none", {"rd_noise": 5.0, "bias_offset": 40.0})])
 def test_an_adc_step_above_the_dark_reads_is_refused(preset, amps, tmp_path):
-    """One ADC step coarser than bias_offset + 5 s puts every read of a pixel without
-    charge at code 0 (before, 'gain' = 1e30 wrote an all-zero ramp and slopes without
-    a word).  Just below is accepted, just above refused, by the scene, the library's
-    DN writer and both commands, naming 'gain' (a scene: in [effects]).  A noise-free
-    detector without bias has nothing to resolve and takes any gain."""
+    """Half an ADC step above bias_offset + 5 s rounds every read of a pixel without
+    charge to code 0 (before, 'gain' = 1e30 wrote an all-zero ramp and slopes
+    without a word; and a whole step was asked, which refused bias 0.7 e- at 1
+    e-/DN, whose reads all round to code 1).  Just below is accepted, just above
+    refused, by the scene, the library's DN writer and both commands, naming 'gain'
+    (a scene: in [effects]).  A noise-free detector without bias has nothing to
+    resolve and takes any gain."""
     p = (noise.NIRSPEC_DEFAULTS if preset == "nirspec" else noise.ZERO_NOISE).replace(
         **amps)
-    top = p.bias_offset + _pattern(p)[1] + 5 * _spread(p)
+    top = 2 * (p.bias_offset + _pattern(p)[1] + 5 * _spread(p))
     inside, outside = top * (1 - 1e-6), top * (1 + 1e-6)
 
     def mapping(gain):
@@ -442,3 +444,12 @@ def test_accepted_noise_is_not_clipped(tmp_path):
         x = noise.NoiseGenerator(det, p, rng=seed, threads=1).timeline(
             "pink", 0, 0, 20 * det.frame_samples)
         assert np.all(x + p.bias_offset >= -0.5), seed
+
+
+def test_a_bias_that_rounds_to_code_1_is_accepted():
+    # bias 0.7 e- at 1 e-/DN (noise 0.01 e-): every read rounds to code 1, nothing
+    # clips; it was refused as "every such read is code 0"
+    p = noise.ZERO_NOISE.replace(bias_offset=0.7, rd_noise=0.01)
+    p.check_adc(1.0, 16, DET)
+    with pytest.raises(ParameterError, match="half an ADC step"):
+        p.check_adc(2 * (0.7 + 5 * 0.01) * 1.001, 16, DET)

@@ -150,3 +150,14 @@ def test_the_engine_leaves_reference_pixels_without_signal(tmp_path):
     assert np.all(sci[..., ref] == 0)
     assert np.all(rate_ipc[ref] == 0)
     assert rate_ipc.sum(dtype=float) == pytest.approx(rate.sum(dtype=float), rel=1e-6)
+
+
+def test_a_window_of_reference_pixels_only_is_left_as_it_is():
+    # no regular pixel: the identity (apply_ipc raised IndexError, and with it a
+    # run of such a window with IPC)
+    from scenesim.detector.ipc import apply_ipc
+    img = np.arange(2 * 32 * 4, dtype=float).reshape(2, 32, 4)
+    ref = np.ones((32, 4), bool)
+    k = ipc_kernel(0.015)
+    np.testing.assert_array_equal(apply_ipc(img, k, refmask=ref), img)
+    np.testing.assert_array_equal(undo_ipc(img, k, refmask=ref), img)
