@@ -16,21 +16,35 @@ a hit halfway through a multi-read resultant ``R_{i+1}`` adds half its charge to
 
 Procedure (:func:`flag_jumps`, threshold in sigma, per integration)
 --------------------------------------------------------------------
-The covariance is taken at the larger of the median of the usable differences and
-their mean without the largest and the smallest (both robust to one hit; the
-second because the median of a photon-counting ramp, fewer than ~0.7 e- per
-difference, is 0 whatever the rate, and because in long read-noise dominated
-ramps the median's error, ~1.25 sigma_d / sqrt(nd), is far larger than the
-mean's, while a rate taken too low there understates the ramp's smooth
-components, which its Poisson charge dominates, and inflates every statistic:
-:func:`_robust_rates`), plus twice its error (taken as the median's, the scatter
-of one difference over the square root of their number): a rate too high costs
-little, as it mostly weighs those smooth components (in a 10-group ramp of 10 e-
-read noise at 1 e-/s, 5 % more variance per difference), while one too low inflates
-the statistics (2000 differences at 0.01 e- per read: 10 of 256 clean pixels
-flagged at the mean alone, 82 at the old rate, none with the margin).  Every usable
-difference, and every pair sharing a multi-read resultant, gets its statistic, less an allowance for the skewness ``gamma`` of Poisson charge:
-by the Cornish-Fisher expansion a clean statistic reaches ``k + (k**2 - 1) gamma /
+The covariance is taken at the mean of the usable differences that lie within 5 of
+their standard deviations of the median (a clipped mean, :func:`_clipped_mean`;
+the standard deviations at the larger of the median and the mean without the
+largest and the smallest difference, :func:`_robust_rates`), robust to hits and as
+precise as the mean of a clean ramp.  The rate matters more than it looks: in a
+read-noise dominated ramp it sets how much of the ramp's smooth wander the model
+grants the Poisson charge, and a step (a hit) is told from that wander.  Taken too
+low (the median, 0 in a photon-counting ramp of fewer than ~0.7 e- per difference;
+or the mean without the largest, biased low by E[max] / nd) the statistics
+inflate: every electron was a jump (10 e-/s on 18 ms frames, no read noise: 100 %
+of pixels, slope -0.1 e-/s), and 2000 RAPID differences at 0.01 e- per read put 82
+of 256 clean pixels over 5 sigma.  Taken too high (a margin of twice its error,
+tried on 2026-11-27 and dropped) the test loses power: a 25 e- hit in RAPID x 60
+at 0.2 e-/s and 6 e- read noise was caught in 54-89 % of pixels instead of 95-97
+%, and clean ramps gave 4-30 times fewer false alarms than the threshold's.  The
+clipped mean alone caught 97 %, with 68 false alarms at 3.5 sigma for the 56
+expected, but long faint ramps still put clean pixels over 5 sigma (0.01 e- per
+read, 5.2 e- read noise: 0-4 of 256 at 500 differences, 8-16 at 1000, 22-33 at
+2000), where the repeated tests are sensitive to the rate's own error (37 % of
+that rate at 2000).  From :data:`_MARGIN_DIFFS` = 50 differences on, the rate is
+therefore taken one standard error of the mean of the differences above it,
+``sqrt(1^T C 1) / nd``: 0-2 of 256 at 500-2000 differences (3 seeds each), and
+RAPID x 60 catches 96 % of the 25 e- hits with 40 false alarms at 3.5 sigma for the
+56 expected (half of it: 5 at 2000 differences).  Shorter ramps, where a margin costs power (two hits in 5 multi-read
+differences) and the tests are few, take the clipped mean as it is.
+
+Every usable difference, and every pair sharing a multi-read resultant, gets its
+statistic, less an allowance for the skewness ``gamma`` of Poisson charge: by the
+Cornish-Fisher expansion a clean statistic reaches ``k + (k**2 - 1) gamma /
 6`` as often as a Gaussian one reaches ``k``, so ``(k**2 - 1) gamma / 6`` is taken
 off (``gamma = f Ap_i**2 / a_i**1.5`` for a difference of variance ``a_i``, exact
 for single reads; :func:`_skew_allowance`).  Where read noise dominates it is
@@ -70,6 +84,16 @@ resultant are the part of the ramp it touches.
   single-read resultants (JWST NFRAMES=1) neither the pairs nor the neighbours
   apply.
 
+What the skewness allowance costs: where Poisson charge dominates multi-read
+differences, their tail at 5 sigma is several times the Gaussian one (Poisson of
+30 e-: ~10x), and the allowance (~0.7 sigma there) moves the effective threshold to
+match; a hit that another one masks then falls below it more often.  In
+``docs/STRESS.md`` (2026-11-27) the cell ROMANSKIP6, 1 e-/s, read noise 1 e-, two
+10 sigma_d hits misses its threshold: caught10 0.982 of 3452 where 0.99 is asked
+(0.999 before the allowance; without it, this code catches 0.997 and every hit in
+0.65 of the pixels, 0.62 before).  It is kept: without it a 5 sigma test of such
+differences is 10x too liberal, and of photon-counting ones 100 % so.
+
 Known limits (measured by a probe, 2026-11-27, not fixed).  With 3 usable
 differences of multi-read groups, a hit inside a group puts half its charge into
 two of the three: the median and the trimmed mean both take the hit's rate, the
@@ -92,7 +116,7 @@ Where the read noise is 0 the covariance uses a rate of at least
 :data:`scenesim.rampfit.covariance.RATE_FLOOR`.  (Before the mean and the skewness
 allowance, a 64 x 64 x 100 RAPID scene of 10 e-/s with no read noise and 18 ms
 frames had 100 % of its pixels flagged and slopes of -0.1 e-/s; now none, and the
-slopes are unbiased.  The two cost 10 % of the detection's time: BENCHMARKS.md.)  The first pass runs in blocks of
+slopes are unbiased.  Their cost in time is in BENCHMARKS.md.)  The first pass runs in blocks of
 4096 pixels, which keeps the (n_diff, pixels) work arrays in cache; the later
 passes and the look-aheads, on the few pixels that need them, run on all the
 caller's pixels at once (per block they cost ~0.4 ms of numpy overhead each; at
@@ -233,11 +257,14 @@ def _strongest(dd, vv, s2, idx, cov, thr):
     med, rest = _robust_rates(dd, vv)
     s2i = s2 if np.isscalar(s2) else s2[idx]
     lo = _F32(RATE_FLOOR) * (s2i == 0)
-    f = np.maximum(np.maximum(med, rest), lo)
-    # taken at its upper 2-sigma value (module notes): the scatter of one
-    # difference, sqrt(mean alpha), over sqrt(usable differences)
-    alpha = s2i * _F32(cov.Ar.mean()) + f * _F32(cov.Ap.mean())
-    f = f + _F32(2) * np.sqrt(np.maximum(alpha, _F32(0)) / np.maximum(vv.sum(axis=0), 1))
+    f = _clipped_mean(dd, vv, med, np.maximum(np.maximum(med, rest), lo), s2i, cov, lo)
+    nd = dd.shape[0]
+    if nd >= _MARGIN_DIFFS:
+        # the standard error of the mean of the differences, sqrt(1^T C 1) / nd
+        # (read noise telescopes out of the sum), above it (module notes)
+        c11 = (s2i * _F32(cov.Ar.sum() + 2 * cov.Br.sum())
+               + f * _F32(cov.Ap.sum() + 2 * cov.Bp.sum()))
+        f = f + _F32(1.0 / nd) * np.sqrt(np.maximum(c11, _F32(0)))
     z, zp = _signed_statistics(dd, vv, med, s2i, f, cov)
     gz, gp = _skew_allowance(s2i, f, cov, thr)
     z = np.maximum(z - gz, 0)
@@ -287,6 +314,31 @@ def _exclude(jumps, nbr, valid, ih, a, b, pair, multi):
     pl, pr = np.maximum(a - 1, 0), np.minimum(b + 1, nd - 1)
     nbr[pl[left], ih[left]] = True
     nbr[pr[right], ih[right]] = True
+
+
+def _clipped_mean(d, valid, med, f0, s2, cov, lo):
+    """The covariance rate of the test (module notes): the mean of the usable
+    differences within :data:`_CLIP` of their own standard deviations (at the rate
+    ``f0``) of the median, or ``f0`` where none is; at least ``lo``."""
+    a = f0 * (_F32(_CLIP ** 2) * cov.Ap.astype(_F32)[:, None])
+    a += s2 * (_F32(_CLIP ** 2) * cov.Ar.astype(_F32)[:, None])
+    dev = d - med
+    dev *= dev
+    keep = dev <= a                       # (d - med)^2 <= CLIP^2 alpha
+    keep &= valid
+    nk = keep.sum(axis=0)
+    tot = (d * keep).sum(axis=0, dtype=np.float64)
+    mean = np.where(nk > 0, tot / np.maximum(nk, 1), f0).astype(_F32)
+    return np.maximum(mean, lo)
+
+
+#: From this many differences per integration on, the covariance rate is taken one
+#: standard error above the clipped mean (module notes).
+_MARGIN_DIFFS = 50
+#: Differences further than this many of their standard deviations from the median
+#: are left out of the covariance rate (:func:`_clipped_mean`): a hit, never the
+#: noise of a clean ramp (5 sigma: 6e-7 of Gaussian differences).
+_CLIP = 5.0
 
 
 def _robust_rates(d, valid):
