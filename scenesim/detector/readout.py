@@ -300,6 +300,18 @@ def _multiaccum_reads(nframes, ngroups, groupgap, nskip):
                  for g in range(ngroups))
 
 
+def _as_multiaccum(reads):
+    """``(nframes, groupgap, nskip)`` of read lists that are exactly a MULTIACCUM
+    pattern (groups of equal length of consecutive reads, evenly spaced), or None."""
+    nframes = len(reads[0])
+    step = reads[1][0] - reads[0][0] if len(reads) > 1 else nframes
+    groupgap, nskip = step - nframes, reads[0][0]
+    if groupgap < 0 or tuple(map(tuple, reads)) != _multiaccum_reads(
+            nframes, len(reads), groupgap, nskip):
+        return None
+    return nframes, groupgap, nskip
+
+
 # ---------------------------------------------------------------------- Readout
 @dataclass(frozen=True)
 class Readout:
@@ -504,8 +516,20 @@ class Readout:
                     f"beyond the limit of {MAX_READS} reads per integration")
             reads.append(tuple(range(first, first + n)))
             previous_last = first + n - 1
-        _check_label(name, what="an MA table")
-        return cls(tuple(reads), nints=nints, reset_mode=reset_mode, name=name)
+        return cls._from_lists(tuple(reads), nints, reset_mode, name, "an MA table")
+
+    @classmethod
+    def _from_lists(cls, reads, nints, reset_mode, name, what):
+        """A readout of read lists; one that is exactly a MULTIACCUM pattern is
+        recognised as one (its numbers recorded, so that it may carry that pattern's
+        name and have a JWST uncal, as the same reads by the 'nframes' form)."""
+        mac = _as_multiaccum(reads)
+        if mac is None:
+            _check_label(name, what=what)
+            return cls(reads, nints=nints, reset_mode=reset_mode, name=name)
+        _check_label(name, mac[0], mac[1])
+        return cls(reads, nints=nints, reset_mode=reset_mode, name=name,
+                   nframes=mac[0], groupgap=mac[1], nskip=mac[2])
 
     @classmethod
     def from_reads(cls, read_lists, *, nints=1, reset_mode="rolling", name="CUSTOM"):
@@ -524,9 +548,8 @@ class Readout:
         -------
         Readout
         """
-        _check_label(name, what="read lists")
-        return cls(_check_resultants("read_lists", read_lists), nints=nints,
-                   reset_mode=reset_mode, name=name)
+        return cls._from_lists(_check_resultants("read_lists", read_lists), nints,
+                               reset_mode, name, "read lists")
 
     # ------------------------------------------------------------ structure
     @property

@@ -344,12 +344,15 @@ def _check_resultants(resultants, saturated):
 def _resultant_array(resultants):
     """``resultants`` as a 3-D or 4-D real ndarray (checked)."""
     if isinstance(resultants, np.ma.MaskedArray):
-        # its mask would be ignored: the values under it fitted as data (a probe's
-        # masked 1e9 read gave -2.4e6 e-/s with DQ 0)
-        raise ParameterTypeError(
-            "'resultants' is a masked array, whose mask fit_ramps does not read: pass "
-            "the data (np.ma.getdata) and the masked reads as 'saturated' (they and "
-            "the later reads of the pixel are then left out)")
+        # a mask would be ignored: the values under it fitted as data (a probe's
+        # masked 1e9 read gave -2.4e6 e-/s with DQ 0); an empty one changes nothing
+        if np.ma.getmaskarray(resultants).any():
+            raise ParameterTypeError(
+                "'resultants' is a masked array with masked values, whose mask "
+                "fit_ramps does not read: pass the data (np.ma.getdata) and the masked "
+                "reads as 'saturated' (they and the later reads of the pixel are then "
+                "left out)")
+        resultants = np.ma.getdata(resultants)
     if not isinstance(resultants, np.ndarray):
         try:
             resultants = np.asarray(resultants)

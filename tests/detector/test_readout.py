@@ -421,9 +421,17 @@ def test_a_custom_readout_may_not_take_a_jwst_patterns_name_it_is_not():
     with pytest.raises(ParameterError, match=r"'name' = 'deep8' .* an MA table"):
         Readout.from_ma_table([[0, 1], [1, 2]], name="deep8")
     with pytest.raises(ParameterError, match=r"'name' = 'MEDIUM8' .* read lists"):
-        Readout.from_reads([[0], [2]], name="MEDIUM8")
+        Readout.from_reads([[0], [2], [3]], name="MEDIUM8")
     assert Readout.multiaccum(8, 3, groupgap=2, name="MEDIUM8").name == "MEDIUM8"
     assert Readout.from_ma_table([[0, 1], [1, 2]], name="MY_TABLE").name == "MY_TABLE"
+    # read lists that are exactly a MULTIACCUM pattern are recognised as one: they
+    # may carry its name, and have its numbers (an uncal), as by the 'nframes' form
+    ro = Readout.from_ma_table([[0, 1], [1, 1], [2, 1]], name="RAPID")
+    assert (ro.is_multiaccum, ro.nframes, ro.groupgap, ro.nskip) == (True, 1, 0, 0)
+    ro = Readout.from_reads([[2, 3, 4, 5], [10, 11, 12, 13]])
+    assert (ro.nframes, ro.groupgap, ro.nskip) == (4, 4, 2)
+    assert ro.resultants == Readout.multiaccum(4, 2, groupgap=4, nskip=2).resultants
+    assert not Readout.from_reads([[0], [2], [3], [9]]).is_multiaccum
 
 
 def test_a_custom_readouts_name_is_checked_against_the_detector_by_its_key():

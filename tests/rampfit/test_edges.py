@@ -304,3 +304,7 @@ def test_a_masked_array_is_refused_not_fitted_through_its_mask():
     masked[2, 1, 1] = np.ma.masked
     with pytest.raises(ParameterTypeError, match="'resultants' is a masked array"):
         fit_ramps(masked, times, read_noise=5.0)
+    # nothing masked: fitted as the data (np.ma.masked_invalid of finite values)
+    plain = fit_ramps(res, times, read_noise=5.0)
+    np.testing.assert_array_equal(
+        fit_ramps(np.ma.masked_invalid(res), times, read_noise=5.0).slope, plain.slope)
