@@ -270,6 +270,7 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     photometry = {}
     src = truth.get("SOURCES")
     if src is not None and len(src) and all(c in src.colnames for c in ("x", "y", "flux")):
+        src = _light_curve_fluxes(src, truth.get("LCINTS"), notes)
         psf = header_psf(hdr) if psf is None else psf
         photometry = source_photometry(f["slope"], f["var"], ~use, src, psf,
                                        float(radius), notes)
@@ -340,6 +341,23 @@ def _read_noise(read_noise, hdr, f, kernel):
     if kernel is not None:        # undoing IPC amplified the white read noise
         read_noise *= ipc_noise_gain(kernel)
     return read_noise
+
+
+def _light_curve_fluxes(src, lcints, notes):
+    """``src`` with each variable source's collected flux (``flux_on_array``) at its
+    mean over the integrations (``LCINTS``), the rate ``RATE`` holds, which the
+    exposure's slopes measure (before, its constant flux: a source in a dip read
+    0.59)."""
+    if lcints is None or not len(lcints) or "flux_on_array" not in src.colnames:
+        return src
+    src = src.copy()
+    rows = np.asarray(lcints["SOURCE"], dtype=int)
+    flux = np.asarray(lcints["FLUX"], dtype=float)
+    for r in np.unique(rows):
+        src["flux_on_array"][r] = flux[rows == r].mean()
+    notes.append(f"photometry: {np.unique(rows).size} variable source(s) at their "
+                 f"light curves' mean over the integrations (LCINTS)")
+    return src
 
 
 def _read_times(hdr, readout, notes, reads=None):

@@ -67,3 +67,26 @@ def test_a_scene_without_variable_sources_has_no_light_curve_table(tmp_path):
     run_scene(scene, progress=False, options=EngineOptions(threads=1))
     with fits.open(tmp_path / "e_truth.fits") as t:
         assert "LCINTS" not in t and t[0].header["NEXTEND"] == len(t) - 1
+
+
+def test_compare_measures_a_variable_source_against_its_mean_over_the_integrations(
+        tmp_path):
+    # noise-free: the exposure's slope of the step star is its LCINTS mean (0.75 of
+    # its flux), and so is compare's photometry (it took the constant flux: 0.75)
+    from scenesim.validate.compare import compare_files
+    engine, _ = build_engine(_scene(tmp_path, 1.0))
+    tf = engine.detector.frame_time
+    scene = _scene(tmp_path, 5 * tf + 2.5 * tf)
+    run_scene(scene.replace(output=scene.output.__class__(
+        **{**scene.output.__dict__, "fit": "gls", "refpix": "none"})), progress=False,
+        options=EngineOptions(threads=1))
+    rep = compare_files(tmp_path / "e_gls.fits", tmp_path / "e_truth.fits")
+    assert any("LCINTS" in n for n in rep.notes), rep.notes
+    with fits.open(tmp_path / "e_truth.fits") as t:
+        expected = float(np.mean(t["LCINTS"].data["FLUX"]))
+    star = {round(s["x"], 1): s for s in rep.photometry["sources"]}[15.3]
+    assert star["flux"] == pytest.approx(expected, rel=1e-9)
+    # measured against it: within 10 % (the GLS weighs the integrations by their
+    # inverse Poisson variance, the fainter ones more: 0.92 here; against the
+    # constant flux it read 0.69)
+    assert abs(star["ratio"] - 1) < 0.1, star["ratio"]
