@@ -16,31 +16,31 @@ a hit halfway through a multi-read resultant ``R_{i+1}`` adds half its charge to
 
 Procedure (:func:`flag_jumps`, threshold in sigma, per integration)
 --------------------------------------------------------------------
-The covariance is taken at the mean of the usable differences that lie within 5 of
+The covariance is taken at the mean of the usable differences that lie within 3 of
 their standard deviations of the median (a clipped mean, :func:`_clipped_mean`;
 the standard deviations at the larger of the median and the mean without the
-largest and the smallest difference, :func:`_robust_rates`), robust to hits and as
-precise as the mean of a clean ramp.  The rate matters more than it looks: in a
-read-noise dominated ramp it sets how much of the ramp's smooth wander the model
-grants the Poisson charge, and a step (a hit) is told from that wander.  Taken too
-low (the median, 0 in a photon-counting ramp of fewer than ~0.7 e- per difference;
-or the mean without the largest, biased low by E[max] / nd) the statistics
-inflate: every electron was a jump (10 e-/s on 18 ms frames, no read noise: 100 %
-of pixels, slope -0.1 e-/s), and 2000 RAPID differences at 0.01 e- per read put 82
-of 256 clean pixels over 5 sigma.  Taken too high (a margin of twice its error,
-tried on 2026-11-27 and dropped) the test loses power: a 25 e- hit in RAPID x 60
-at 0.2 e-/s and 6 e- read noise was caught in 54-89 % of pixels instead of 95-97
-%, and clean ramps gave 4-30 times fewer false alarms than the threshold's.  The
-clipped mean alone caught 97 %, with 68 false alarms at 3.5 sigma for the 56
-expected, but long faint ramps still put clean pixels over 5 sigma (0.01 e- per
-read, 5.2 e- read noise: 0-4 of 256 at 500 differences, 8-16 at 1000, 22-33 at
-2000), where the repeated tests are sensitive to the rate's own error (37 % of
-that rate at 2000).  From :data:`_MARGIN_DIFFS` = 50 differences on, the rate is
-therefore taken one standard error of the mean of the differences above it,
-``sqrt(1^T C 1) / nd``: 0-2 of 256 at 500-2000 differences (3 seeds each), and
-RAPID x 60 catches 96 % of the 25 e- hits with 40 false alarms at 3.5 sigma for the
-56 expected (half of it: 5 at 2000 differences).  Shorter ramps, where a margin costs power (two hits in 5 multi-read
-differences) and the tests are few, take the clipped mean as it is.
+largest and the smallest difference, :func:`_robust_rates`), robust to hits and
+nearly as precise as the mean of a clean ramp.  The rate matters more than it
+looks: in a read-noise dominated ramp it sets how much of the ramp's smooth wander
+the model grants the Poisson charge, and a step (a hit) is told from that wander.
+Taken too low (the median, 0 in a photon-counting ramp of fewer than ~0.7 e- per
+difference; or the mean without the largest, biased low by E[max] / nd) the
+statistics inflate: every electron was a jump (10 e-/s on 18 ms frames, no read
+noise: 100 % of pixels, slope -0.1 e-/s), and 2000 RAPID differences at 0.01 e- per
+read put 82 of 256 clean pixels over 5 sigma.  Taken too high (a margin of twice
+its error, tried on 2026-11-27 and dropped) the test loses power: a 25 e- hit in
+RAPID x 60 at 0.2 e-/s and 6 e- read noise was caught in 54 % of pixels instead of
+95 %.  Long ramps are sensitive to the rate's own error (the clipped mean alone:
+22-33 of 256 clean pixels over 5 sigma at 2000 differences), so from
+:data:`_MARGIN_DIFFS` = 50 differences on the rate is taken one standard error
+above it, ``sqrt(1^T C 1 + m alpha) / nd`` for ``m`` differences left out.
+Measured with this rule (3 seeds or 4096-65536 pixels each): 0-1 of 256 clean
+pixels at 500-2000 differences; RAPID x 60 catches 96 % of 25 e- hits, with 39
+false alarms at 3.5 sigma for the 56 expected; RAPID x 10 (10.7 s, 5.2 e-) 33 %
+of 35 e- hits (30 % before), 10 false alarms for 8.6; photon counting at 0.18 and
+0.6 e- per difference: none.  Still below the old median rule: 35 e- hits in
+MEDIUM8 x 10 (13 % caught against 20 %) and in a Roman-like table (49 % against
+53 %), where the old rule was also 1.5x too liberal.
 
 Every usable difference, and every pair sharing a multi-read resultant, gets its
 statistic, less an allowance for the skewness ``gamma`` of Poisson charge: by the
@@ -88,11 +88,11 @@ What the skewness allowance costs: where Poisson charge dominates multi-read
 differences, their tail at 5 sigma is several times the Gaussian one (Poisson of
 30 e-: ~10x), and the allowance (~0.7 sigma there) moves the effective threshold to
 match; a hit that another one masks then falls below it more often.  In
-``docs/STRESS.md`` (2026-11-27) the cell ROMANSKIP6, 1 e-/s, read noise 1 e-, two
-10 sigma_d hits misses its threshold: caught10 0.982 of 3452 where 0.99 is asked
-(0.999 before the allowance; without it, this code catches 0.997 and every hit in
-0.65 of the pixels, 0.62 before).  It is kept: without it a 5 sigma test of such
-differences is 10x too liberal, and of photon-counting ones 100 % so.
+``docs/STRESS.md`` (2026-11-27) two 10 sigma_d hits in ROMANSKIP6 at 1 e-/s and 1
+e- read noise are both caught in 0.61 of the pixels (0.63 before the allowance and
+the clipped mean), and the ones that stay 10 sigma in 0.9945 (0.9991).  It is kept:
+without it a 5 sigma test of such differences is ~10x too liberal, and of
+photon-counting ones 100 % so.
 
 Known limits (measured by a probe, 2026-11-27, not fixed).  With 3 usable
 differences of multi-read groups, a hit inside a group puts half its charge into
@@ -257,13 +257,17 @@ def _strongest(dd, vv, s2, idx, cov, thr):
     med, rest = _robust_rates(dd, vv)
     s2i = s2 if np.isscalar(s2) else s2[idx]
     lo = _F32(RATE_FLOOR) * (s2i == 0)
-    f = _clipped_mean(dd, vv, med, np.maximum(np.maximum(med, rest), lo), s2i, cov, lo)
+    f, left_out = _clipped_mean(dd, vv, med, np.maximum(np.maximum(med, rest), lo),
+                                s2i, cov, lo)
     nd = dd.shape[0]
     if nd >= _MARGIN_DIFFS:
-        # the standard error of the mean of the differences, sqrt(1^T C 1) / nd
-        # (read noise telescopes out of the sum), above it (module notes)
+        # the standard error of the clipped mean above it (module notes): that of
+        # the mean of all differences, sqrt(1^T C 1) / nd (read noise telescopes out
+        # of their sum), plus a difference's variance for each one left out (which
+        # breaks the telescoping)
         c11 = (s2i * _F32(cov.Ar.sum() + 2 * cov.Br.sum())
-               + f * _F32(cov.Ap.sum() + 2 * cov.Bp.sum()))
+               + f * _F32(cov.Ap.sum() + 2 * cov.Bp.sum())
+               + left_out * (s2i * _F32(cov.Ar.mean()) + f * _F32(cov.Ap.mean())))
         f = f + _F32(1.0 / nd) * np.sqrt(np.maximum(c11, _F32(0)))
     z, zp = _signed_statistics(dd, vv, med, s2i, f, cov)
     gz, gp = _skew_allowance(s2i, f, cov, thr)
@@ -319,7 +323,8 @@ def _exclude(jumps, nbr, valid, ih, a, b, pair, multi):
 def _clipped_mean(d, valid, med, f0, s2, cov, lo):
     """The covariance rate of the test (module notes): the mean of the usable
     differences within :data:`_CLIP` of their own standard deviations (at the rate
-    ``f0``) of the median, or ``f0`` where none is; at least ``lo``."""
+    ``f0``) of the median, or ``f0`` where none is; at least ``lo``.  Also returns
+    how many usable differences were left out (float32)."""
     a = f0 * (_F32(_CLIP ** 2) * cov.Ap.astype(_F32)[:, None])
     a += s2 * (_F32(_CLIP ** 2) * cov.Ar.astype(_F32)[:, None])
     dev = d - med
@@ -329,16 +334,19 @@ def _clipped_mean(d, valid, med, f0, s2, cov, lo):
     nk = keep.sum(axis=0)
     tot = (d * keep).sum(axis=0, dtype=np.float64)
     mean = np.where(nk > 0, tot / np.maximum(nk, 1), f0).astype(_F32)
-    return np.maximum(mean, lo)
+    return np.maximum(mean, lo), (valid.sum(axis=0) - nk).astype(_F32)
 
 
 #: From this many differences per integration on, the covariance rate is taken one
 #: standard error above the clipped mean (module notes).
 _MARGIN_DIFFS = 50
 #: Differences further than this many of their standard deviations from the median
-#: are left out of the covariance rate (:func:`_clipped_mean`): a hit, never the
-#: noise of a clean ramp (5 sigma: 6e-7 of Gaussian differences).
-_CLIP = 5.0
+#: are left out of the covariance rate (:func:`_clipped_mean`): symmetric, so the
+#: noise of a clean ramp leaves the mean unbiased (0.27 % of Gaussian differences),
+#: and low enough that a hit just above the detection threshold, which would raise
+#: the rate and hide itself, is left out too (5 sigma kept 35 e- hits in RAPID x 10
+#: at 5.2 e- read noise: caught in 49 % of pixels; 3 sigma: 62 %, 59 % before).
+_CLIP = 3.0
 
 
 def _robust_rates(d, valid):
