@@ -99,7 +99,8 @@ from noise.validate import check_float, describe, is_real, is_sequence
 from noise.errors import ParameterError, ParameterTypeError
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE", "MAX_AMPLITUDE",
-           "BIAS_SPREAD_SIGMA", "TEMPLATE_CHECK_PIXELS", "MIN_F_MIN", "PSD_RANGE", "check_pink_spectrum"]
+           "BIAS_SPREAD_SIGMA", "TEMPLATE_CHECK_PIXELS", "MIN_F_MIN", "PSD_RANGE",
+           "check_pink_spectrum"]
 
 #: Largest amplitude (and ``|bias_offset|``, ``rd_noise * ref_ratio``), e-: float32
 #: frames stay finite (module notes).
@@ -381,7 +382,8 @@ class NoiseParams:
         if 0 < dark_top < float(gain) / 2:
             raise ParameterError(
                 f"'gain' = {float(gain):g} e-/DN is coarser than the reads of a pixel "
-                f"without charge: 'bias_offset' {self.bias_offset!r} e-{pattern and ' + the bias pattern'} + {k:g} x the "
+                f"without charge: 'bias_offset' {self.bias_offset!r} e-"
+                f"{pattern and ' + the bias pattern'} + {k:g} x the "
                 f"noise's rms spread s = {spread:.6g} e- is {dark_top:.6g} e-, less than "
                 f"half an ADC step, so every such read rounds to code 0; 'gain' must be "
                 f"<= {2 * dark_top:.6g} e-/DN")
@@ -406,7 +408,8 @@ class NoiseParams:
             raise ParameterError(
                 f"'rtn_amp' = {self.rtn_amp!r} e- puts the high state of the RTN pixels "
                 f"('rtn_fraction' {self.rtn_fraction!r}) above the ADC's top code, where "
-                f"it clips: 'bias_offset' {self.bias_offset!r}{pattern and ' + the bias pattern'} + 'rtn_amp' + {k:g} x the "
+                f"it clips: 'bias_offset' {self.bias_offset!r}"
+                f"{pattern and ' + the bias pattern'} + 'rtn_amp' + {k:g} x the "
                 f"noise's rms spread s = {spread:.6g} e- is {rtn_top:.6g} e-, beyond "
                 f"{adc}; 'rtn_amp' must be <= "
                 f"{adc_range - self.bias_offset - b_hi - k * spread:.6g} e-")

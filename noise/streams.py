@@ -1,15 +1,16 @@
 """Random streams: one registry of spawn keys for both packages.
 
 Every random draw of a run comes from its own stream,
-``Generator(PCG64(SeedSequence(entropy, spawn_key=key)))``, whose key says what it
-is for.  Keys are fixed by *what* is drawn (component, output, integration, chunk,
-slot), never by the thread count, chunking or processing order, so adding a
-component or changing a chunk size leaves every other stream unchanged (STYLE.md,
-habits 1-2).  What one stream's draws are may still depend on the scene: the
-charge engine's Poisson stream of a chunk draws the pixels that collect charge, in
-groups sized by the rate map (:mod:`scenesim.engine`), so a new source changes the
-arrivals of the others, though not the noise, hot pixels or cosmic rays.  ``SeedSequence.spawn`` would number children in creation order; fixed
-keys make the layout explicit and independent of which parts a scene switches on.
+``Generator(PCG64(SeedSequence(entropy, spawn_key=key)))``, whose key says what it is
+for.  Keys are fixed by *what* is drawn (component, output, integration, chunk, slot),
+never by the thread count, chunking or processing order, so adding a component or
+changing a chunk size leaves every other stream unchanged (STYLE.md, habits 1-2).
+What one stream's draws are may still depend on the scene: the charge engine's Poisson
+stream of a chunk draws the pixels that collect charge, in groups sized by the rate
+map (:mod:`scenesim.engine`), so a new source changes the arrivals of the others,
+though not the noise, hot pixels or cosmic rays.  ``SeedSequence.spawn`` would number
+children in creation order; fixed keys make the layout explicit and independent of
+which parts a scene switches on.
 
 The tree under a scene's seed (``()`` is the scene's root ``SeedSequence(seed)``)::
 

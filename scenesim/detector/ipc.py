@@ -37,8 +37,8 @@ import numpy as np
 from noise.errors import ParameterError, ParameterTypeError
 from noise.validate import check_image, describe
 
-__all__ = ['ipc_kernel', 'apply_ipc', 'ipc_keep', 'undo_ipc', 'ipc_noise_gain', 'check_kernel',
-           'regular_region']
+__all__ = ['ipc_kernel', 'apply_ipc', 'ipc_keep', 'undo_ipc', 'ipc_noise_gain',
+           'check_kernel', 'regular_region']
 
 
 # -------------------------------------------------------------------------------- IPC

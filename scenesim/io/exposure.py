@@ -23,24 +23,23 @@ calibration library's ramp fitting without changing its layout:
   together are every sample read (:func:`raw_resultants`).
 
 Truth (``<stem>_truth.fits``): ``RATE`` (expected e-/s of collected charge per pixel,
-the QE flat included, before IPC; a variable source at its light curve's mean over
-the integrations' windows, the spans their slopes measure), ``RATE_IPC`` (after IPC:
-what a linear fit of the raw ramps recovers), ``SATREAD``
-(first saturated read per pixel and integration, as a frame index counted from reset,
--1 if none: the first read whose charge reached the full well or whose charge and
-noise read the ADC's top code; only reads that some resultant uses are materialised,
-so a pixel that fills its well during skipped frames reports the next read that is
-actually taken; int16, int32 for a readout of more than 32767 reads),
-``SATGROUP`` (first resultant containing it), ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a
-read saw it), ``SOURCES`` (the catalogue as rendered), ``LCINTS`` (with variable
-sources: each one's light-curve mean and collected rate in every integration's
-window, the truth of per-integration slopes where the light curve is flat over the
-window, and of CDS slopes always: :func:`_light_curve_table`), ``READS`` (the exposure's table
-of read indices and times, so that a truth grades a fit of any readout without its
-exposure), and optionally ``CHARGE`` (noise-free signal resultants, e-: the collected
-charge after saturation, nonlinearity and IPC, before the noise and the ADC, i.e.
-``K(p(min(q, FW)))``, not the collected charge ``q``) and ``NOISE``
-(noise-only resultants, e-).
+the QE flat included, before IPC; a variable source at its light curve's mean over the
+integrations' windows, the spans their slopes measure), ``RATE_IPC`` (after IPC: what
+a linear fit of the raw ramps recovers), ``SATREAD`` (first saturated read per pixel
+and integration, as a frame index counted from reset, -1 if none: the first read whose
+charge reached the full well or whose charge and noise read the ADC's top code; only
+reads that some resultant uses are materialised, so a pixel that fills its well during
+skipped frames reports the next read that is actually taken; int16, int32 for a
+readout of more than 32767 reads), ``SATGROUP`` (first resultant containing it),
+``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a read saw it), ``SOURCES``
+(the catalogue as rendered), ``LCINTS`` (with variable sources: each one's light-curve
+mean and collected rate in every integration's window, the truth of per-integration
+slopes where the light curve is flat over the window, and of CDS slopes always:
+:func:`_light_curve_table`), ``READS`` (the exposure's table of read indices and
+times, so that a truth grades a fit of any readout without its exposure), and
+optionally ``CHARGE`` (noise-free signal resultants, e-: the collected charge after
+saturation, nonlinearity and IPC, before the noise and the ADC, i.e. ``K(p(min(q,
+FW)))``, not the collected charge ``q``) and ``NOISE`` (noise-only resultants, e-).
 
 What this plain writer lacks for the JWST pipeline (so ``calwebb_detector1`` does not
 take its files; with the ``jwst`` extra, :func:`scenesim.pipelines.jwst.write_uncal`

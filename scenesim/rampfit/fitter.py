@@ -191,9 +191,9 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         negative while the Poisson variance is that of the collected charge, and the
         covariance, taken at a rate >= 0, understates it; pass the collected rate
         as ``variance_rate``: a probe's -1 e-/s net ramps reported E[z^2] = 9.3
-        with 'local', 1.03 with the collected rate).  Any real dtype; differences are taken in the
-        input dtype (float64 for integers), the rest in float32 (module notes:
-        keep resultants above ~1e9 e- in float64).  A *row source*
+        with 'local', 1.03 with the collected rate).  Any real dtype; differences
+        are taken in the input dtype (float64 for integers), the rest in float32
+        (module notes: keep resultants above ~1e9 e- in float64).  A *row source*
         (:mod:`scenesim.io.cuberows`, e.g. :func:`scenesim.io.cuberows.exposure_rows`
         of an exposure file) is read by row blocks, so the cube is never held in
         memory (module notes, "Row blocks").

@@ -114,15 +114,14 @@ the false-alarm rate stays ``~Q(k)`` per test.
 
 Where the read noise is 0 the covariance uses a rate of at least
 :data:`scenesim.rampfit.covariance.RATE_FLOOR`.  (Before the mean and the skewness
-allowance, a 64 x 64 x 100 RAPID scene of 10 e-/s with no read noise and 18 ms
-frames had 100 % of its pixels flagged and slopes of -0.1 e-/s; now none, and the
-slopes are unbiased.  Their cost in time is in BENCHMARKS.md.)  The first pass runs in blocks of
-4096 pixels, which keeps the (n_diff, pixels) work arrays in cache; the later
-passes and the look-aheads, on the few pixels that need them, run on all the
-caller's pixels at once (per block they cost ~0.4 ms of numpy overhead each; at
-once, a 512 x 512 x 20 RAPID fit with jump detection went from 0.45 to 0.40 s).  On
-two or more threads the first pass takes longer blocks (:func:`jump_block`).
-"""
+allowance, a 64 x 64 x 100 RAPID scene of 10 e-/s with no read noise and 18 ms frames
+had 100 % of its pixels flagged and slopes of -0.1 e-/s; now none, and the slopes are
+unbiased.  Their cost in time is in BENCHMARKS.md.)  The first pass runs in blocks of
+4096 pixels, which keeps the (n_diff, pixels) work arrays in cache; the later passes
+and the look-aheads, on the few pixels that need them, run on all the caller's pixels
+at once (per block they cost ~0.4 ms of numpy overhead each; at once, a 512 x 512 x 20
+RAPID fit with jump detection went from 0.45 to 0.40 s).  On two or more threads the
+first pass takes longer blocks (:func:`jump_block`). """
 
 import numpy as np
 

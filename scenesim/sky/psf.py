@@ -68,17 +68,18 @@ PSF models
     overlapping share (area-weighted rebinning).  The overlap weights along each axis
     sum to 1 for every sub-pixel, so the rendering conserves the flux exactly at any
     sub-pixel position; the centroid it conserves only where a sub-pixel straddles no
-    pixel edge (the weights are a trapezoid, not a tent: a PSF whose flux is all in
-    one sub-pixel of 1/4 pixel renders at the pixel centre for any offset within
-    it).  The rendering is the exact pixel integral of the uniform-sub-pixel model.  It is computed from the cumulative sums of the image,
-    interpolated at the pixel edges (first along x, then along y), vectorised over
-    sources.  Where sub-pixel edges line up with pixel edges (position a multiple of
-    ``1/oversample`` from the aligned one) the result is the exact pixel integral of the
-    sampled PSF; elsewhere the uniform-sub-pixel assumption errs by at most
-    ``h**2 / 2 * max|grad psf|`` per pixel, ``h = 1/oversample`` (derivation in
-    ``tests/sky/test_psf.py``).  With ``oversample = 1`` the image is treated as a
-    flux-per-pixel image and a half-pixel shift smooths it by an extra pixel box, so
-    supply oversampled PSFs (4 or more) for sub-pixel work.
+    pixel edge (the weights are a trapezoid, not a tent: a PSF whose flux is all in one
+    sub-pixel of 1/4 pixel renders at the pixel centre for any offset within it).  The
+    rendering is the exact pixel integral of the uniform-sub-pixel model.  It is
+    computed from the cumulative sums of the image, interpolated at the pixel edges
+    (first along x, then along y), vectorised over sources.  Where sub-pixel edges line
+    up with pixel edges (position a multiple of ``1/oversample`` from the aligned one)
+    the result is the exact pixel integral of the sampled PSF; elsewhere the
+    uniform-sub-pixel assumption errs by at most ``h**2 / 2 * max|grad psf|`` per pixel,
+    ``h = 1/oversample`` (derivation in ``tests/sky/test_psf.py``).  With
+    ``oversample = 1`` the image is treated as a flux-per-pixel image and a half-pixel
+    shift smooths it by an extra pixel box, so supply oversampled PSFs (4 or more) for
+    sub-pixel work.
 
 Stamps
 ------
