@@ -161,6 +161,7 @@ Outputs (bytes): exposure ``2 N + 4 N_R`` (``SCI``; ``RAWREF`` and its temporary
 raw copy, which sits beside it until the file is complete; none with ``ramp =
 false``); truth ``8 P + 4 nints
 P + 33 * 9 E`` (``RATE`` and ``RATE_IPC`` float32, ``SATREAD`` and ``SATGROUP`` int16,
+int32 beyond 32767 reads,
 the ``CRS`` table) ``+ 8 N`` per saved cube (the cube in the file and its temporary
 raw copy); fit file ``32 P + 8 nints P`` (eight maps and two per-integration cubes);
 plus 64 kB of headers and tables per file.  The pipeline products of ``scenesim run``
@@ -643,7 +644,8 @@ def estimate_budget(scene, *, options=None, products=()):
     if out.truth:
         saved = out.save_charge + out.save_noise
         outputs.append((f"the truth file {derived_path(path, '_truth')!r}",
-                        8 * P + 4 * nints * P + _CRS_ROW * _CR_DEPOSITS * events
+                        8 * P + 2 * (2 if ro.nreads < 2 ** 15 else 4) * nints * P
+                        + _CRS_ROW * _CR_DEPOSITS * events
                         + 8 * N * saved + _HEADERS))
     if out.fit:
         outputs.append((f"the fit file {derived_path(path, '_' + out.fit)!r}",

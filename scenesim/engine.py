@@ -191,7 +191,8 @@ class Resultant:
     dn : ndarray (ny, nx), uint16, DN
         The resultant as read out (the rounded mean of its digitised reads).
     charge, noise : ndarray (ny, nx), float32, e-, or None
-        Noise-free charge and noise-only part, when the run was asked for them.
+        Noise-free signal (the charge after saturation, nonlinearity and IPC) and
+        noise-only part, when the run was asked for them.
     raw_ref : ndarray (ny, n), uint16, DN, or None
         On a detector with interleaved reference samples or a reference output
         (``Detector.has_raw_samples``): those samples, digitised and averaged as the
@@ -686,8 +687,9 @@ class ChargeEngine:
         Parameters
         ----------
         save_charge, save_noise : bool
-            Also give the noise-free charge and the noise-only part of each
-            resultant (float32 e-).
+            Also give the noise-free signal (the charge after saturation,
+            nonlinearity and IPC) and the noise-only part of each resultant (float32
+            e-).
         progress : callable, optional
             Called with the number of reads done after each read.
         zero_frame : bool

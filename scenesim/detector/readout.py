@@ -759,7 +759,8 @@ class Readout:
             ("RESETMD", self.reset_mode, "reset mode (rolling or global)"),
             ("NREADS", self.nreads, "frames per integration to last read used"),
             ("EFFINTTM", self.effective_integration_time(t_frame),
-             "[s] effective integration time (tbar_last - tbar_first)"),
+             "[s] effective integration time (tbar_last - tbar_first)"
+             if self.ngroups > 1 else "[s] effective integration time (tbar_0)"),
         ]
 
     def effective_integration_time(self, t_frame):

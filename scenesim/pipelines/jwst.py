@@ -57,8 +57,9 @@ most 2048 x 2048, so an H4RG exposure (Roman) has no JWST uncal
 
 Clock: the uncal records scenesim's own ``TFRAME`` and ``TGROUP``, so the pipeline
 fits with the times the charge was simulated at.  Only a MULTIACCUM readout has an
-uncal (:func:`check_uncal_readout`): an MA table or explicit read lists are not evenly
-spaced groups, and jwst would fit them with the wrong times.  JWST's frame time (JDox,
+uncal (:func:`check_uncal_readout`): an MA table or explicit read lists that are not
+evenly spaced groups (ones that are, are recognised as MULTIACCUM) would be fitted
+by jwst with the wrong times.  JWST's frame time (JDox,
 "NIRCam Detector Subarrays") is ``((ncols/4 + 12) (nrows + 1) + 1) x 10 us`` with 4
 outputs and ``(ncols + 12) (nrows + 2) x 10 us`` with 1: the ``H2RG`` preset
 (``nroh = 12``, ``nfoh = 1``) is one pixel time (10 us, 1 ppm) short on full frames and

@@ -36,8 +36,9 @@ RAPID x 60 at 0.2 e-/s and 6 e- read noise was caught in 54 % of pixels instead 
 above it, ``sqrt(1^T C 1 + m alpha) / nd`` for ``m`` differences left out.
 Measured with this rule (3 seeds or 4096-65536 pixels each): 0-1 of 256 clean
 pixels at 500-2000 differences; RAPID x 60 catches 96 % of 25 e- hits, with 39
-false alarms at 3.5 sigma for the 56 expected; RAPID x 10 (10.7 s, 5.2 e-) 33 %
-of 35 e- hits (30 % before), 10 false alarms for 8.6; photon counting at 0.18 and
+false alarms at 3.5 sigma for the 56 expected; RAPID x 10 (10.7 s frames, 6 e-
+read noise, 0.2 e-/s, 4096 pixels) 33 % of 35 e- hits (30 % before), 10 false
+alarms for 8.6; photon counting at 0.18 and
 0.6 e- per difference: none.  Still below the old median rule: 35 e- hits in
 MEDIUM8 x 10 (13 % caught against 20 %) and in a Roman-like table (49 % against
 53 %), where the old rule was also 1.5x too liberal.
@@ -344,7 +345,8 @@ _MARGIN_DIFFS = 50
 #: noise of a clean ramp leaves the mean unbiased (0.27 % of Gaussian differences),
 #: and low enough that a hit just above the detection threshold, which would raise
 #: the rate and hide itself, is left out too (5 sigma kept 35 e- hits in RAPID x 10
-#: at 5.2 e- read noise: caught in 49 % of pixels; 3 sigma: 62 %, 59 % before).
+#: at 5.2 e- read noise, 0.2 e-/s, one hit at a random read of 4096 pixels: caught
+#: in 49 % of pixels; 3 sigma: 62 %, 59 % before).
 _CLIP = 3.0
 
 

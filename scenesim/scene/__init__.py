@@ -79,10 +79,11 @@ Top level
   or one per active output [0.5].  ``pca0``: picture-frame noise [0.2].
 * ``pedestal``: per-frame offset, rms [4.0].  ``ktc``: reset noise per pixel per
   integration, rms [29.0].
-* ``bias_offset``: constant reset level [5000]; it must lie 5 rms spreads of the
-  other components inside the ADC range ``[0, gain (2**adc_bits - 1)]`` e-, so that
-  the ADC clips no noise (``preset = "none"`` sets it to 0: with any noise added, set
-  it too).  ``bias_amp``: fixed bias pattern amplitude [500].
+* ``bias_offset``: constant reset level [5000]; with the bias pattern's extremes it
+  must lie 5 rms spreads of the other components (each 1/f one at its whole rms)
+  inside the ADC range ``[0, gain (2**adc_bits - 1)]`` e-, so that the ADC clips no
+  noise (:meth:`noise.NoiseParams.check_adc`; ``preset = "none"`` sets it to 0: with
+  any noise added, set it too).  ``bias_amp``: fixed bias pattern amplitude [500].
 * ``rtn_fraction``: fraction of regular pixels with random telegraph noise, in [0, 1]
   [0].  ``rtn_amp``: step between its levels [20].  ``rtn_tau_low``,
   ``rtn_tau_high``: mean dwell times, s [1.0, 0.3].

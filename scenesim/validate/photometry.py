@@ -6,9 +6,13 @@ Photometry (photutils): circular apertures of radius ``radius`` (default 4 px) a
 energy ``scenesim.sky.psf.encircled_energy(psf, radius)`` when the PSF is known (argument
 ``psf``, else the PSF the truth header records (``PSFFWHM``: Gaussian, ``PSFAIRY``:
 Airy; :func:`scenesim.io.header.header_psf`), else no correction and
-a note).  The ratio measured / injected ``flux`` is reported per source, for sources
-whose annulus lies fully on the array and whose flux exceeds 10 times the aperture
-noise ``sqrt(sum V_rep)``.  The median ratio's standard error is
+a note).  The ratio measured / injected flux is reported per source, the injected
+flux being what the array collected (``flux_on_array``, the QE flat in, when the
+catalogue has it; a variable source at its light curve's mean over the
+integrations, which ``compare`` takes from the truth's ``LCINTS``), for sources
+whose annulus lies fully on the array, whose flux exceeds 10 times the aperture
+noise ``sqrt(sum V_rep)`` and whose aperture holds no unmeasured (DO_NOT_USE)
+pixel (those are left out, with a note).  The median ratio's standard error is
 ``1.2533 std / sqrt(n)`` (the asymptotic efficiency of the median of a normal sample).
 
 """
