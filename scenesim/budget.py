@@ -536,6 +536,13 @@ def _product_outputs(scene, path, products, P, N, det, ro):
     return out, max(memory)
 
 
+def _index_bytes(nreads):
+    """Bytes of a read index (``SATREAD``, ``SATGROUP``), as
+    :func:`scenesim.detector.readout.read_index_dtype` gives it (not imported: it
+    brings astropy.table to the ``noise`` command)."""
+    return 2 if nreads <= 32767 else 4
+
+
 def fit_values_in_flight(pixels, values_per_pixel, threads=None):
     """Resultant values in the row-block chunks a fit holds at once: each of its
     threads (``PrepareOptions``' default: the cores, at most 8) keeps
@@ -591,7 +598,7 @@ def estimate_budget(scene, *, options=None, products=()):
         ("the FITS maps ([sources] dark_current, background, [effects] flat, full_well)",
          (8 * float(det.naxis1) * det.naxis2 + 8 * P) * maps),
         ("the saturation maps ([readout] nints)",
-         3 * (2 if ro.nreads < 2 ** 15 else 4) * nints * P),      # read_index_dtype
+         3 * _index_bytes(ro.nreads) * nints * P),
         ("the saved cubes ([output] save_charge, save_noise)",
          28 * P * (out.save_charge + out.save_noise)),
         ("the hot pixels ([sources] hot_pixel_fraction)", 24 * src.hot_pixel_fraction * P),
@@ -644,7 +651,7 @@ def estimate_budget(scene, *, options=None, products=()):
     if out.truth:
         saved = out.save_charge + out.save_noise
         outputs.append((f"the truth file {derived_path(path, '_truth')!r}",
-                        8 * P + 2 * (2 if ro.nreads < 2 ** 15 else 4) * nints * P
+                        8 * P + 2 * _index_bytes(ro.nreads) * nints * P
                         + _CRS_ROW * _CR_DEPOSITS * events
                         + 8 * N * saved + _HEADERS))
     if out.fit:

@@ -521,3 +521,11 @@ def test_reference_files_memory_bounds_a_measured_run(readout, tmp_path):
           f"without the products {without / MB:.1f} MB")
     assert without < measured <= estimate <= 1.6 * measured, \
         (measured / MB, estimate / MB, without / MB)
+
+
+def test_the_budget_counts_read_indices_as_the_truth_stores_them():
+    # budget._index_bytes restates read_index_dtype without importing it
+    from scenesim.budget import _index_bytes
+    from scenesim.detector.readout import read_index_dtype
+    for n in (1, 32767, 32768, 2 ** 20):
+        assert _index_bytes(n) == read_index_dtype(n).itemsize

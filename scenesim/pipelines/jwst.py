@@ -411,9 +411,9 @@ def check_uncal_readout(readout, what="the exposure"):
         raise ParameterError(
             f"a JWST uncal describes MULTIACCUM groups (NFRAMES frames, GROUPGAP "
             f"apart, evenly spaced), which jwst's ramp fitting assumes; {what}'s "
-            f"readout {readout.name!r} is an MA table or read lists, which jwst would "
-            f"fit with the wrong times: use the 'pattern' or 'nframes' form, or --l1 "
-            f"for a Roman L1 file")
+            f"readout {readout.name!r} is an MA table or read lists that are not such "
+            f"groups, which jwst would fit with the wrong times: use the 'pattern' or "
+            f"'nframes' form, or --l1 for a Roman L1 file")
 
 
 def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=False):

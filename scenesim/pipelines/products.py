@@ -170,7 +170,7 @@ def subtract_dark(truth, dark):
         from scenesim.io.header import header_ipc_kernel
         kernel = header_ipc_kernel(truth["header"])
         seen = dark if kernel is None else apply_ipc(
-            dark, kernel, refmask=_refmask(truth["header"], dark.shape))
+            dark, kernel, refmask=header_refmask(truth["header"], dark.shape))
         out["RATE_IPC"] = np.asarray(out["RATE_IPC"], dtype=np.float64) - seen
     return out
 
@@ -269,7 +269,7 @@ def slope_agreement(product, reference, exposure):
         kernel = header_ipc_kernel(h)
         deconvolved = header_ipc_deconvolved(rh)
         ref -= dark if (kernel is None or deconvolved) else apply_ipc(
-            dark, kernel, refmask=_refmask(h, dark.shape))
+            dark, kernel, refmask=header_refmask(h, dark.shape))
     ok = (p["dq"] == 0) & (r["dq"] == 0) & np.isfinite(p["slope"]) & np.isfinite(ref)
     for var in (p["var"], r["var"]):
         ok &= np.isfinite(var) & (var > 0)
@@ -281,11 +281,12 @@ def slope_agreement(product, reference, exposure):
             "sigma_ratio": float(np.median(np.sqrt(p["var"][ok] / r["var"][ok])))}
 
 
-def _refmask(header, shape):
+def header_refmask(header, shape, what="the dark rate"):
     """The reference pixels of the detector ``header`` records, which IPC does not
-    couple (:mod:`scenesim.detector.ipc`); ``shape`` must be its image's."""
+    couple (:mod:`scenesim.detector.ipc`); ``shape`` (of ``what``) must be its
+    image's."""
     m = detector_from_header(header).reference_mask()
     if m.shape != tuple(shape):
-        raise FileFormatError(f"the dark rate has shape {tuple(shape)} but the detector "
+        raise FileFormatError(f"{what} has shape {tuple(shape)} but the detector "
                               f"of the header {m.shape}: not the same detector")
     return m

@@ -52,7 +52,7 @@ from scenesim.io.header import (exposure_read_noise, exposure_settings,
 from scenesim.detector.dq import DO_NOT_USE, REFERENCE_PIXEL
 from scenesim.io.fitfile import fit_arrays, read_slopes
 from scenesim.outputs import check_plot_dir
-from scenesim.pipelines.products import (fit_header, subtract_dark,
+from scenesim.pipelines.products import (fit_header, header_refmask, subtract_dark,
                                         subtracted_dark_rate)
 from scenesim.rampfit import check_read_times, ols_variance
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF
@@ -319,9 +319,9 @@ def _true_rate(truth, ipc_deconvolved, notes):
     if ipc_deconvolved and "RATE_IPC" in truth:
         kernel = header_ipc_kernel(truth["header"])
         if kernel is not None:
-            refmask = detector_from_header(truth["header"]).reference_mask()
             rate = undo_ipc(rate, kernel, tolerance=1e-9 * max(1.0, np.abs(rate).max()),
-                            refmask=refmask)
+                            refmask=header_refmask(truth["header"], rate.shape,
+                                                   "the truth's RATE_IPC"))
             notes.append("fit undid IPC (IPCDECON): compared with RATE_IPC with the "
                          "IPCKERN kernel undone")
     return rate, kernel

@@ -52,12 +52,19 @@ def test_qe_flat_scales_the_mean_and_keeps_poisson_variance():
     assert abs(ratio - 1.0) < 5 * np.sqrt((2 * lam ** 2 + lam) / n) / lam
 
 
-def test_flat_map_scales_light_per_pixel_but_not_dark_current():
+def _half_flat(tmp):
+    """A 128^2 flat of 1 on the left half and 0.25 on the right, written to ``tmp``:
+    (the map, its path)."""
     flat_map = np.full((128, 128), 1.0)
     flat_map[:, 64:] = 0.25
+    path = os.path.join(tmp, "flat.fits")
+    fits.PrimaryHDU(flat_map).writeto(path)
+    return flat_map, path
+
+
+def test_flat_map_scales_light_per_pixel_but_not_dark_current():
     with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "flat.fits")
-        fits.PrimaryHDU(flat_map).writeto(path)
+        _, path = _half_flat(tmp)
         light, tf = _increments(_scene(path, background=300.0))
         dark, _ = _increments(_scene(path, dark=300.0))
     half = light.reshape(11, 120, 120)
@@ -84,11 +91,8 @@ def test_the_rendered_catalogue_counts_what_the_flat_lets_in():
     # right half: the catalogue's flux_on_array is what its pixels collect, the sum
     # of the star's rate map (before, 1000 on both: the flat was left out).
     from scenesim.sky.rates import scene_rates
-    flat_map = np.full((128, 128), 1.0)
-    flat_map[:, 64:] = 0.25
     with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "flat.fits")
-        fits.PrimaryHDU(flat_map).writeto(path)
+        flat_map, path = _half_flat(tmp)
         for flat in (0.5, path):
             scene = _scene(flat).replace(sources=parse_scene({
                 "seed": 1, "readout": {"pattern": "RAPID", "ngroups": 2},
