@@ -21,7 +21,7 @@ from noise.errors import ParameterError, ParameterTypeError
 from noise.validate import check_int, check_map, describe, is_sequence
 
 
-__all__ = ["ADC", "to_dn", "from_dn"]
+__all__ = ["ADC", "averaging_noise", "to_dn", "from_dn"]
 
 
 def _check_shape(name, shape):
@@ -131,6 +131,38 @@ class ADC:
             out = np.empty(q.shape, dtype=self.dtype)
         np.copyto(out, q, casting="unsafe")
         return out
+
+
+def averaging_noise(gain, n_reads):
+    """Noise that rounding the on-board mean of ``n_reads`` digitised reads adds to a
+    resultant, e- rms: ``gain * sqrt((1 - 1/n**2) / 12)`` for odd ``n``,
+    ``gain * sqrt((1 + 2/n**2) / 12)`` for even ``n``.
+
+    The mean of ``n`` integer codes is a multiple of ``1/n`` DN; for signals
+    spanning many DN (a bias that differs between pixels is enough) its rounding
+    error takes the ``n`` values ``k/n`` nearest 0 equally often: ``k = -(n-1)/2 ..
+    (n-1)/2`` for odd ``n``, and ``-n/2 + 1 .. n/2`` for even ``n``, whose exact
+    halves (``k = n/2``) round to the even code, up or down alike (mean 0).  The
+    variances are the mean squares of those values.  0 for one read, whose
+    quantisation, ``gain**2 / 12`` e-**2, is per read like the read noise.
+
+    Parameters
+    ----------
+    gain : float, e-/DN (>= 0)
+    n_reads : int or array_like of int (>= 1)
+        Reads averaged into each resultant.
+
+    Returns
+    -------
+    ndarray of float64, shape of ``n_reads``, e- rms
+    """
+    n = np.asarray(n_reads, dtype=np.float64)
+    if np.any(n < 1) or float(gain) < 0:
+        raise ParameterError(f"'n_reads' must be >= 1 and 'gain' >= 0, got "
+                             f"{n_reads!r} and {gain!r}")
+    even = (n % 2) == 0
+    return float(gain) * np.sqrt(np.where(even, 1.0 + 2.0 / (n * n),
+                                          1.0 - 1.0 / (n * n)) / 12.0)
 
 
 def to_dn(electrons, gain, *, bits=16):

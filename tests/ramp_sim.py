@@ -32,16 +32,21 @@ def roman_times(t_frame=T_ROMAN):
 READOUTS = {"jwst20": jwst_times, "roman9": roman_times}
 
 
-def simulate(rng, rate, times, sigma, shape, *, nints=None, hits=None):
+def simulate(rng, rate, times, sigma, shape, *, nints=None, hits=None, gain=None):
     """Resultants (e-) of constant-rate ramps.
 
     ``rate`` scalar or array of ``shape``.  ``hits``: optional (time, amplitude) arrays
     of ``shape``: a charge ``amplitude`` arrives at ``time`` (s from reset).
+    ``gain`` (e-/DN): digitise every read (``rint((bias + read) / gain)``, ``bias``
+    a level per pixel, uniform over 0-1000 e-, so that the rounding's phase differs
+    between pixels as on a detector) and store each resultant as the rounded mean of
+    its codes, times ``gain``, minus the bias (on-board averaging).
     """
     allt = np.concatenate(times)
     nres = len(times)
     lead = () if nints is None else (nints,)
     out = np.empty(lead + (nres,) + shape, np.float64)
+    bias = None if gain is None else rng.uniform(0.0, 1000.0, shape)
     for k in range(1 if nints is None else nints):
         q = np.zeros(shape)
         prev = 0.0
@@ -52,9 +57,11 @@ def simulate(rng, rate, times, sigma, shape, *, nints=None, hits=None):
             read = q + sigma * rng.standard_normal(shape)
             if hits is not None:
                 read = read + np.where(hits[0] < t, hits[1], 0.0)
-            acc[r] += read
+            acc[r] += read if gain is None else np.rint((bias + read) / gain)
             prev = t
         acc /= np.array([len(t) for t in times], float)[(...,) + (None,) * len(shape)]
+        if gain is not None:
+            acc = np.rint(acc) * gain - bias
         if nints is None:
             out[:] = acc
         else:

@@ -407,7 +407,8 @@ def _to_fit_result(prep, rd, image, integ, times, alg):
     dof = np.where(measured, np.maximum(nvalid.sum(axis=0) - 1, 0), 0).astype(np.int32)
     chi2 = np.zeros((ny, nx), _F32)
     if (dof > 0).any():
-        chi2 = model_chi2(e, times, slope, prep.read_noise, valid=valid)
+        chi2 = model_chi2(e, times, slope, prep.read_noise, valid=valid,
+                          resultant_noise=prep.resultant_noise)
         chi2 = np.where(dof > 0, chi2, _F32(0)).astype(_F32)
     dq = np.where(sat.any(axis=(0, 1)), SATURATED, 0).astype(np.uint32)
     dq[n_jumps > 0] |= np.uint32(JUMP_DET)

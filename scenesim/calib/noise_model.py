@@ -61,7 +61,7 @@ _NOISE_K2_MIN = 0.01     # sigma_eff >= 0.1 sigma
 
 
 def measure_read_noise(resultants, read_times, *, read_noise, groups, saturated=None,
-                       refmask=None, max_rows=256, threads=None):
+                       refmask=None, max_rows=256, threads=None, resultant_noise=0.0):
     """Effective white read noise per read, per group of pixels, from the data.
 
     A GLS fit (no jump detection) of at most ``max_rows`` evenly spaced rows gives
@@ -78,8 +78,10 @@ def measure_read_noise(resultants, read_times, *, read_noise, groups, saturated=
 
     Parameters
     ----------
-    resultants, read_times, saturated, refmask :
-        As in :func:`scenesim.rampfit.fit_ramps`.
+    resultants, read_times, saturated, refmask, resultant_noise :
+        As in :func:`scenesim.rampfit.fit_ramps` (``resultant_noise``, the known
+        white noise of each resultant, is kept as it is: only the per-read term is
+        measured).
     read_noise : float or ndarray (ny, nx), e- per read (not CDS)
         Model read noise (e.g. the white noise of the header), >= 0.
     groups : ndarray of int, shape (ny, nx)
@@ -108,7 +110,7 @@ def measure_read_noise(resultants, read_times, *, read_noise, groups, saturated=
     k = None
     for _ in range(2):
         fp = _first_pass(resultants, read_times, rn, groups, saturated, refmask,
-                         max_rows, threads)
+                         max_rows, threads, resultant_noise)
         k2 = _k2_per_group(fp)
         step = np.sqrt(np.maximum(k2, _NOISE_K2_MIN))
         if k is None:
@@ -143,7 +145,7 @@ def _k2_per_group(fp):
 
 
 def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
-                refmask=None, max_rows=64, threads=None):
+                refmask=None, max_rows=64, threads=None, resultant_noise=0.0):
     """Offsets shared by all pixels of a group, read by read, that a line cannot fit.
 
     Noise common to all pixels of an output (the per-output 1/f noise, the part of
@@ -164,7 +166,7 @@ def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
 
     Parameters
     ----------
-    resultants, read_times, saturated, refmask, max_rows, threads :
+    resultants, read_times, saturated, refmask, max_rows, threads, resultant_noise :
         As in :func:`measure_read_noise`.
     read_noise : float or ndarray (ny, nx), e- per read (not CDS), >= 0
         Model read noise (selects read-noise dominated pixels).
@@ -184,7 +186,7 @@ def common_mode(resultants, read_times, *, read_noise, groups, saturated=None,
         On bad input, before any work.
     """
     fp = _first_pass(resultants, read_times, read_noise, groups, saturated, refmask,
-                     max_rows, threads)
+                     max_rows, threads, resultant_noise)
     sub = fp["res"]
     nints, nres = sub.shape[:2]
     out = np.zeros((nints, nres, fp["ngroups"]))
@@ -298,7 +300,7 @@ def _check_first_pass_args(resultants, groups, max_rows, read_noise, saturated,
 
 
 def _first_pass(resultants, read_times, read_noise, groups, saturated, refmask,
-                max_rows, threads):
+                max_rows, threads, resultant_noise=0.0):
     """Validate, fit a row subsample (GLS, no jumps) and select read-dominated pixels.
 
     Returns a dict: ``res`` (nints, nres, m, nx) subsample, ``sat`` its saturation
@@ -322,7 +324,7 @@ def _first_pass(resultants, read_times, read_noise, groups, saturated, refmask,
     ref = None if ref is None else ref[rows]
     rn_sub = rn if np.isscalar(rn) else rn[rows]
     g = fit_ramps(sub, times, read_noise=rn_sub, saturated=sat, refmask=ref,
-                  threads=threads, variance_rate="fit")
+                  threads=threads, variance_rate="fit", resultant_noise=resultant_noise)
     cov = RampCovariance(check_read_times(times, len(times), sub.shape[-2:])[0])
     s2 = np.broadcast_to(np.asarray(rn_sub, dtype=float) ** 2, g.slope.shape)
     fpos = np.maximum(g.slope.astype(float), 0.0)

@@ -102,6 +102,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy.io import fits
 
+from noise.adc import averaging_noise
 from noise.clock import Detector, detector_from_header
 from noise.errors import ParameterError, ScenesimError
 from noise.fitsio import input_path, is_gzip_file, output_error, temp_file
@@ -124,7 +125,7 @@ from scenesim.io.header import (exposure_read_noise, exposure_readout,
 from scenesim.rampfit.fitter import FITTERS, fit_ramps
 
 __all__ = ["PrepareOptions", "PreparedExposure", "prepare_exposure", "load_exposure",
-           "fit_exposure_file"]
+           "fit_exposure_file", "rounding_noise"]
 
 #: Rows of the common-mode and read-noise fits (every ``ceil(ny / rows)``-th row).
 _CM_ROWS, _RN_ROWS = 64, 256
@@ -236,13 +237,18 @@ class PreparedExposure:
     read_noise_model : float
         Model white read noise, e- per read (header ``RDNOISE`` or the caller's,
         times :func:`ipc_noise_gain` when IPC was undone).
+    resultant_noise : ndarray, shape (ngroups,), float64, e- rms
+        White noise of each resultant beyond its reads' (:func:`rounding_noise`):
+        the rounding of the on-board mean of its digitised reads, times the IPC
+        factor; zeros for floating-point data.
     refmask : ndarray of bool, shape (ny, nx)
         Reference pixels.
     cards : tuple of (str, value, str)
         FITS cards recording the exposure and what was done to it (``EXPOSURE``,
         ``REFPIX``, ``RNCONV``, ``RNMODEL``, ``RNSOURCE``, ``CMREMOVE``,
         ``IPCDECON``: IPC undone, ``IPCRNFAC``: the read-noise factor that came with
-        it (1 if not), ``LINCORR``) and the exposure keywords copied from its header
+        it (1 if not), ``RSNOISE``: the largest ``resultant_noise``, ``LINCORR``)
+        and the exposure keywords copied from its header
         (``DETECTOR``, ``READPATT``, ``SEED``, ``IPC``, ``IPCKERN``, ...); every card
         fits in 80 characters (a long ``IPCKERN`` string becomes CONTINUE cards).
     """
@@ -258,6 +264,7 @@ class PreparedExposure:
     read_times: list
     read_noise: object
     read_noise_model: float
+    resultant_noise: np.ndarray
     refmask: np.ndarray
     cards: tuple
 
@@ -378,14 +385,24 @@ def prepare_exposure(exposure, *, options=PrepareOptions()):
         times = ro.read_times(t_frame, det.pixel_time())
     else:
         times = ro.read_times(t_frame)
-    e, rn_fit = _noise_from_data(e, times, det, sat, refmask, rdn_model, options)
+    q = rounding_noise(exp.sci.dtype, ro, gain) * rn_gain
+    e, rn_fit = _noise_from_data(e, times, det, sat, refmask, rdn_model, q, options)
     cards = preparation_cards(exp.name, hdr, options, rdn_model, decon, rn_gain,
-                               nl is not None)
+                               nl is not None, q)
     return PreparedExposure(
         name=exp.name, header=hdr, detector=det, readout=ro, gain=gain,
         t_frame=t_frame, electrons=e, saturated=sat, read_times=times,
-        read_noise=rn_fit, read_noise_model=float(rdn_model), refmask=refmask,
-        cards=cards)
+        read_noise=rn_fit, read_noise_model=float(rdn_model), resultant_noise=q,
+        refmask=refmask, cards=cards)
+
+
+def rounding_noise(dtype, readout, gain):
+    """e- rms per resultant that the on-board rounding of the mean of its reads
+    added (:func:`noise.adc.averaging_noise`), for data stored as ``dtype``: zeros
+    unless integers (DN), where a resultant of ``N > 1`` reads is a rounded mean."""
+    if np.dtype(dtype).kind not in "iu":
+        return np.zeros(readout.ngroups)
+    return averaging_noise(gain, readout.n_per_resultant)
 
 
 def _undo_ipc_and_flag_saturation(e, name, hdr, cfg, ro, tbar, kernel, decon, rdn,
@@ -432,14 +449,15 @@ def _undo_recorded_ipc(e, kernel, name, read_noise, gain, threads, refmask):
             f"deconvolved ({exc}); pass deconvolve_ipc=False") from exc
 
 
-def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
-    """Common mode removed from ``e`` and the read noise to fit with (steps 6-7)."""
+def _noise_from_data(e, times, det, sat, refmask, rdn_model, q, options):
+    """Common mode removed from ``e`` and the read noise to fit with (steps 6-7),
+    with the resultants' own white noise ``q`` (e- rms) in the model."""
     output_of_column = np.asarray(det.output_of_column()).reshape(-1)
     if options.remove_common_mode:
         outputs = np.broadcast_to(output_of_column, det.shape).astype(np.intp)
         offsets = common_mode(e, times, read_noise=rdn_model, groups=outputs,
                               saturated=sat, refmask=refmask, threads=options.threads,
-                              max_rows=_CM_ROWS)
+                              max_rows=_CM_ROWS, resultant_noise=q)
         # (nints, nres, n_out) -> (nints, nres, 1, nx): each column its output's
         e -= offsets[:, :, None, output_of_column].astype(np.float32)
     if not options.measure_noise:
@@ -447,7 +465,8 @@ def _noise_from_data(e, times, det, sat, refmask, rdn_model, options):
     columns = np.broadcast_to(np.arange(det.nx), det.shape)
     return e, measure_read_noise(e, times, read_noise=rdn_model, groups=columns,
                                  saturated=sat, refmask=refmask,
-                                 threads=options.threads, max_rows=_RN_ROWS)
+                                 threads=options.threads, max_rows=_RN_ROWS,
+                                 resultant_noise=q)
 
 
 class _Source:
@@ -489,7 +508,10 @@ def _open_source(exposure):
     if rows.dtype != np.float32:
         # float64 data would be scaled in float64, not as astype(float32) * gain
         return None
-    stand_in = np.broadcast_to(np.uint16(0), rows.shape)
+    # (rows.all_finite: the file holds integers, DN, whose multi-read resultants
+    # are rounded means: rounding_noise reads it from the stand-in's dtype)
+    stand_in = np.broadcast_to(np.uint16(0) if rows.all_finite else np.float32(0),
+                               rows.shape)
     return _Source(Exposure(stand_in, header, reads, os.fspath(path)), gain, rows)
 
 
@@ -604,15 +626,16 @@ def _prepare_to_file(src, path, options):
     else:
         times = ro.read_times(t_frame)
     rdn_model = rdn * rn_gain
-    offsets, rn_fit = _noise_from_file(cube, times, det, sat, refmask, rdn_model,
+    q = rounding_noise(exp.sci.dtype, ro, gain) * rn_gain
+    offsets, rn_fit = _noise_from_file(cube, times, det, sat, refmask, rdn_model, q,
                                        options)
     cards = preparation_cards(exp.name, hdr, options, rdn_model, decon, rn_gain,
-                              nl is not None)
+                              nl is not None, q)
     prep = PreparedExposure(
         name=exp.name, header=hdr, detector=det, readout=ro, gain=gain,
         t_frame=t_frame, electrons=None, saturated=None, read_times=times,
-        read_noise=rn_fit, read_noise_model=float(rdn_model), refmask=refmask,
-        cards=cards)
+        read_noise=rn_fit, read_noise_model=float(rdn_model), resultant_noise=q,
+        refmask=refmask, cards=cards)
     ooc = np.asarray(det.output_of_column()).reshape(-1)
     return prep, _CorrectedRows(cube, offsets, ooc), sat
 
@@ -681,7 +704,7 @@ def _linearize_file(cube, nl, tbar, groups, first):
                 cube.write_frames(k, r0, lin[k, 2:])
 
 
-def _noise_from_file(cube, times, det, sat, refmask, rdn_model, options):
+def _noise_from_file(cube, times, det, sat, refmask, rdn_model, q, options):
     """Steps 6-7 of :func:`_prepare_to_file` on the same row subsamples as
     :func:`_noise_from_data`: the common-mode offsets (or None) and the read noise."""
     ny, nx = det.shape
@@ -698,7 +721,8 @@ def _noise_from_file(cube, times, det, sat, refmask, rdn_model, options):
         groups = np.broadcast_to(ooc, (rows.size, nx)).astype(np.intp)
         offsets = common_mode(_gather_rows(cube, rows), t, read_noise=rdn_model,
                               groups=groups, saturated=s, refmask=ref,
-                              threads=options.threads, max_rows=rows.size)
+                              threads=options.threads, max_rows=rows.size,
+                              resultant_noise=q)
     if not options.measure_noise:
         return offsets, rdn_model
     rows, t, s, ref = subsample(_RN_ROWS)
@@ -707,7 +731,7 @@ def _noise_from_file(cube, times, det, sat, refmask, rdn_model, options):
     columns = np.broadcast_to(np.arange(nx), (rows.size, nx))
     rn = measure_read_noise(sub, t, read_noise=rdn_model, groups=columns,
                             saturated=s, refmask=ref, threads=options.threads,
-                            max_rows=rows.size)
+                            max_rows=rows.size, resultant_noise=q)
     # a value per column (the model times the column's factor): every row alike
     return offsets, np.ascontiguousarray(np.broadcast_to(rn[0], (ny, nx)))
 
@@ -762,7 +786,8 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
         result = fit_ramps(prep.electrons, prep.read_times, read_noise=prep.read_noise,
                            gain=prep.gain, fitter=fitter, saturated=prep.saturated,
                            jump_threshold=jump_threshold or None,
-                           refmask=prep.refmask, threads=options.threads)
+                           refmask=prep.refmask, threads=options.threads,
+                           resultant_noise=prep.resultant_noise)
     else:
         try:
             tmp = temp_file(output, tag="prepared")
@@ -778,7 +803,8 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
             result = fit_ramps(resultants, prep.read_times, read_noise=prep.read_noise,
                                gain=prep.gain, fitter=fitter, saturated=saturated,
                                jump_threshold=jump_threshold or None,
-                               refmask=prep.refmask, threads=options.threads)
+                               refmask=prep.refmask, threads=options.threads,
+                               resultant_noise=prep.resultant_noise)
         finally:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)

@@ -411,14 +411,17 @@ def exposure_settings(header):
         raise FileFormatError(f"header card has a value of the wrong type: {exc}") from exc
 
 
-def preparation_cards(name, hdr, options, rdn_model, decon, rn_gain, linearized):
+def preparation_cards(name, hdr, options, rdn_model, decon, rn_gain, linearized,
+                      resultant_noise):
     """Cards of a fit file recording the exposure and its preparation
     (:func:`scenesim.calib.prepare.prepare_exposure`), then the exposure's
     :data:`COPIED_KEYS`.
 
     ``EXPOSURE`` (its path), ``REFPIX``, ``RNCONV`` (read noise per read, not CDS),
     ``RNMODEL`` (e-), ``RNSOURCE``, ``CMREMOVE``, ``IPCDECON`` (IPC undone, read back
-    by :func:`header_ipc_deconvolved`), ``IPCRNFAC`` and ``LINCORR``.
+    by :func:`header_ipc_deconvolved`), ``IPCRNFAC``, ``RSNOISE`` (the largest
+    ``resultant_noise``, e- rms: the rounding of on-board means in the fit's
+    covariance) and ``LINCORR``.
     """
     cards = [exposure_card(name),
              ("REFPIX", options.refpix, "reference-pixel correction"),
@@ -430,6 +433,8 @@ def preparation_cards(name, hdr, options, rdn_model, decon, rn_gain, linearized)
               "per-output common mode removed"),
              ("IPCDECON", bool(decon), "IPC kernel (IPCKERN) deconvolved"),
              ("IPCRNFAC", float(rn_gain), "read noise x this by the IPC deconvolution"),
+             ("RSNOISE", float(np.max(resultant_noise, initial=0.0)),
+              "[e-] max rounding noise of on-board group means"),
              ("LINCORR", linearized, "classical nonlinearity inverted (NLCOEFF)")]
     for key in COPIED_KEYS:
         if key in hdr:

@@ -27,11 +27,17 @@ What each reference holds, and how it follows from the forward model of
   its writer does (:mod:`scenesim.pipelines.jwst`).
 * **saturation** (e-, bias included, as a raw value): the lowest level the raw
   signal of a full pixel can show, ``bias + k[1, 1] p(full_well)`` (IPC keeps a
-  fraction ``k[1, 1]`` of a pixel's own charge; its neighbours only add), minus a
-  margin of ``SATURATION_MARGIN_SIGMA`` times the white read noise, so that a full
-  pixel is flagged whatever its noise draw (a bright pixel just below the full well
-  may be flagged a little early: data lost, never a biased slope).  No full well:
-  the ADC's top code.
+  fraction ``k[1, 1]`` of a pixel's own charge; its neighbours only add; the pixel's
+  own full well where it is a map), minus a margin of ``SATURATION_MARGIN_SIGMA``
+  times the rms spread of every noise component around the bias
+  (:meth:`noise.NoiseParams.spread` with the detector: white, kTC, pedestal, ACN,
+  picture frame, each 1/f one at its process's whole rms), so that a full pixel is
+  flagged whatever its noise draw.  Not the white noise alone: kTC (29 e- in the
+  paper), the pedestal and the slow 1/f wander hold for a whole integration, and a
+  margin of 5 white sigma left about one saturated pixel in seven below it for its
+  whole ramp, fitted as ~0 e-/s with no flag (romancal has no neighbour growth to
+  hide it).  A bright pixel just below the full well may be flagged a little early:
+  data lost, never a biased slope.  No full well: the ADC's top code.
 * **linearity**: the polynomial in DN of bias-subtracted raw signal that returns the
   linear signal, ``q = sum_i a_i m**i``: a least-squares fit of the exact inverse
   (:meth:`Nonlinearity.invert`) on ``m`` in ``[0, p(full_well)]``, of degree
@@ -89,7 +95,8 @@ HOT = 2 ** 11
 #: Degree of the linearity-correction polynomial written to the references.
 LINEARITY_DEGREE = 6
 
-#: The saturation level is this many white read-noise sigma below the full-well level.
+#: The saturation level is this many times the noise's rms spread below the full-well
+#: level (module notes).
 SATURATION_MARGIN_SIGMA = 5.0
 
 
@@ -341,8 +348,10 @@ def detector_reference(scene, engine):
     nl = engine.nonlinearity
     if engine.full_well is not None:
         fw = float(engine.full_well.max)
-        level = fw if nl is None else float(nl.apply(np.array([fw]))[0])
-        saturation = bias + kernel[1, 1] * level - SATURATION_MARGIN_SIGMA * read_noise
+        own = np.asarray(engine.full_well.value, dtype=np.float64)
+        level = own if nl is None else nl.apply(own)
+        spread = 0.0 if params is None else params.spread(det)
+        saturation = bias + kernel[1, 1] * level - SATURATION_MARGIN_SIGMA * spread
         saturation = np.minimum(saturation, top * gain)
     else:
         fw = top * gain

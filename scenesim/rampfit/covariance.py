@@ -26,9 +26,13 @@ a tridiagonal covariance ``C`` (Brandt 2024, eqs. 28-29)::
 
 and every ``d_i`` has mean ``f``.  :class:`RampCovariance` holds the read part (per
 ``sigma^2``) and the Poisson part (per unit ``f``) of ``alpha`` and ``beta``, which
-depend on the readout only.  Differencing removes the unknown zero point (bias,
-kTC); because the covariance only involves differences of times, a common shift of
-all read times (a global reset) changes nothing.
+depend on the readout only, and a constant part from white noise added to each
+resultant once, independently of its reads (``resultant_noise``, e.g. the rounding of
+an on-board average of ``N > 1`` digitised reads, :func:`noise.adc.averaging_noise`):
+``Var(R_i)`` gains ``q_i``, so ``alpha_i`` gains ``(q_i + q_{i+1}) / dt_i^2`` and
+``beta_i`` gains ``-q_{i+1} / (dt_i dt_{i+1})``.  Differencing removes the unknown
+zero point (bias, kTC); because the covariance only involves differences of times,
+a common shift of all read times (a global reset) changes nothing.
 
 Where ``sigma = 0`` the covariance is evaluated at a rate of at least
 :data:`RATE_FLOOR`, so that it stays positive definite when the rate estimate is
@@ -41,7 +45,7 @@ from noise.errors import ParameterError
 from scenesim.detector.readout import resultant_moments
 from scenesim.rampfit.times import check_read_times
 
-__all__ = ["RampCovariance", "RATE_FLOOR"]
+__all__ = ["RampCovariance", "RATE_FLOOR", "check_resultant_noise"]
 
 #: Least rate (e-/s) of the covariance where the read noise is 0.
 RATE_FLOOR = 1e-6
@@ -55,6 +59,9 @@ class RampCovariance:
     read_times : sequence of 1-D ndarray, s from reset
         Sorted read times of every resultant (one pixel; validated by
         :func:`scenesim.rampfit.times.check_read_times`).
+    resultant_noise : float or sequence of float, e- rms, keyword-only
+        White noise added to each resultant once (one value, or one per resultant;
+        >= 0; module notes).  Default 0.
 
     Attributes
     ----------
@@ -68,9 +75,16 @@ class RampCovariance:
         Read (per sigma^2, s^-2) and Poisson (per f, s^-1) parts of ``alpha_i``.
     Br, Bp : ndarray, shape (nres - 2,)
         The same for ``beta_i``.
+    q : ndarray, shape (nres,)
+        ``resultant_noise**2``, e-^2.
+    Aq, Bq : ndarray, shapes (nres - 1,) and (nres - 2,), (e-/s)^2
+        The constant parts of ``alpha_i`` and ``beta_i`` (zeros without
+        ``resultant_noise``).
+    has_q : bool
+        Whether any ``q`` is non-zero (the solves skip the constant part otherwise).
     """
 
-    def __init__(self, read_times):
+    def __init__(self, read_times, *, resultant_noise=0.0):
         times, shift = check_read_times(read_times)
         if shift is not None:
             raise ParameterError(
@@ -83,6 +97,11 @@ class RampCovariance:
         self.Ap = (tau[:-1] + tau[1:] - 2 * tb[:-1]) / dt ** 2
         self.Br = (-1 / n[1:-1]) / (dt[:-1] * dt[1:])
         self.Bp = (tb[1:-1] - tau[1:-1]) / (dt[:-1] * dt[1:])
+        self.q = check_resultant_noise(resultant_noise, n.size)
+        self.has_q = bool(self.q.any())
+        q = self.q
+        self.Aq = (q[:-1] + q[1:]) / dt ** 2
+        self.Bq = -q[1:-1] / (dt[:-1] * dt[1:])
 
     @property
     def nres(self):
@@ -90,10 +109,29 @@ class RampCovariance:
         return self.n.size
 
     def coefficient_lists(self):
-        """``((Ar, Ap), (Br, Bp))`` as lists of Python floats.
+        """``((Ar, Ap, Aq), (Br, Bp, Bq))`` as lists of Python floats (``Aq`` and
+        ``Bq`` None without ``resultant_noise``).
 
         The form :func:`scenesim.rampfit.solver.ldl_pass` takes: Python floats keep
         the float32 arithmetic of the per-pixel arrays in float32.
         """
-        return ((self.Ar.tolist(), self.Ap.tolist()),
-                (self.Br.tolist(), self.Bp.tolist()))
+        aq, bq = (self.Aq.tolist(), self.Bq.tolist()) if self.has_q else (None, None)
+        return ((self.Ar.tolist(), self.Ap.tolist(), aq),
+                (self.Br.tolist(), self.Bp.tolist(), bq))
+
+
+def check_resultant_noise(resultant_noise, nres):
+    """``resultant_noise`` (one value or one per resultant, e- rms, >= 0, finite) as
+    the variances ``q`` (nres,) float64, e-^2."""
+    try:
+        q = np.asarray(resultant_noise, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"'resultant_noise' must be a number or one number per "
+                             f"resultant (e- rms), got {resultant_noise!r}") from exc
+    if q.ndim > 1 or (q.ndim == 1 and q.size != nres):
+        raise ParameterError(f"'resultant_noise' must be one number or {nres} (one per "
+                             f"resultant), got shape {q.shape}")
+    if not np.all(np.isfinite(q)) or np.any(q < 0):
+        raise ParameterError(f"'resultant_noise' must be finite and >= 0 (e- rms), got "
+                             f"{resultant_noise!r}")
+    return np.broadcast_to(q * q, (nres,)).copy()

@@ -141,7 +141,7 @@ from noise.validate import check_choice, check_float, check_int, check_map, chec
 from scenesim.detector.dq import (BAD_VARIANCE, DO_NOT_USE, JUMP_DET, REFERENCE_PIXEL,
                                   SATURATED)
 from scenesim.io.fitfile import FitResult
-from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance
+from scenesim.rampfit.covariance import RATE_FLOOR, RampCovariance, check_resultant_noise
 from scenesim.rampfit.jumps import flag_jumps, jump_block
 from scenesim.rampfit.local_rate import local_rates, uses_neighbours
 from scenesim.rampfit.solver import TINY, ldl_pass, quad_form, row_chunks
@@ -180,7 +180,8 @@ MAX_RATE_SCALE = 1e15
 
 def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
               saturated=None, jump_threshold=None, n_iter=2, refmask=None,
-              zero_point=None, threads=None, variance_rate="local", block_rows=None):
+              zero_point=None, threads=None, variance_rate="local", block_rows=None,
+              resultant_noise=0.0):
     """Fit a rate to every pixel's resultants.
 
     Parameters
@@ -255,6 +256,16 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
         up to :data:`~scenesim.rampfit.solver.CHUNK_PIXELS_THREADED` on more
         (:func:`scenesim.rampfit.solver.chunk_pixels`; fewer for ramps above 256
         resultants).  The result does not depend on it, to the last bit.
+    resultant_noise : float or sequence of nres floats, e- rms
+        White noise added to each resultant once, independently of its reads (>= 0;
+        default 0): the rounding of an on-board average of ``N > 1`` digitised
+        reads, :func:`noise.adc.averaging_noise` (the per-read quantisation,
+        ``gain**2 / 12`` per read, belongs in ``read_noise``).  It enters the
+        covariance of the weights, the reported variances (``var_read``) and the
+        jump test (:class:`~scenesim.rampfit.covariance.RampCovariance`); without it
+        such data report too small errors (read-noise dominated MEDIUM8 at 5 e-/DN
+        and 6 e- per read: ``E[z^2]`` 1.31, 1.01 with it; ``docs/VALIDATION_FIT.md``).
+        :func:`scenesim.calib.prepare.fit_exposure_file` passes it for DN data.
 
     Returns
     -------
@@ -278,6 +289,10 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     thr = None if jump_threshold is None else check_float(
         "jump_threshold", jump_threshold, minimum=0.0, strict_min=True)
     n_iter = check_int("n_iter", n_iter, minimum=1)
+    if np.sqrt(check_resultant_noise(resultant_noise, nres).max()) > MAX_READ_NOISE:
+        raise ParameterError(
+            f"'resultant_noise' must be <= {MAX_READ_NOISE:g} e- (its square is computed "
+            f"in float32), got {resultant_noise!r}")
     refmask = None if refmask is None else check_mask("refmask", refmask, (ny, nx))
     if zero_point is not None:
         zero_point = check_map("zero_point", zero_point, (ny, nx), minimum=None)
@@ -289,7 +304,7 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
     bounds = row_chunks(ny, nx, nints * nres, rows=block_rows, threads=threads)
     _check_scale(_check_finite(src, sat, bounds), times, read_noise, variance_rate)
 
-    cov = RampCovariance(times)
+    cov = RampCovariance(times, resultant_noise=resultant_noise)
     s2 = float(read_noise) ** 2 if np.isscalar(read_noise) else \
         (read_noise ** 2).astype(_F32)
     setup = _Setup(src, sat, s2, cov, fitter, thr, n_iter, zero_point, shift, bounds,
@@ -852,7 +867,7 @@ def _gls_variances(diffs, passes, fref, f, S11, blk):
     """
     cov, s2 = diffs.cov, diffs.s2
     inv11 = np.divide(1, S11, out=diffs.zeros(), where=blk.measured)
-    has_read = np.asarray(s2 > 0)
+    has_read = np.asarray(s2 > 0) | cov.has_q
     qp_tot = diffs.zeros()
     for k, p in enumerate(passes):
         qp = quad_form(p[3], cov.Ap, cov.Bp)
@@ -905,8 +920,11 @@ def _integration_weights(diffs, passes, fv, blk):
         ik = np.divide(1, p[0], out=diffs.zeros(), where=ok)
         x = p[3]
         # x^T C_read x cancels in long ramps: float64 (see quad_form)
-        vr = (s2 * quad_form(x.astype(np.float64), cov.Ar, cov.Br)).astype(_F32) \
-            * ik * ik
+        x64 = x.astype(np.float64)
+        vr64 = s2 * quad_form(x64, cov.Ar, cov.Br)
+        if cov.has_q:
+            vr64 = vr64 + quad_form(x64, cov.Aq, cov.Bq)
+        vr = vr64.astype(_F32) * ik * ik
         qp = quad_form(x, cov.Ap, cov.Bp) * ik * ik
         vp = fv * qp
         blk.slope_ints[k] = p[1] * ik
@@ -950,7 +968,7 @@ def _single_resultant(res, nuse, unmeasured, s2, cov, zp, tshift, blk):
     sk = np.where(use, (r0 - zp) / tb_safe, 0.0)
     mean = sk.sum(axis=0) / np.maximum(n1, 1)
     s2v = s2 if np.isscalar(s2) else s2.astype(np.float64)
-    vr = s2v / cov.n[0] / tb_safe ** 2
+    vr = (s2v / cov.n[0] + cov.q[0]) / tb_safe ** 2
     qp = ta / tb_safe ** 2
     blk.slope[pick] = mean[pick]
     blk.var_read[pick] = np.broadcast_to(vr / np.maximum(n1, 1), (npix,))[pick]

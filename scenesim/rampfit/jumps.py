@@ -268,6 +268,9 @@ def _strongest(dd, vv, s2, idx, cov, thr):
         c11 = (s2i * _F32(cov.Ar.sum() + 2 * cov.Br.sum())
                + f * _F32(cov.Ap.sum() + 2 * cov.Bp.sum())
                + left_out * (s2i * _F32(cov.Ar.mean()) + f * _F32(cov.Ap.mean())))
+        if cov.has_q:
+            c11 += (_F32(cov.Aq.sum() + 2 * cov.Bq.sum())
+                    + left_out * _F32(cov.Aq.mean()))
         f = f + _F32(1.0 / nd) * np.sqrt(np.maximum(c11, _F32(0)))
     z, zp = _signed_statistics(dd, vv, med, s2i, f, cov)
     gz, gp = _skew_allowance(s2i, f, cov, thr)
@@ -286,7 +289,10 @@ def _skew_allowance(s2, f, cov, thr):
     Returns ``(gz (nd, n), gp (nd - 1, n) or None)``, float32."""
     c = _F32(max(thr * thr - 1.0, 0.0) / 6.0)
     ap = cov.Ap.astype(_F32)[:, None]
-    a = np.maximum(s2 * cov.Ar.astype(_F32)[:, None] + f * ap, _F32(TINY))
+    a = s2 * cov.Ar.astype(_F32)[:, None] + f * ap
+    if cov.has_q:
+        a += cov.Aq.astype(_F32)[:, None]
+    a = np.maximum(a, _F32(TINY))
     k3 = (c * ap * ap) * f
     gz = k3 / (a * np.sqrt(a))
     gp = None
@@ -327,6 +333,8 @@ def _clipped_mean(d, valid, med, f0, s2, cov, lo):
     how many usable differences were left out (float32)."""
     a = f0 * (_F32(_CLIP ** 2) * cov.Ap.astype(_F32)[:, None])
     a += s2 * (_F32(_CLIP ** 2) * cov.Ar.astype(_F32)[:, None])
+    if cov.has_q:
+        a += _F32(_CLIP ** 2) * cov.Aq.astype(_F32)[:, None]
     dev = d - med
     dev *= dev
     keep = dev <= a                       # (d - med)^2 <= CLIP^2 alpha
@@ -434,12 +442,17 @@ def _signed_statistics(d, valid, fref, s2, f, cov):
     mf = valid.astype(_F32)
     a = np.empty((nd, npix), _F32)
     for i in range(nd):
-        a[i] = np.where(valid[i], s2 * float(cov.Ar[i]) + f * float(cov.Ap[i]),
-                        _F32(1))
+        ai = s2 * float(cov.Ar[i]) + f * float(cov.Ap[i])
+        if cov.has_q:
+            ai = ai + float(cov.Aq[i])
+        a[i] = np.where(valid[i], ai, _F32(1))
     np.maximum(a, _F32(TINY), out=a)
     b = np.empty((max(nd - 1, 0), npix), _F32)
     for i in range(nd - 1):
-        b[i] = (s2 * float(cov.Br[i]) + f * float(cov.Bp[i])) * mf[i] * mf[i + 1]
+        bi = s2 * float(cov.Br[i]) + f * float(cov.Bp[i])
+        if cov.has_q:
+            bi = bi + float(cov.Bq[i])
+        b[i] = bi * mf[i] * mf[i + 1]
     y = (d - fref) * mf
     # forward pivots, L, and forward solves for 1 and y
     delta = np.empty_like(a)

@@ -114,10 +114,12 @@ def ldl_pass(d, valid, mf, mc, fref, s2, f, A, B, *, want_x):
         Reference rate subtracted from ``d`` (``y = d - fref``).
     s2, f : scalar or ndarray (P,) float32
         Read variance per read and rate in ``W``.
-    A : (A_read, A_pois or None)
-        Lists of nd diagonal coefficients.
-    B : (B_read, B_pois or None) or None
-        Lists of nd - 1 off-diagonal coefficients.
+    A : (A_read, A_pois or None[, A_const or None])
+        Lists of nd diagonal coefficients: ``W_ii = s2 A_read + f A_pois + A_const``
+        (the constant part: white noise added to each resultant once,
+        :class:`scenesim.rampfit.covariance.RampCovariance`).
+    B : (B_read, B_pois or None[, B_const or None]) or None
+        Lists of nd - 1 off-diagonal coefficients, likewise.
     want_x : bool, keyword-only
         Also return ``W^-1 1``.
 
@@ -131,7 +133,9 @@ def ldl_pass(d, valid, mf, mc, fref, s2, f, A, B, *, want_x):
         ``W^-1 1`` (zero at masked differences) when ``want_x``.
     """
     nd, npix = d.shape
-    ar, ap = A
+    ar, ap = A[0], A[1]
+    aq = A[2] if len(A) > 2 else None
+    bq = B[2] if B is not None and len(B) > 2 else None
     f32 = _F32
     S11 = np.zeros(npix, f32)
     S1y = np.zeros(npix, f32)
@@ -149,9 +153,11 @@ def ldl_pass(d, valid, mf, mc, fref, s2, f, A, B, *, want_x):
     one = f32(1)
     for i in range(nd):
         if scalar_s2:
-            base = s2 * ar[i]
+            base = s2 * ar[i] if aq is None else s2 * ar[i] + aq[i]
         else:
             base = np.multiply(s2, ar[i], out=a)
+            if aq is not None:
+                np.add(a, aq[i], out=a)
         if ap is not None:
             np.multiply(f, ap[i], out=t)
             np.add(base, t, out=a)
@@ -165,7 +171,12 @@ def ldl_pass(d, valid, mf, mc, fref, s2, f, A, B, *, want_x):
             u = mf[i]
             np.copyto(vbuf, y)
         else:
-            bb = s2 * B[0][i - 1] if scalar_s2 else np.multiply(s2, B[0][i - 1], out=b)
+            if scalar_s2:
+                bb = s2 * B[0][i - 1] if bq is None else s2 * B[0][i - 1] + bq[i - 1]
+            else:
+                bb = np.multiply(s2, B[0][i - 1], out=b)
+                if bq is not None:
+                    np.add(b, bq[i - 1], out=b)
             if B[1] is not None:
                 np.multiply(f, B[1][i - 1], out=t)
                 np.add(bb, t, out=b)

@@ -184,7 +184,8 @@ def rauscher2007_variance(rate, ngroups, nframes, groupgap, t_frame, read_noise)
     return float(out) if out.ndim == 0 else out
 
 
-def model_chi2(resultants, read_times, rate, read_noise, *, valid=None, ddof=1):
+def model_chi2(resultants, read_times, rate, read_noise, *, valid=None, ddof=1,
+               resultant_noise=0.0):
     """Chi-square per degree of freedom of the resultants about a given rate.
 
     The quantity ``CHI2`` of :func:`scenesim.rampfit.fit_ramps`, for any rate: with
@@ -223,6 +224,9 @@ def model_chi2(resultants, read_times, rate, read_noise, *, valid=None, ddof=1):
     ddof : int, keyword-only
         Degrees of freedom taken by the rate (>= 0): 1 (default) when it was fitted
         to these resultants, 0 for a rate known independently.
+    resultant_noise : float or sequence of nres floats, e- rms, keyword-only
+        White noise added to each resultant once (as in
+        :func:`scenesim.rampfit.fit_ramps`); default 0.
 
     Returns
     -------
@@ -237,7 +241,7 @@ def model_chi2(resultants, read_times, rate, read_noise, *, valid=None, ddof=1):
     res4, valid4, times, rate, read_noise, ddof = _check_chi2_args(
         resultants, read_times, rate, read_noise, valid, ddof)
     nints, nres, ny, nx = res4.shape
-    cov = RampCovariance(times)
+    cov = RampCovariance(times, resultant_noise=resultant_noise)
     A, B = cov.coefficient_lists()
     inv_dt = (1.0 / cov.dt)[:, None]
     rate_map = np.broadcast_to(np.asarray(rate, dtype=_F32), (ny, nx))

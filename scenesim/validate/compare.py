@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from noise.clock import detector_from_header
+from noise.adc import averaging_noise
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.params import MAX_AMPLITUDE
 from noise.validate import (check_bool, check_float, check_instance, check_int,
@@ -411,7 +412,8 @@ def _effective_noise(f, hdr, read_noise, read_times, notes):
     The fit's measured read noise (it holds every white per-read term, the ADC's
     included) when it has one, else the model's with ``gain^2 / 12`` added; and the
     rounding of each on-board average of ``N > 1`` reads, ``gain^2 / 12 (1 -
-    1/N^2)`` (stats module notes).
+    1/N^2)`` for odd ``N``, ``(1 + 2/N^2)`` for even (:func:`noise.adc.averaging_noise`;
+    stats module notes).
     """
     gain = exposure_settings(hdr)["gain"] or 0.0
     if gain == 0.0:
@@ -422,10 +424,8 @@ def _effective_noise(f, hdr, read_noise, read_times, notes):
         rn = float(np.sqrt(read_noise ** 2 + gain ** 2 / 12.0))
         notes.append("std_eff: the fit file has no measured read noise: the model's "
                      "is used, with the ADC's gain^2/12")
-    n = np.array([np.size(t) if np.ndim(t) == 1 else np.shape(t)[0]
-                  for t in read_times], dtype=float)
-    q = gain / np.sqrt(12.0) * np.sqrt(np.clip(1.0 - 1.0 / n ** 2, 0.0, None))
-    return rn, q
+    n = [np.size(t) if np.ndim(t) == 1 else np.shape(t)[0] for t in read_times]
+    return rn, averaging_noise(gain, n)
 
 
 def _clusters(hdr, shape, rows=16):

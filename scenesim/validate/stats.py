@@ -31,7 +31,8 @@ not flagged ``DO_NOT_USE``.  For each bin, with ``r = fit - truth``:
   ``RNOISE``, which contains every white per-read term: read noise, the ADC's
   ``gain^2 / 12`` and what the corrections left of the correlated noise; without it
   the model's ``RDNOISE`` with ``gain^2 / 12`` added), plus the rounding of each
-  on-board average of ``N > 1`` reads, ``gain^2 / 12 (1 - 1/N^2)`` per resultant.
+  on-board average of ``N > 1`` reads, ``gain^2 / 12 (1 - 1/N^2)`` per resultant
+  for odd ``N``, ``gain^2 / 12 (1 + 2/N^2)`` for even (:func:`noise.adc.averaging_noise`).
   With correlated (1/f) noise ``std_opt`` exceeds 1 even for an optimal fitter;
   ``std_eff`` ~ 1 says the fitter is optimal for the noise it was given;
 * ``chi2_fit``: mean reported ``CHI2`` (when the file has it);

@@ -108,3 +108,45 @@ def test_in_memory_exposure_streams_to_the_same_slope_file(tmp_path, monkeypatch
     with pytest.raises(RuntimeError, match="stop"):
         fit_exposure_file(mem, b)
     assert sorted(os.listdir(tmp_path)) == ["a.fits"]
+
+
+def test_rounded_group_means_enter_the_fit_streamed_or_not(tmp_path, monkeypatch):
+    # 4-frame groups are rounded means of their codes: the preparation carries their
+    # rounding (noise.adc.averaging_noise, times the IPC factor), the streamed and
+    # the in-memory fits use it alike, and the slope file records it (RSNOISE)
+    from noise.adc import averaging_noise
+    from scenesim.detector.ipc import ipc_noise_gain
+    _small_blocks(monkeypatch)
+    kernel = ipc_kernel(0.015)
+    engine = _engine(kernel, 1, seed=9)
+    engine = ChargeEngine(engine.detector, Readout.multiaccum(4, 5, name="CUSTOM"),
+                          rate=engine.rate, full_well=2e4, gain=1.5,
+                          ipc_kernel=kernel, noise_params=noise.NoiseParams(), rng=9,
+                          options=EngineOptions(threads=1))
+    path = str(tmp_path / "e.fits")
+    write_exposure(engine, path)
+    ref = prepare_exposure(path)
+    want_q = averaging_noise(1.5, [4] * 5) * ipc_noise_gain(kernel)
+    np.testing.assert_array_equal(ref.resultant_noise, want_q)
+    src = prep_mod._open_source(path)
+    got, _, _ = prep_mod._prepare_to_file(src, str(tmp_path / "cube.npy"),
+                                          PrepareOptions())
+    _same_bits(got.resultant_noise, ref.resultant_noise, "resultant_noise")
+    _same_bits(got.read_noise, ref.read_noise, "read_noise")
+    out = str(tmp_path / "f.fits")
+    fit_exposure_file(path, out)
+    want = fit_ramps(ref.electrons, ref.read_times, read_noise=ref.read_noise,
+                     gain=ref.gain, saturated=ref.saturated, jump_threshold=5.0,
+                     refmask=ref.refmask, resultant_noise=want_q)
+    fit = read_fit(out)
+    for name in _FIT_FIELDS:
+        _same_bits(getattr(fit, name), getattr(want, name), name)
+    from astropy.io import fits
+    assert fits.getheader(out)["RSNOISE"] == pytest.approx(float(want_q.max()))
+    # without the rounding the reported variances would be smaller (its share)
+    plain = fit_ramps(ref.electrons, ref.read_times, read_noise=ref.read_noise,
+                      gain=ref.gain, saturated=ref.saturated, jump_threshold=5.0,
+                      refmask=ref.refmask)
+    clean = (fit.dq == 0) & (plain.dq == 0)
+    assert clean.sum() > 1000
+    assert np.all(fit.var_read[clean] > plain.var_read[clean])

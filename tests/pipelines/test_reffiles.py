@@ -127,11 +127,12 @@ def test_detector_reference_matches_the_engine():
     # bias: offset + amplitude x the generator's template (its mean reset level:
     # test_reset_levels_average_to_the_bias)
     assert np.allclose(ref.bias, p.bias_offset + p.bias_amp * template_for(det))
-    # saturation: k_c p(full well) above the bias, less 5 sigma
+    # saturation: k_c p(full well) above the bias, less 5 times the spread of every
+    # noise component about the bias (kTC, pedestal, 1/f wander too: below)
     nl = engine.nonlinearity
     level = ref.ipc_kernel[1, 1] * nl.apply(np.array([8e4]))[0]
     assert np.allclose(ref.saturation[~refmask],
-                       ref.bias[~refmask] + level - 5 * p.rd_noise)
+                       ref.bias[~refmask] + level - 5 * p.spread(det))
     assert np.allclose(ref.ipc_kernel, ipc_kernel(0.015))
 
 
@@ -195,3 +196,44 @@ def test_instrument_defaults_and_checks():
         InstrumentConfig(name="NIRSPEC", exp_type="NRC_IMAGE")
     with pytest.raises(ValueError, match="did you mean 'NIRCAM'"):
         InstrumentConfig(name="NIRCAMM")
+
+
+@pytest.mark.parametrize("as_map", [False, True], ids=["scalar", "map"])
+def test_every_read_of_a_full_pixel_is_at_or_above_the_saturation_reference(tmp_path,
+                                                                            as_map):
+    """A field saturated from the first read (probe of 2026-11-27: with a margin of 5
+    white sigma, kTC, the pedestal and the 1/f wander left one full pixel in seven
+    below the reference for its whole ramp).  The reference is 5 times the noise's
+    whole spread below the flat top: a read falls under it with probability
+    < 3e-7 (Gaussian), ~1e-3 expected over these 64 x 64 x 5 x 4 reads; none
+    allowed.  A full well that differs between pixels (a map) is each pixel's own."""
+    fw = np.full((64, 64), 8e4)
+    full_well = 8e4
+    if as_map:
+        fw[:, 32:] = 6e4
+        from astropy.io import fits
+        fits.writeto(tmp_path / "fw.fits", fw)
+        full_well = str(tmp_path / "fw.fits")
+    scene = parse_scene({
+        "seed": 404, "detector": {"preset": "H2RG", "naxis1": 64, "naxis2": 64,
+                                  "n_out": 1},
+        "noise": {"preset": "nirspec"},
+        "readout": {"pattern": "RAPID", "ngroups": 5, "nints": 4},
+        "sources": {"background": 3e7},
+        "effects": {"full_well": full_well, "gain": 2.0},
+        "output": {"path": "x.fits", "truth": False}})
+    engine, _ = build_engine(scene)
+    ref = detector_reference(scene, engine)
+    regular = ~engine.detector.reference_mask()
+    below = 0
+    lowest = np.inf
+    with engine.simulate() as run:
+        for res in run:
+            e = res.dn.astype(np.float64) * engine.gain
+            below += int((e[regular] < ref.saturation[regular]).sum())
+            lowest = min(lowest, float((e - ref.saturation)[regular].min()))
+    assert below == 0, (below, lowest)
+    # and not absurdly early: within 10 spreads of the flat top (the margin is 5)
+    spread = scene.noise.spread(engine.detector)
+    top = ref.bias + ref.ipc_kernel[1, 1] * fw
+    assert np.all(top[regular] - ref.saturation[regular] <= 10 * spread)
