@@ -10,13 +10,15 @@ __all__ = ["add_calibrate_arguments", "add_psd_arguments"]
 def _detector_arguments(p):
     p.add_argument("--preset", default=None,
                    help="detector of files without scenesim detector cards (e.g. JWST "
-                        "uncal): H2RG, NIRSPEC, NIRCAM, H4RG-10, WFI, ...")
+                        "uncal): H2RG, NIRSPEC, NIRCAM, H4RG-10, WFI, ...; a file "
+                        "whose cards differ is refused")
     p.add_argument("--naxis", type=int, default=None,
                    help="square array size (with --preset; default the preset's)")
     p.add_argument("--n-out", type=int, default=None,
                    help="outputs (with --preset; default the preset's)")
     p.add_argument("--gain", type=float, default=None,
-                   help="e-/DN of data in DN (default: the header's GAIN)")
+                   help="e-/DN of data in DN without a GAIN card (a file that "
+                        "records another gain is refused)")
     p.add_argument("--f-min", type=float, default=1e-4,
                    help="Hz below which the model 1/f PSD is flat (not identifiable "
                         "from a ramp; default 1e-4)")
