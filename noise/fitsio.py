@@ -317,6 +317,26 @@ def completed_outputs():
     return list(_COMPLETED)
 
 
+#: Existing files this process was told to replace (see :func:`stale_outputs`).
+_REPLACING = []
+
+
+def record_replacing(path):
+    """Note that the existing file ``path`` is an output this command replaces."""
+    path = os.path.abspath(os.fspath(path))
+    if path not in _REPLACING:
+        _REPLACING.append(path)
+
+
+def stale_outputs():
+    """The files this process was to replace (:func:`record_replacing`) and has not
+    (yet): after an interrupt they are still an earlier run's, beside the new files
+    (a probe's ``run --overwrite`` stopped while fitting kept the new exposure and
+    truth beside the old slope file)."""
+    done = {os.path.abspath(p) for p in _COMPLETED}
+    return [p for p in _REPLACING if p not in done and os.path.lexists(p)]
+
+
 @contextlib.contextmanager
 def atomic_path(path, *, overwrite=False):
     """Yield a temporary path beside ``path``; rename it to ``path`` on success.

@@ -265,8 +265,10 @@ def check_writable(name, path, *, overwrite=True):
     path = check_path(name, path)
     directory = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(directory):
+        what = "is a file, not a directory" if os.path.exists(directory) else \
+            "does not exist"
         raise ParameterError(
-            f"{name!r}: directory {directory!r} of output {path!r} does not exist")
+            f"{name!r}: directory {directory!r} of output {path!r} {what}")
     if not os.access(directory, os.W_OK):
         raise ParameterError(f"{name!r}: directory {directory!r} is not writable")
     if os.path.isdir(path):
@@ -274,7 +276,7 @@ def check_writable(name, path, *, overwrite=True):
     if os.path.exists(path) and not os.path.isfile(path):
         raise ParameterError(f"{name!r}: {path!r} is not a regular file (a device, FIFO "
                              f"or socket); it is never replaced: write to a file path")
-    if os.path.exists(path) and not overwrite:
+    if os.path.lexists(path) and not overwrite:    # a link to nothing too
         raise ParameterError(f"{name!r}: {path!r} exists; pass overwrite=True to replace it")
     return path
 

@@ -245,6 +245,9 @@ def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:2] == ["noise", "calibrate"]:       # the same command, under 'noise'
         argv = argv[1:]
+    fitsio = sys.modules.get("noise.fitsio")
+    if fitsio is not None:        # an earlier command of this process (a library
+        fitsio._REPLACING.clear()  # caller, tests): its outputs are not this one's
     try:
         args = _parser().parse_args(argv)
     except KeyboardInterrupt as exc:
@@ -303,16 +306,26 @@ def _ending(command, exc):
 
 def _kept(command):
     """What a stopped command leaves finished, for its one line: the files it had
-    renamed into place, or a batch's finished tasks; '' when none."""
+    renamed into place, or a batch's finished tasks, and the existing files it was
+    to replace and had not; '' when none."""
     fitsio = sys.modules.get("noise.fitsio")          # imported by every writer
     done = fitsio.completed_outputs() if fitsio is not None else []
-    if not done:
-        return ""
+    stale = fitsio.stale_outputs() if fitsio is not None else []
     if command == " batch":           # its workers' files are in its manifest
-        return "the finished tasks are kept (the same command resumes the batch)"
-    names = ", ".join(repr(p) for p in done[:4])
-    more = f" and {len(done) - 4} more" if len(done) > 4 else ""
-    return f"the files it had finished are complete and kept ({names}{more})"
+        return "the finished tasks are kept (the same command resumes the batch)" \
+            if done else ""
+    parts = []
+    if done:
+        names = ", ".join(repr(p) for p in done[:4])
+        more = f" and {len(done) - 4} more" if len(done) > 4 else ""
+        parts.append(f"the files it had finished are complete and kept ({names}{more})")
+    if stale:
+        names = ", ".join(repr(os.path.relpath(p)) for p in stale[:4])
+        more = f" and {len(stale) - 4} more" if len(stale) > 4 else ""
+        parts.append(f"{names}{more} {'was' if len(stale) == 1 else 'were'} not "
+                     f"rewritten and {'is' if len(stale) == 1 else 'are'} still an "
+                     f"earlier run's")
+    return "; ".join(parts)
 
 
 def _interrupted(command, exc):

@@ -56,6 +56,7 @@ import hashlib
 import importlib.util
 import itertools
 import json
+import math
 import os
 import secrets
 from dataclasses import dataclass
@@ -71,12 +72,18 @@ from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.validate import (check_bool, check_choice, check_int, check_path, check_str,
                             describe, suggest)
 from scenesim.calib.refpix import SCHEMES, applied_scheme
-from scenesim.outputs import fit_path_for
+from scenesim.outputs import fit_path_for, scene_inputs
 from scenesim.scene import load_scene, parse_scene
 from scenesim.scene.schema import MAX_SEED
 
 __all__ = ["FITTERS", "BatchPlan", "Point", "Task", "plan_batch", "realisation_seed",
-           "spawn_key", "identity_digest"]
+           "spawn_key", "identity_digest", "MAX_POINTS", "MAX_TASKS"]
+
+#: At most this many grid points (checked before the grid is built).
+MAX_POINTS = 100000
+
+#: At most this many runs (realisations times grid points) in one batch.
+MAX_TASKS = 100000
 
 #: Fitters a batch can run: scenesim's own and stcal's (the ``[stcal]`` extra).
 FITTERS = ("cds", "ols", "gls", "stcal-ols_c", "stcal-likely")
@@ -192,14 +199,22 @@ class BatchPlan:
 
     def identity(self):
         """What makes two batches the same batch (JSON-able): the scene file and its
-        contents, every point's keys, the seed (unless drawn), fitters, preparation and
-        outputs.  Not the number of realisations: a batch may be extended."""
+        contents and those of every file the scenes read, every point's keys, the seed
+        (unless drawn), fitters, preparation and outputs.  Not the number of
+        realisations: a batch may be extended."""
         with open(self.scene_path, "rb") as fh:
             digest = hashlib.sha256(fh.read()).hexdigest()
-        return {"scene": self.scene_path, "scene_sha256": digest,
-                "points": [_jsonable(p.params) for p in self.points],
-                "seed": None if self.seed_source == "drawn" else self.batch_seed,
-                "fit": list(self.fitters), "ramp": self.ramp, "refpix": self.refpix}
+        # the files the scenes read too (catalogue, maps, PSF, light curves,
+        # template): a batch resumed after one changed had mixed two scenes
+        inputs = sorted({f for p in self.points for f in scene_inputs(p.scene)}
+                        - {self.scene_path})
+        out = {"scene": self.scene_path, "scene_sha256": digest,
+               "points": [_jsonable(p.params) for p in self.points],
+               "seed": None if self.seed_source == "drawn" else self.batch_seed,
+               "fit": list(self.fitters), "ramp": self.ramp, "refpix": self.refpix}
+        if inputs:
+            out["inputs_sha256"] = {f: _file_sha256(f) for f in inputs}
+        return out
 
     def tasks(self, *, threads=None):
         """Every :class:`Task` of the batch, point by point, realisation by
@@ -232,6 +247,15 @@ class BatchPlan:
         return out
 
 
+def _file_sha256(path):
+    """sha256 of a file's bytes, read in 1 MB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def _jsonable(value):
     """``value`` with tuples as lists and numpy scalars as Python numbers."""
     if isinstance(value, (list, tuple)):
@@ -257,15 +281,23 @@ def _read_toml(path, what):
         raise FileFormatError(f"{what} {path!r} is not valid TOML: {exc}") from exc
 
 
-def _flatten(table, prefix=""):
-    """``{dotted.key: value}`` of a TOML table (nested tables joined with dots)."""
+def _flatten(table, where, prefix=""):
+    """``{dotted.key: value}`` of a TOML table (nested tables joined with dots).
+
+    A key given both quoted (``"noise.rd_noise"``) and as TOML dotted keys or a
+    table (``noise.rd_noise``) is two TOML keys but one scene key: refused (it had
+    silently kept one of the two)."""
     flat = {}
     for key, value in table.items():
         full = f"{prefix}{key}"
-        if isinstance(value, dict):
-            flat.update(_flatten(value, full + "."))
-        else:
-            flat[full] = value
+        parts = _flatten(value, where, full + ".") if isinstance(value, dict) \
+            else {full: value}
+        for k, v in parts.items():
+            if k in flat:
+                raise ParameterError(
+                    f"{where} {k!r} is given twice (once quoted, once as dotted keys or "
+                    f"a table): give it once")
+            flat[k] = v
     return flat
 
 
@@ -346,13 +378,20 @@ def _grid_points(batch, where):
     if not isinstance(grid, dict):
         raise ParameterTypeError(f"{where} [grid] must be a table, got {describe(grid)}")
     axes = []
-    for key, values in _flatten(grid).items():
+    for key, values in _flatten(grid, f"{where} [grid]").items():
         if not isinstance(values, list) or not values:
             raise ParameterError(f"{where} [grid] {key!r} must be a non-empty list of "
                                  f"values, got {describe(values)}")
         axes.append([(key, v) for v in values])
-    points = [tuple(c) for c in itertools.product(*axes)]
     dets = batch.get("detectors")
+    ndet = len(dets) if isinstance(dets, list) else 1
+    count = ndet * math.prod(len(a) for a in axes)
+    if count > MAX_POINTS:       # before the product is built (10^7 took 1.2 GB)
+        sizes = " x ".join(str(len(a)) for a in axes) + (
+            f" x {ndet} detectors" if dets is not None else "")
+        raise ParameterError(f"{where} the grid has {count} points ({sizes}); at most "
+                             f"{MAX_POINTS}")
+    points = [tuple(c) for c in itertools.product(*axes)]
     if dets is None:
         return points
     if not isinstance(dets, list) or not dets or not all(isinstance(d, dict)
@@ -368,7 +407,14 @@ def _grid_points(batch, where):
         if name in names:
             raise ParameterError(f"{where} [[detectors]] name {name!r} appears twice")
         names.append(name)
-        det_params.append((("detector", name),) + tuple(_flatten(d).items()))
+        flat = _flatten(d, f"{where} [[detectors]] {name!r}")
+        both = sorted(set(flat) & {a[0][0] for a in axes})
+        if both:
+            # the grid's value had silently won over the detector's
+            raise ParameterError(
+                f"{where} [[detectors]] {name!r} sets {', '.join(map(repr, both))}, "
+                f"which the [grid] also varies: set each key in one place")
+        det_params.append((("detector", name),) + tuple(flat.items()))
     return [dp + gp for gp in points for dp in det_params]
 
 
@@ -433,9 +479,6 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
         scene_raw = _read_toml(scene_path, f"{where} scene file")
         base = load_scene(scene_path)
         combos = _grid_points(batch, where)
-        if len(combos) > 100000:
-            raise ParameterError(f"{where} the grid has {len(combos)} points; at most "
-                                 f"100000")
         if combos == [()]:
             points = (Point(0, "", (), base),)
         else:
@@ -443,15 +486,22 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
                 kv for kv in c if kv[0] != "detector"], f"{where} grid point {i}"))
                 for i, c in enumerate(combos))
         scene = base
-        file_real = check_int(f"{where} 'realisations'", batch.get("realisations", 1),
-                              minimum=1)
-        file_seed = batch.get("seed")
-        if file_seed is not None:
-            file_seed = check_int(f"{where} 'seed'", file_seed, minimum=0, maximum=MAX_SEED)
+        try:      # check_int quotes its name: the file goes before it
+            file_real = check_int("realisations", batch.get("realisations", 1),
+                                  minimum=1)
+            file_seed = batch.get("seed")
+            if file_seed is not None:
+                file_seed = check_int("seed", file_seed, minimum=0, maximum=MAX_SEED)
+        except ParameterError as exc:
+            raise type(exc)(f"{where} {exc}") from exc
         defaults = {k: batch[k] for k in ("fit", "compare", "ramp", "refpix") if k in batch}
     cfg = scene.output
     n = check_int("realisations", realisations, minimum=1) if realisations is not None \
         else file_real
+    if n * len(points) > MAX_TASKS:    # before any task is built (0.7 ms each)
+        raise ParameterError(
+            f"the batch has {n} realisations x {len(points)} grid points = "
+            f"{n * len(points)} runs; at most {MAX_TASKS} (split it into batches)")
     if seed is not None:
         batch_seed, source_of_seed = check_int("seed", seed, minimum=0,
                                                maximum=MAX_SEED), "option"

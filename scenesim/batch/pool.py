@@ -27,7 +27,9 @@ flagged), summed over realisations:
 
 The standard error of each is the delete-one jackknife over realisations,
 ``sqrt((K - 1) / K * sum_k (theta_(k) - mean theta_(.))**2)``: for the bias, with
-equal ``n`` per realisation, exactly ``std_k(bias_k) / sqrt(K)``.  The JSON also
+equal ``n`` per realisation, exactly ``std_k(bias_k) / sqrt(K)``; for the jump
+rates at least the binomial error ``sqrt(p (1 - p) / n)``, ``p = (k + 1/2) / (n +
+1)`` (the jackknife is 0 at a rate of 0 or 1).  The JSON also
 gives the pixel-count error ``scatter / sqrt(sum n)`` (``bias_se_pixels``): where
 it is much smaller than the jackknife error, the pixels of a realisation share
 their noise.
@@ -138,7 +140,14 @@ def _pool_rate(jumps, count_key, rate_key):
     if count.sum() == 0:
         return _NAN, _NAN, 0
     value, se = jackknife(lambda a, b: b / a, count, flagged)
-    return value, se, int(count.sum())
+    # at 0 or 1 the jackknife is 0 (no realisation moves it), which says nothing:
+    # at least the binomial error of a rate taken one count inside the boundary,
+    # sqrt(p (1 - p) / n), p = (k + 1/2) / (n + 1) (a probe's 207 hits, all
+    # flagged, read "1.0000 +- 0.0000")
+    n, k = float(count.sum()), float(flagged.sum())
+    p = (k + 0.5) / (n + 1.0)
+    se = max(float(se), math.sqrt(p * (1.0 - p) / n))
+    return value, se, int(n)
 
 
 def pool_reports(reports):
@@ -235,7 +244,8 @@ def pool_directory(out_dir):
     """Pool the comparisons recorded in the batch directory ``out_dir``.
 
     Reads the manifest (:mod:`scenesim.batch.manifest`) and the record of every
-    finished task.
+    finished task of the batch's last run (its ``realisations``: rows kept from an
+    earlier run with more are left out, as the batch's own tables leave them).
 
     Returns
     -------
@@ -253,19 +263,36 @@ def pool_directory(out_dir):
         raise ParameterError(f"'pool': {out_dir!r} holds no scenesim batch manifest "
                              f"({MANIFEST_NAME}); give the --out directory of a batch")
     labels = {p["index"]: p["label"] for p in manifest.get("points", [])}
+    # the realisations of the batch's last run, as its own tables pooled them: a run
+    # with fewer than an earlier one keeps the earlier rows for a later resume, and
+    # pooling them too had printed other tables than the batch's
+    upto = manifest.get("realisations")
     by_point = {}
+    damaged, done = [], 0
     for name, row in manifest.get("tasks", {}).items():
         if row.get("status") != "done":
             continue
+        if isinstance(upto, int) and row.get("realisation", 0) >= upto:
+            continue
+        done += 1
         try:
             with open(os.path.join(out_dir, row["outputs"]["record"]),
                       encoding="utf-8") as fh:
                 rec = json.load(fh)
+            if not isinstance(rec, dict):
+                raise ValueError("not a record")
         except (OSError, ValueError, KeyError):
+            damaged.append(name)       # had been left out without a word
             continue
         for fitter, rep in (rec.get("reports") or {}).items():
             by_point.setdefault(labels.get(row["point"], ""), {}).setdefault(
                 fitter, []).append(rep)
+    if damaged:
+        raise ParameterError(
+            f"'pool': the records of {len(damaged)} of the {done} finished tasks in "
+            f"{out_dir!r} are missing or damaged ({', '.join(damaged[:5])}"
+            f"{', ...' if len(damaged) > 5 else ''}); run the same batch again to "
+            f"redo them")
     if not by_point:
         raise ParameterError(f"'pool': no finished task of the batch in {out_dir!r} "
                              f"has a comparison; run the batch with --compare")

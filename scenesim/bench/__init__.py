@@ -368,6 +368,10 @@ def main(workloads, *, quick=False, out_dir="bench_out", threads=None, peers=Fal
         Exit status (0).
     """
     names = list(workloads) or list(WORKLOADS)
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:          # it had run and reported the same case twice
+        raise ParameterError(f"'workloads' names {', '.join(map(repr, twice))} more than "
+                             f"once; name each workload once")
     if "peers" in names:
         names = [n for n in names if n != "peers"]
         names += [n for n in PEER_WORKLOADS if n not in names]

@@ -104,7 +104,7 @@ from astropy.io import fits
 
 from noise.adc import averaging_noise
 from noise.clock import Detector, detector_from_header
-from noise.errors import ParameterError, ScenesimError
+from noise.errors import FileFormatError, ParameterError, ScenesimError
 from noise.fitsio import input_path, is_gzip_file, output_error, temp_file
 from noise.validate import check_bool, check_choice, check_float, check_int, check_writable
 
@@ -504,6 +504,9 @@ def _open_source(exposure):
         return None
     header, reads = read_exposure_header(path)
     gain = exposure_settings(header)["gain"]
+    if gain is None or not (math.isfinite(gain) and gain > 0):
+        raise FileFormatError(f"exposure {os.fspath(path)!r}: its header card GAIN = "
+                              f"{header.get('GAIN')!r} e-/DN must be a finite number > 0")
     rows = exposure_rows(path, gain=gain)
     if rows.dtype != np.float32:
         # float64 data would be scaled in float64, not as astype(float32) * gain

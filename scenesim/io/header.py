@@ -50,6 +50,8 @@ one 80-character card (:func:`card`).  Every header passes astropy's verificatio
 (``output_verify='exception'``).
 """
 
+import math
+
 import numpy as np
 from astropy.io import fits
 
@@ -72,7 +74,8 @@ __all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
 
 #: Exposure header keywords copied into the header of a fit.
 COPIED_KEYS = ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
-                "SEED", "SCENE", "IPC", "IPCKERN")
+                "SEED", "SCENE", "SCENEID", "IPC", "IPCKERN", "BATCHSD", "BATCHKEY",
+                "BATCHTSK")
 
 
 CARD_LENGTH = 80                       # characters in a FITS header card
@@ -241,7 +244,54 @@ def exposure_readout(exposure):
             f"exposure {exposure.name!r}: SCI shape {sci.shape} does not match "
             f"NINTS={nints}, {ro.ngroups} resultants and the {det.shape} detector in "
             f"its header")
+    _check_header_against_reads(exposure, ro)
     return ro
+
+
+def _check_header_against_reads(exposure, ro):
+    """Refuse a ``GAIN`` or ``TFRAME`` that is not a number > 0, and a header whose
+    ``NGROUPS`` or ``TFRAME`` contradicts the ``READS``
+    table (its resultants, its ``READ_TIMES`` and its own ``TFRAME``): the fit takes
+    the times from ``TFRAME`` and the frame indices, so an edited ``TFRAME`` of 1 s
+    on 18.2 ms frames had scaled every slope by 0.0182 without a word."""
+    hdr, name = exposure.header, exposure.name
+    if "NGROUPS" in hdr:
+        try:
+            ng = int(hdr["NGROUPS"])
+        except (TypeError, ValueError) as exc:
+            raise FileFormatError(f"exposure {name!r}: NGROUPS = {hdr['NGROUPS']!r} is "
+                                  f"not an integer") from exc
+        if ng != ro.ngroups:
+            raise FileFormatError(
+                f"exposure {name!r}: its header says NGROUPS = {ng}, its READS table "
+                f"and SCI hold {ro.ngroups} resultants")
+    for key, unit in (("GAIN", "e-/DN"), ("TFRAME", "s")):
+        try:
+            value = float(hdr[key])
+        except (TypeError, ValueError) as exc:
+            raise FileFormatError(f"exposure {name!r}: {key} = {hdr[key]!r} is not "
+                                  f"a number") from exc
+        if not (math.isfinite(value) and value > 0):
+            raise FileFormatError(f"exposure {name!r}: its header card {key} = "
+                                  f"{hdr[key]!r} {unit} must be a finite number > 0")
+    t_frame = float(hdr["TFRAME"])
+    reads = exposure.reads
+    meta_t = getattr(reads, "meta", {}).get("TFRAME") if reads is not None else None
+    if meta_t is not None and not math.isclose(float(meta_t), t_frame, rel_tol=1e-9):
+        raise FileFormatError(
+            f"exposure {name!r}: its header says TFRAME = {t_frame!r} s, its READS "
+            f"table {float(meta_t)!r} s")
+    if reads is not None and "READ_TIMES" in getattr(reads, "colnames", ()):
+        recorded = np.asarray(reads["READ_TIMES"], dtype=np.float64)
+        want = np.full(recorded.shape, np.nan)
+        for r, t in enumerate(ro.read_times(t_frame)):
+            want[r, :len(t)] = t
+        ok = np.isnan(recorded) == np.isnan(want)
+        ok &= np.isnan(want) | np.isclose(recorded, want, rtol=1e-9, atol=0.0)
+        if not ok.all():
+            raise FileFormatError(
+                f"exposure {name!r}: its READS table's READ_TIMES are not the reads "
+                f"at TFRAME = {t_frame!r} s from the header (the file was edited?)")
 
 
 def readout_from_table(header, reads):

@@ -93,11 +93,12 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
         require_extra("jwst", "--uncal" if uncal else "--reffiles (JWST reference files)")
     if l1 or roman_refs:
         require_extra("roman", "--l1" if l1 else "--reffiles (Roman reference files)")
-    if (uncal or jwst_refs) and scene.instrument.subarray:
+    if uncal or jwst_refs:          # the instrument's fields (exp_type prefix), first
         from scenesim.pipelines.instrument import resolve_instrument
-        from scenesim.pipelines.jwst import check_subarray_name
-        check_subarray_name(scene.instrument.subarray, det,
-                            resolve_instrument(scene.instrument, det, ro.name)["name"])
+        name = resolve_instrument(scene.instrument, det, ro.name)["name"]
+        if scene.instrument.subarray:
+            from scenesim.pipelines.jwst import check_subarray_name
+            check_subarray_name(scene.instrument.subarray, det, name)
     if uncal:
         from scenesim.pipelines.jwst import check_uncal_readout
         try:
@@ -190,6 +191,8 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
     jwst_refs, roman_refs = reference_families(det, engine.readout, l1=l1)
     written = []
     paths = product_paths(result.exposure)
+    from scenesim.pipelines.reffiles import detector_reference, reference_id
+    ref = detector_reference(scene, engine)     # its id ties the products together
     if uncal:
         from scenesim.io.exposure import Exposure
         from scenesim.pipelines.instrument import resolve_instrument
@@ -205,14 +208,13 @@ def write_run_products(scene, result, *, uncal=False, l1=False, reffiles=False,
             if zero is None:
                 zero = zero_frames(scene, exposure.sci, options=options)
         written.append(write_uncal(exposure, paths["uncal"], zero_frame=zero,
-                                   overwrite=overwrite))
+                                   overwrite=overwrite, reference_id=reference_id(ref)))
         del exposure, zero
     if l1:
         from scenesim.pipelines.roman import write_l1
-        written.append(write_l1(result.exposure, paths["l1"], overwrite=overwrite))
+        written.append(write_l1(result.exposure, paths["l1"], overwrite=overwrite,
+                                reference_id=reference_id(ref)))
     if reffiles:
-        from scenesim.pipelines.reffiles import detector_reference
-        ref = detector_reference(scene, engine)
         directory = paths["reffiles"]
         if jwst_refs:
             from scenesim.pipelines.jwst import write_reference_files

@@ -109,6 +109,16 @@ def resolve_instrument(config, detector, readout_name):
     if not name:
         name = "NIRSPEC" if readout_name.upper() in _NIRSPEC_PATTERNS else "NIRCAM"
     dets, exp_type = INSTRUMENTS[name]
+    prefix = exp_type.split("_")[0] + "_"
+    if config.exp_type and not config.exp_type.startswith(prefix):
+        # checked in InstrumentConfig only with a name; an inferred one too (a probe's
+        # uncal said INSTRUME = NIRCAM, EXP_TYPE = MIR_IMAGE)
+        whence = (f"of detector {config.detector!r}" if config.detector
+                  else "inferred from the readout")
+        raise ParameterError(
+            f"[instrument] 'exp_type' {config.exp_type!r} is not a {name} exposure type "
+            f"(the instrument {whence}): it must start with {prefix!r}; or set "
+            f"[instrument] 'name'")
     subarray = config.subarray or ("FULL" if detector.subarray is None else "GENERIC")
     readpatt = readout_name.upper() if readout_name.upper() in JWST_READPATT else "ANY"
     return {"name": name, "detector": config.detector or dets[0],

@@ -134,6 +134,7 @@ from scenesim.io.exposure import Exposure
 from scenesim.io.header import header_instrument, readout_from_table
 from scenesim.outputs import check_not_dangling, made_directory
 from scenesim.pipelines.instrument import resolve_instrument
+from scenesim.pipelines.reffiles import check_reference_id, reference_id
 
 __all__ = ["write_uncal", "uncal_model", "irs2_to_dms", "irs2_filter",
            "check_irs2_detector",
@@ -286,7 +287,7 @@ def _as_exposure(exposure):
     return Exposure.read(exposure)
 
 
-def uncal_model(exposure, *, date_obs=None, zero_frame=None):
+def uncal_model(exposure, *, date_obs=None, zero_frame=None, reference_id=None):
     """The JWST ``Level1bModel`` of a scenesim exposure (module notes).
 
     Parameters
@@ -297,6 +298,8 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
     zero_frame : ndarray or None, keyword-only
         The first read of each integration, (nints, ny, nx) DN
         (:func:`scenesim.pipelines.zeroframe.zero_frames`); None: no ``ZEROFRAME``.
+    reference_id : str or None, keyword-only
+        Recorded as ``SSREFID`` (:func:`write_uncal`).
 
     Returns
     -------
@@ -389,6 +392,9 @@ def uncal_model(exposure, *, date_obs=None, zero_frame=None):
              if k not in _JWST_OWNED and k not in ("COMMENT", "HISTORY", "")]
     cards += [["SSDETECT", det.name, "scenesim detector (preset) name"],
               ["SSREADPT", ro.name, "scenesim readout pattern name"]]
+    if reference_id is not None:
+        cards.append(["SSREFID", str(reference_id),
+                      "scenesim id of this run's references"])
     reads = Table(exp.reads)
     reads_cards = [[str(k)[:8].upper(), v, ""] for k, v in reads.meta.items()
                    if isinstance(v, (bool, int, float, str))]
@@ -416,7 +422,8 @@ def check_uncal_readout(readout, what="the exposure"):
             f"'nframes' form, or --l1 for a Roman L1 file")
 
 
-def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=False):
+def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=False,
+                reference_id=None):
     """Write the JWST uncal file of a scenesim exposure (module notes).
 
     Parameters
@@ -429,6 +436,10 @@ def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=Fal
     zero_frame : ndarray or None, keyword-only
         ``ZEROFRAME`` data (:func:`uncal_model`).
     overwrite : bool, keyword-only
+    reference_id : str or None, keyword-only
+        :func:`scenesim.pipelines.reffiles.reference_id` of the run's references,
+        recorded as ``SSREFID`` (:func:`run_detector1` refuses references with
+        another).
 
     Returns
     -------
@@ -436,7 +447,8 @@ def write_uncal(exposure, path, *, date_obs=None, zero_frame=None, overwrite=Fal
         ``path``.
     """
     path = check_writable("uncal path", path, overwrite=overwrite)
-    model = uncal_model(exposure, date_obs=date_obs, zero_frame=zero_frame)
+    model = uncal_model(exposure, date_obs=date_obs, zero_frame=zero_frame,
+                        reference_id=reference_id)
     _save_fits(model, path, overwrite)
     return path
 
@@ -565,6 +577,8 @@ def write_reference_files(reference, readout, t_frame, directory, *, instrument=
                                  readout_name=readout.name, overwrite=overwrite)
             continue
         model, description = makers[t]()
+        model.extra_fits = {"PRIMARY": {"header": [
+            ["SSREFID", reference_id(reference), "scenesim id of these references"]]}}
         _save_ref(model, t, ident, det, description, paths[t], overwrite)
     return paths
 
@@ -798,6 +812,7 @@ def _check_references_match(uncal, references, irs2):
     with fits.open(os.fspath(uncal)) as hdul:
         h0 = hdul[0].header
         detector, gain = h0.get("DETECTOR"), h0.get("GAIN")
+        run_id = h0.get("SSREFID")
         shape = (hdul["SCI"].header.get("NAXIS2"), hdul["SCI"].header.get("NAXIS1"))
     for reftype, ext in _REFERENCE_IMAGE.items():
         if reftype not in references:
@@ -811,6 +826,7 @@ def _check_references_match(uncal, references, irs2):
                 ref_shape = (h.get("NAXIS2"), h.get("NAXIS1"))
                 median = (float(np.median(hdul[ext].data))
                           if reftype == "gain" and gain is not None else None)
+                their_id = hdul[0].header.get("SSREFID")
         except (OSError, KeyError, TypeError, ValueError) as exc:
             raise FileFormatError(f"{reftype} reference {ref!r} is not a JWST reference "
                                   f"file with a {ext!r} image ({exc})") from exc
@@ -829,6 +845,7 @@ def _check_references_match(uncal, references, irs2):
                 f"gain reference {ref!r} holds {median:g} e-/DN, but the uncal "
                 f"{os.fspath(uncal)!r} was digitised at GAIN = {gain:g} e-/DN: "
                 f"references of another run")
+        check_reference_id(reftype, ref, their_id, "uncal", uncal, run_id)
 
 
 def _check_irs2_references(uncal, references):

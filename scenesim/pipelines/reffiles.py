@@ -73,6 +73,7 @@ What each reference holds, and how it follows from the forward model of
 """
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,7 +86,8 @@ from scenesim.detector.dq import REFERENCE_PIXEL
 from scenesim.sky.maps import load_map
 from scenesim.sky.sources import draw_hot_pixels
 
-__all__ = ["DetectorReference", "detector_reference", "linearity_coefficients",
+__all__ = ["DetectorReference", "detector_reference", "reference_id",
+           "check_reference_id", "linearity_coefficients",
            "nonlinearity_coefficients", "shift_polynomial", "ipc_inverse_kernel", "HOT",
            "LINEARITY_DEGREE", "SATURATION_MARGIN_SIGMA"]
 
@@ -369,3 +371,38 @@ def detector_reference(scene, engine):
                              ipc_kernel=kernel, ipc_inverse=ipc_inverse_kernel(kernel),
                              adc_top=top,
                              raw_level=0.0 if params is None else float(params.bias_offset))
+
+
+def reference_id(reference):
+    """A 16-hex-digit digest of everything a :class:`DetectorReference` holds.
+
+    Written into the references (JWST: primary card ``SSREFID``; Roman:
+    ``meta.scenesim_refid``) and into the uncal or L1 of the same run, so that the
+    pipeline commands refuse references of another run: the same detector and size,
+    but other hot pixels, dark or bias (a probe's pair of runs differed in 93 hot
+    pixels and moved 93 rates by up to 195 e-/s, which compare could not see: it
+    takes the dark reference's own rate out of the truth).  Runs whose references
+    are the same (no hot pixels, another seed) share it."""
+    import hashlib
+    h = hashlib.sha256()
+    for a in (reference.gain, reference.read_noise, reference.bias, reference.saturation,
+              reference.linearity, reference.nonlinearity, reference.dark,
+              reference.mask, reference.ipc_kernel, reference.adc_top,
+              reference.raw_level):
+        v = np.ascontiguousarray(a)
+        h.update(str((v.dtype.str, v.shape)).encode())
+        h.update(v.tobytes())
+    return h.hexdigest()[:16]
+
+
+def check_reference_id(reftype, ref, ref_id, kind, data, data_id):
+    """Raise unless a reference's :func:`reference_id` (``ref_id``) is the one the
+    pipeline input ``data`` (its ``kind``: 'uncal', 'L1') recorded (``data_id``);
+    files without one (written otherwise, or before) are not checked."""
+    if ref_id is None or data_id is None or str(ref_id) == str(data_id):
+        return
+    raise ParameterError(
+        f"{reftype} reference {os.fspath(ref)!r} describes another run's detector "
+        f"(reference id {ref_id}) than the {kind} {os.fspath(data)!r} was simulated "
+        f"with ({data_id}): their hot pixels, dark, bias or saturation differ; use "
+        f"the references written with it ('scenesim run SCENE --reffiles')")

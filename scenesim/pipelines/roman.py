@@ -129,7 +129,8 @@ from noise.validate import check_writable
 
 from scenesim.io.exposure import Exposure
 from scenesim.io.header import readout_from_table
-from scenesim.pipelines.reffiles import shift_polynomial
+from scenesim.pipelines.reffiles import (check_reference_id, reference_id,
+                                         shift_polynomial)
 
 __all__ = ["write_l1", "l1_model", "write_reference_files", "run_ramp_fit",
            "read_pattern", "check_amp33_detector", "AMP33_COLUMNS", "REFERENCE_TYPES"]
@@ -286,13 +287,19 @@ def _save_asdf(model, path, overwrite):
         record_completed(path)
 
 
-def write_l1(exposure, path, *, overwrite=False):
-    """Write the Roman L1 ASDF file of a scenesim exposure; returns ``path``."""
+def write_l1(exposure, path, *, overwrite=False, reference_id=None):
+    """Write the Roman L1 ASDF file of a scenesim exposure; returns ``path``.
+
+    ``reference_id``: :func:`scenesim.pipelines.reffiles.reference_id` of the run's
+    references, recorded as ``meta.scenesim_refid`` (:func:`run_ramp_fit` refuses
+    references with another)."""
     path = check_writable("L1 path", path, overwrite=overwrite)
     if not os.fspath(path).lower().endswith(".asdf"):
         raise ParameterError(f"'path' of a Roman L1 file must end in '.asdf', got "
                              f"{os.fspath(path)!r}")
     m = l1_model(exposure)
+    if reference_id is not None:
+        m.meta["scenesim_refid"] = str(reference_id)
     m.validate()
     _save_asdf(m, path, overwrite)
     return path
@@ -379,6 +386,7 @@ def write_reference_files(reference, directory, *, overwrite=False):
         for name, value in fields.items():
             setattr(m, name, value)
         m.meta.description = f"scenesim: {t} of the simulated detector"
+        m.meta["scenesim_refid"] = reference_id(reference)
         m.meta.author = "scenesim"
         m.meta.pedigree = "DUMMY"
         m.validate()
@@ -440,10 +448,12 @@ def _check_references_match(l1, references):
         with rdd.open(l1) as m:
             detector = str(m.meta.instrument.detector)
             shape = tuple(np.shape(m.data)[-2:])
+            run_id = m.meta.get("scenesim_refid")
         for reftype, ref in sorted(references.items()):
             try:
                 with rdd.open(os.fspath(ref)) as r:
                     theirs = str(r.meta.instrument.detector)
+                    their_id = r.meta.get("scenesim_refid")
                     arrays = [k for k in ("data", "dq", "dark_slope") if k in r]
                     ref_shape = tuple(np.shape(r[arrays[0]])[-2:]) if arrays else None
             except Exception as exc:                  # noqa: BLE001 - asdf's many
@@ -461,6 +471,7 @@ def _check_references_match(l1, references):
                     f"{ref_shape[1]} pixels, the L1 {os.fspath(l1)!r} {shape[0]} x "
                     f"{shape[1]}: references of another array (write them with "
                     f"'scenesim run SCENE --reffiles')")
+            check_reference_id(reftype, ref, their_id, "L1", l1, run_id)
 
 
 def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,

@@ -1031,9 +1031,12 @@ class Scene:
         return self.replace(seed=secrets.randbits(63))
 
     def to_header_cards(self):
-        """``(key, value, comment)`` FITS cards: scene file name and seed."""
+        """``(key, value, comment)`` FITS cards: scene file name, its content digest
+        (:func:`scenesim.outputs.scene_id`) and seed."""
+        from scenesim.outputs import scene_id
         name = os.path.basename(self.path) if self.path else "(in memory)"
         return [
             ("SCENE", name[:68], "scene file"),
+            ("SCENEID", scene_id(self), "scene content digest (not seed, outputs)"),
             ("SEED", self.seed, "master seed (numpy SeedSequence entropy)"),
         ]

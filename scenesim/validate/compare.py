@@ -582,7 +582,7 @@ SAME_EXPOSURE_CARDS = ("DETECTOR", "DETNAX1", "DETNAX2", "NOUTPUTS", "SUBSTRT1",
 #: file through the uncal, a Roman L2's exposure metadata: :func:`fit_header`) that
 #: must equal the truth's.
 SAME_RUN_CARDS = ("NINTS", "NGROUPS", "NFRAMES", "GROUPGAP", "READPATT", "TFRAME",
-                  "SEED", "SEEDENT")
+                  "SEED", "SEEDENT", "SCENEID")
 
 
 def _check_same_run(fit_hdr, truth_hdr, fit_path, truth_path):

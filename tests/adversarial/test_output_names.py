@@ -141,3 +141,22 @@ def test_an_output_directory_that_is_a_dangling_link_is_refused_first(tmp_path):
     assert res.returncode == 2 and "symbolic link" in res.stderr, res.stderr
     assert sorted(os.listdir(tmp_path)) == ["figs", "s.toml"]
 
+
+def test_an_output_that_is_a_link_to_nothing_needs_overwrite(tmp_path):
+    """A dangling symbolic link at an output path is something there: it had been
+    replaced by the new file without --overwrite."""
+    (tmp_path / "s.toml").write_text(
+        'seed = 1\n[detector]\nnaxis1 = 16\nnaxis2 = 16\nref_border = 2\n[readout]\n'
+        'pattern = "RAPID"\nngroups = 3\n[output]\npath = "x.fits"\n')
+    os.symlink("nowhere.fits", tmp_path / "dl.fits")
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "s.toml", "-o",
+                          "dl.fits", "-q"], cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 2 and "is a symbolic link (to 'nowhere.fits'" in \
+        res.stderr, res.stderr
+    assert os.path.islink(tmp_path / "dl.fits")
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", "run", "s.toml", "-o",
+                          "dl.fits", "-q", "--overwrite"], cwd=tmp_path,
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert not os.path.islink(tmp_path / "dl.fits") and \
+        not (tmp_path / "nowhere.fits").exists()

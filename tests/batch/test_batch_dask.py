@@ -277,6 +277,19 @@ def test_compare_pools_gls_and_stcal(small_scene, tmp_path, capsys):
     assert manifest["pooled"][""]["stcal-ols_c"]["jumps"]["completeness"] == 0
     assert main(["compare", "--pool", str(out)]) == 0
     assert capsys.readouterr().out.strip() == text[text.index("Pooled:"):].strip()
+    # a smaller -n: the batch pools its 2, and so does --pool (it had pooled the 3
+    # rows the manifest keeps for a later resume)
+    rc = main(["batch", str(small_scene), "-n", "2", "--out", str(out), "--fit",
+               "gls,stcal-ols_c", "--compare", "--workers", "1", "--no-ramp"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "fitter gls: 2 realisations" in text
+    assert main(["compare", "--pool", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == text[text.index("Pooled:"):].strip()
+    # a damaged record: refused, naming it (it had been left out without a word)
+    (out / "r0001.json").write_text("{")
+    assert main(["compare", "--pool", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "1 of the 2 finished tasks" in err and "r0001" in err
 
 
 def test_grid_of_detectors_runs_point_by_point(small_scene, tmp_path):

@@ -100,6 +100,63 @@ def test_bad_grid_keys_are_refused_naming_the_key(small_scene, tmp_path, grid, m
     assert not (tmp_path / "g").exists()
 
 
+def test_a_key_set_twice_is_refused(small_scene, tmp_path):
+    # a [[detectors]] key the [grid] also varies: the grid's value had silently won
+    path = _batch_file(tmp_path, """\
+scene = "small.toml"
+[grid]
+"noise.rd_noise" = [3.0, 5.2]
+[[detectors]]
+name = "SCA01"
+[[detectors]]
+name = "SCA02"
+"noise.rd_noise" = 6.0
+""")
+    with pytest.raises(ParameterError, match=r"'SCA02' sets 'noise.rd_noise', which "
+                                             r"the \[grid\] also varies"):
+        plan_batch(path, out=tmp_path / "g")
+    # quoted and dotted spellings of one key: one axis had been dropped
+    path = _batch_file(tmp_path, 'scene = "small.toml"\n[grid]\n'
+                                 '"noise.rd_noise" = [3.0, 5.2]\nnoise.rd_noise = [9.0]\n')
+    with pytest.raises(ParameterError, match=r"'noise.rd_noise' is given twice"):
+        plan_batch(path, out=tmp_path / "g")
+    assert not (tmp_path / "g").exists()
+
+
+def test_sizes_are_refused_before_anything_is_built(small_scene, tmp_path):
+    # 8 axes of 10 values: the product (10^8 points) was built before its cap was
+    # checked (10^7 took 1.2 GB); -n 10^8: no answer in 120 s
+    grid = "\n".join(f'"sources.{k}" = [{", ".join(str(v + 1) for v in range(10))}]'
+                     for k in ("background", "dark_current"))
+    grid += "\n" + "\n".join(
+        f'"noise.{k}" = [{", ".join(str(v + 1) for v in range(10))}]'
+        for k in ("c_pink", "u_pink", "acn", "pca0", "pedestal", "ktc"))
+    path = _batch_file(tmp_path, f'scene = "small.toml"\n[grid]\n{grid}\n')
+    with pytest.raises(ParameterError, match=r"the grid has 100000000 points"):
+        plan_batch(path, out=tmp_path / "g")
+    with pytest.raises(ParameterError, match=r"100000000 runs; at most 100000"):
+        plan_batch(small_scene, out=tmp_path / "g", realisations=10 ** 8)
+
+
+def test_the_files_a_scene_reads_are_part_of_the_batch(small_scene, tmp_path):
+    # a batch resumed after its catalogue changed had pooled two scenes
+    from astropy.table import Table
+    scene_dir = os.path.dirname(small_scene)
+    cat = os.path.join(scene_dir, "stars.ecsv")
+    Table({"x": [30.2], "y": [31.6], "flux": [3000.0]}).write(cat, overwrite=True)
+    with open(small_scene) as fh:
+        text = fh.read()
+    path = os.path.join(scene_dir, "with_cat.toml")
+    with open(path, "w") as fh:
+        fh.write(text.replace("[sources]", '[sources]\ncatalogue = "stars.ecsv"', 1))
+    a = plan_batch(path, out=tmp_path / "g").identity()
+    Table({"x": [30.2], "y": [31.6], "flux": [3e5]}).write(cat, overwrite=True)
+    b = plan_batch(path, out=tmp_path / "g").identity()
+    assert a["inputs_sha256"] != b["inputs_sha256"] and a != b
+    # a scene that reads no file keeps the identity it had (no inputs key)
+    assert "inputs_sha256" not in plan_batch(small_scene, out=tmp_path / "g").identity()
+
+
 def test_bad_batch_files(small_scene, tmp_path):
     with pytest.raises(ParameterError, match=r"unknown key 'realisation'.*realisations"):
         plan_batch(_batch_file(tmp_path, 'scene = "small.toml"\nrealisation = 3\n'),

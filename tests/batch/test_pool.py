@@ -82,7 +82,16 @@ def test_jumps_photometry_and_empty_bins():
     empty = pooled["rows"][1]
     assert empty["n_real"] == 0 and math.isnan(empty["bias"])
     text = format_pooled(pooled, title="t")
-    assert "completeness 0.9000 +- 0.0000" in text and "10 - inf" in text
+    # every realisation's completeness is 0.9: the jackknife is 0, the error is the
+    # binomial one of 36 of 40 hits, p = 36.5 / 41: sqrt(p (1 - p) / 40) = 0.0494
+    assert "completeness 0.9000 +- 0.0494" in text and "10 - inf" in text
+    # at the boundary (all hits flagged) too: 1.0000, not +- 0.0000
+    for r in reps:
+        r["jumps"]["completeness"] = 1.0
+    j = pool_reports(reps)["jumps"]
+    p = 40.5 / 41
+    assert j["completeness"] == 1.0
+    assert j["completeness_se"] == pytest.approx(math.sqrt(p * (1 - p) / 40))
 
 
 def test_jackknife_of_a_mean_and_of_one_realisation():

@@ -213,7 +213,6 @@ def _roman_window_pulls(tmp_path, linearize):
     per read, no 1/f or other shared noise, so the pixels' errors are independent)."""
     import tomllib
 
-    from scenesim.calib.prepare import load_exposure
     from scenesim.io.exposure import read_truth
     from scenesim.rampfit.fitter import fit_ramps
     from scenesim.run import run_scene
@@ -231,7 +230,8 @@ def _roman_window_pulls(tmp_path, linearize):
         e = linearize_resultants(e, Nonlinearity(tuple(cfg["effects"]["nonlinearity"])),
                                  p.readout.mean_times(p.t_frame))
     fit = fit_ramps(e, p.read_times, read_noise=p.read_noise, gain=p.gain,
-                    saturated=p.saturated, refmask=p.refmask, threads=1)
+                    saturated=p.saturated, refmask=p.refmask, threads=1,
+                    resultant_noise=p.resultant_noise)
     rate = read_truth(str(tmp_path / "r_truth.fits"))["RATE"]
     z = (fit.slope - rate) / np.sqrt(fit.var_read + fit.var_poisson)
     return z[~p.refmask & (rate >= 1e4)]
@@ -259,7 +259,7 @@ def test_the_streamed_fit_linearises_as_prepare_exposure(tmp_path):
     p = prepare_exposure(path, options=_ROMAN_PREP)
     mem = fit_ramps(p.electrons, p.read_times, read_noise=p.read_noise, gain=p.gain,
                     saturated=p.saturated, refmask=p.refmask, jump_threshold=5.0,
-                    threads=1)
+                    threads=1, resultant_noise=p.resultant_noise)
     streamed = fit_exposure_file(path, str(tmp_path / "s.fits"),
                                  options=replace(_ROMAN_PREP, threads=1))
     np.testing.assert_array_equal(streamed.slope, mem.slope)

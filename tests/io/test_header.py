@@ -96,3 +96,25 @@ def test_exposure_readout_checks_the_sci_shape():
     bad = Exposure(exp.sci[:, :2], exp.header, exp.reads, "x.fits")
     with pytest.raises(FileFormatError, match="SCI shape"):
         hd.exposure_readout(bad)
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("TFRAME", 1.0, r"header says TFRAME = 1.0 s, its READS table"),
+    ("NGROUPS", 7, r"header says NGROUPS = 7, its READS table and SCI hold 3"),
+    ("TFRAME", "fast", r"TFRAME = 'fast' is not a number"),
+    ("GAIN", -1.0, r"GAIN = -1.0 e-/DN must be a finite number > 0")])
+def test_exposure_readout_checks_the_header_against_the_reads(key, value, match):
+    # an edited TFRAME of 1 s on ~ms frames had scaled every slope without a word
+    det = noise.preset("H2RG", naxis1=32, naxis2=32)
+    eng = ChargeEngine(det, Readout.named("RAPID", 3), rng=1)
+    exp = write_exposure(eng, None)["exposure"]
+    assert hd.exposure_readout(exp).ngroups == 3
+    hdr = exp.header.copy()
+    hdr[key] = value
+    with pytest.raises(FileFormatError, match=match):
+        hd.exposure_readout(Exposure(exp.sci, hdr, exp.reads, "x.fits"))
+    # the table's own times, edited: refused too
+    reads = exp.reads.copy()
+    reads["READ_TIMES"][1, 0] *= 1.5
+    with pytest.raises(FileFormatError, match="READ_TIMES are not the reads"):
+        hd.exposure_readout(Exposure(exp.sci, exp.header, reads, "x.fits"))

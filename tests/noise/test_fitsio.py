@@ -167,6 +167,7 @@ def test_completed_outputs_lists_only_what_was_renamed_into_place(tmp_path,
     import noise.fitsio as fitsio
     from scenesim import cli
     monkeypatch.setattr(fitsio, "_COMPLETED", [])
+    monkeypatch.setattr(fitsio, "_REPLACING", [])
     write_noise_fits(tmp_path / "a.fits", NoiseGenerator(DET, NIRSPEC_DEFAULTS, rng=1,
                                                          threads=1), 2)
     with pytest.raises(RuntimeError):
@@ -182,6 +183,7 @@ def test_interrupted_names_the_files_it_keeps(capsys, monkeypatch):
     import noise.fitsio as fitsio
     from scenesim import cli
     monkeypatch.setattr(fitsio, "_COMPLETED", [])
+    monkeypatch.setattr(fitsio, "_REPLACING", [])      # other tests' outputs
     cli._interrupted(" run", KeyboardInterrupt())
     assert capsys.readouterr().err == ("scenesim run: interrupted (SIGINT); no partial "
                                        "output was left\n")
@@ -193,6 +195,32 @@ def test_interrupted_names_the_files_it_keeps(capsys, monkeypatch):
     assert err.count("\n") == 1
     assert ("the files it had finished are complete and kept ('x.fits', 'x_truth.fits', "
             "'x_gls.fits', 'a' and 2 more); no partial output was left") in err
+
+
+def test_interrupted_names_the_files_it_was_to_replace_and_did_not(
+        tmp_path, capsys, monkeypatch):
+    # run --overwrite stopped while fitting: the new exposure and truth beside the
+    # earlier run's slope file, which the line had not named
+    import noise.fitsio as fitsio
+    from scenesim import cli
+    from scenesim.outputs import check_outputs
+    monkeypatch.setattr(fitsio, "_COMPLETED", [])
+    monkeypatch.setattr(fitsio, "_REPLACING", [])
+    monkeypatch.chdir(tmp_path)
+    for name in ("x.fits", "x_truth.fits", "x_gls.fits"):
+        (tmp_path / name).write_text("earlier")
+    check_outputs({"exposure": "x.fits", "truth": "x_truth.fits", "fit": "x_gls.fits",
+                   "new": "y.fits"}, overwrite=True)
+    for name in ("x.fits", "x_truth.fits"):
+        fitsio.record_completed(name)
+    cli._interrupted(" run", KeyboardInterrupt())
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert ("kept ('x.fits', 'x_truth.fits'); 'x_gls.fits' was not rewritten and is "
+            "still an earlier run's; no partial output was left") in err
+    fitsio.record_completed("x_gls.fits")
+    cli._interrupted(" run", KeyboardInterrupt())
+    assert "earlier run" not in capsys.readouterr().err
 
 
 def test_failing_write_keeps_existing_file(tmp_path):

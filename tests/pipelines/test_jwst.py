@@ -331,6 +331,13 @@ def test_pipeline_jwst_never_replaces_an_input_and_checks_first(jwst_loop, tmp_p
     shutil.copytree(d / "jwst_loop_refs", w / "refs_size")
     with fits.open(w / "refs_size" / "jwst_superbias.fits", mode="update") as hdul:
         hdul["SCI"].data = hdul["SCI"].data[:-2]
+    # the same detector, size and gain, but another run's dark (its reference id:
+    # test_reffiles.test_reference_id_follows_the_hot_pixels_not_the_seed)
+    assert fits.getval(d / "jwst_loop_uncal.fits", "SSREFID") == \
+        fits.getval(d / "jwst_loop_refs" / "jwst_dark.fits", "SSREFID")
+    shutil.copytree(d / "jwst_loop_refs", w / "refs_run")
+    with fits.open(w / "refs_run" / "jwst_dark.fits", mode="update") as hdul:
+        hdul[0].header["SSREFID"] = "0123456789abcdef"
     before = _digest(w)
     for args, words in (
             (["z_rate.fits", "--overwrite"], ["z_rate.fits", "reads"]),
@@ -348,7 +355,9 @@ def test_pipeline_jwst_never_replaces_an_input_and_checks_first(jwst_loop, tmp_p
             (["z_rate.fits", "-o", "new", "--refs", "refs_gain"],
              ["gain reference", "GAIN"]),
             (["z_rate.fits", "-o", "new", "--refs", "refs_size"],
-             ["superbias reference", "pixels"])):
+             ["superbias reference", "pixels"]),
+            (["z_rate.fits", "-o", "new", "--refs", "refs_run"],
+             ["dark reference", "another run's detector", "0123456789abcdef"])):
         if "--refs" not in args:
             args = [*args, "--refs", "refs"]
         line = _refused(["pipeline", "jwst", *args], w)
@@ -437,3 +446,22 @@ def test_a_readout_that_is_not_multiaccum_has_no_uncal(tmp_path):
     with pytest.raises(ParameterError, match="MULTIACCUM"):
         write_uncal(tmp_path / "n6.fits", tmp_path / "u.fits")
     assert not (tmp_path / "u.fits").exists()
+
+
+def test_an_exp_type_must_be_of_the_inferred_instrument():
+    """With no [instrument] name the instrument is inferred (from the detector or the
+    readout); an exp_type of another instrument was written beside it (INSTRUME =
+    NIRCAM, EXP_TYPE = MIR_IMAGE)."""
+    from noise.clock import preset
+    from noise.errors import ParameterError
+    from scenesim.pipelines.instrument import InstrumentConfig, resolve_instrument
+    det = preset("NIRCAM")
+    ok = resolve_instrument(InstrumentConfig(exp_type="NRC_TSIMAGE"), det, "RAPID")
+    assert ok["name"] == "NIRCAM" and ok["exp_type"] == "NRC_TSIMAGE"
+    with pytest.raises(ParameterError, match=r"'MIR_IMAGE' is not a NIRCAM exposure "
+                                             r"type.*inferred from the readout.*'NRC_'"):
+        resolve_instrument(InstrumentConfig(exp_type="MIR_IMAGE"), det, "RAPID")
+    with pytest.raises(ParameterError, match=r"not a NIRSPEC exposure type.*of detector "
+                                             r"'NRS1'"):
+        resolve_instrument(InstrumentConfig(detector="NRS1", exp_type="NRC_IMAGE"),
+                           preset("NIRSPEC"), "NRSRAPID")

@@ -237,3 +237,23 @@ def test_every_read_of_a_full_pixel_is_at_or_above_the_saturation_reference(tmp_
     spread = scene.noise.spread(engine.detector)
     top = ref.bias + ref.ipc_kernel[1, 1] * fw
     assert np.all(top[regular] - ref.saturation[regular] <= 10 * spread)
+
+
+def test_reference_id_follows_the_hot_pixels_not_the_seed():
+    """Runs of one scene with other seeds have other hot pixels, hence another
+    reference id (the pipelines refuse their references for each other); without
+    hot pixels their references are the same, and so is the id."""
+    from scenesim.pipelines.reffiles import reference_id
+
+    def ident(seed, hot):
+        scene = parse_scene({
+            "seed": seed, "detector": {"preset": "H2RG", "naxis1": 64, "naxis2": 64},
+            "readout": {"pattern": "RAPID", "ngroups": 3},
+            "sources": {"dark_current": 0.01, "hot_pixel_fraction": hot},
+            "output": {"path": "x.fits", "truth": False}})
+        engine, _ = build_engine(scene)
+        return reference_id(detector_reference(scene, engine))
+
+    assert ident(1, 0.01) != ident(2, 0.01)
+    assert ident(1, 0.0) == ident(2, 0.0)
+    assert ident(1, 0.01) == ident(1, 0.01) and len(ident(1, 0.0)) == 16

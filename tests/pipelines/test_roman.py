@@ -326,15 +326,27 @@ def test_pipeline_roman_never_replaces_an_input_and_checks_first(roman_loop, tmp
     shutil.copy(d / "roman_loop_truth.fits", w / "truth.fits")
     shutil.copytree(d / "roman_loop_refs", w / "refs")
     gain = next(p.name for p in (w / "refs").iterdir() if "gain" in p.name)
+    # another run's references (same detector and size, another reference id)
+    import roman_datamodels.datamodels as rdd
+    shutil.copytree(d / "roman_loop_refs", w / "refs_run")
+    with rdd.open(w / "refs" / "roman_mask.asdf") as m, \
+            rdd.open(w / "l1.asdf") as l1:
+        assert m.meta["scenesim_refid"] == l1.meta["scenesim_refid"]
+        m.meta["scenesim_refid"] = "0123456789abcdef"
+        m.to_asdf(w / "refs_run" / "roman_mask.asdf")
     before = {p: p.read_bytes() for p in w.rglob("*") if p.is_file()}
     for args, words in (
             (["l1.asdf", "-o", "l1.asdf"], ["l1.asdf", "reads"]),
             (["l1.asdf", "-o", f"refs/{gain}"], [gain, "reads"]),
             (["l2.asdf"], ["ImageModel", "not an L1"]),
             (["truth.fits", "-o", "x.asdf"], ["not a Roman ASDF"]),
-            (["l1.asdf", "-o", "x.fits"], ["must end in .asdf"])):
+            (["l1.asdf", "-o", "x.fits"], ["must end in .asdf"]),
+            (["l1.asdf", "-o", "x.asdf", "--refs", "refs_run"],
+             ["mask reference", "another run's detector", "0123456789abcdef"])):
+        if "--refs" not in args:
+            args = [*args, "--refs", "refs"]
         res = subprocess.run([sys.executable, "-m", "scenesim.cli", "pipeline", "roman",
-                              *args, "--refs", "refs", "--overwrite"], cwd=w,
+                              *args, "--overwrite"], cwd=w,
                              capture_output=True, text=True)
         assert res.returncode == 2, res.stderr
         lines = res.stderr.strip().splitlines()

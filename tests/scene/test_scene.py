@@ -256,9 +256,15 @@ def test_full_scene_round_trips(full_scene_dir, tmp_path_factory, monkeypatch):
     assert scene.replace(seed=5).seed == 5
     with pytest.raises(ParameterError, match="seed"):
         scene.replace(seed=-5)
+    from scenesim.outputs import scene_id
     assert scene.to_header_cards() == [
         ("SCENE", "scene.toml", "scene file"),
+        ("SCENEID", scene_id(scene), "scene content digest (not seed, outputs)"),
         ("SEED", 987654321, "master seed (numpy SeedSequence entropy)")]
+    # the digest: not the seed, the path or the outputs; the physics, and the
+    # contents (not the paths) of the files the scene reads
+    assert scene_id(scene.replace(seed=1)) == scene_id(scene)
+    assert len(scene_id(scene)) == 16
 
 
 def test_minimal_scene_defaults(tmp_path):

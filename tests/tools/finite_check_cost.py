@@ -4,7 +4,7 @@
 
     PYTHONPATH=$PWD python tests/tools/finite_check_cost.py
 """
-import time, numpy as np, sys
+import time, numpy as np
 from scenesim.rampfit.fitter import _check_finite, _ArrayRows
 from scenesim.rampfit.solver import row_chunks
 cube = np.random.default_rng(1).standard_normal((1, 20, 2048, 2048), dtype=np.float32)
