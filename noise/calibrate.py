@@ -359,7 +359,8 @@ def load_darks(paths, *, detector=None, gain=None):
                         f"dark ramp {path!r} has no scenesim detector cards ({exc}); "
                         f"pass the detector (--preset and its options)") from exc
                 own = None
-            if own is not None and detector is not None and own != detector:
+            if own is not None and detector is not None and not _same_clock(own,
+                                                                             detector):
                 # the file's own clock wins: a contradicting one fitted 8 outputs to a
                 # 4-output dark (c_pink -5 sigma, u_pink +4 sigma, no word)
                 raise ParameterError(
@@ -439,6 +440,14 @@ def _clock_text(det):
          ", reference output" if det.ref_output else ""])
     return (f"{det.name} {det.naxis1}x{det.naxis2}, {det.n_out} outputs, "
             f"dt {det.dt:g} s, nroh {det.nroh}, nfoh {det.nfoh}{extra}")
+
+
+def _same_clock(a, b):
+    """True when two detectors read their pixels alike (geometry, outputs, clock,
+    window, interleave), whatever their names (an uncal's DETECTOR is the JWST one,
+    NRCA1, where the preset says H2RG) and pixel pitch."""
+    import dataclasses
+    return dataclasses.replace(a, name=b.name, pixel_pitch=b.pixel_pitch) == b
 
 
 def _same_gain(recorded, gain):

@@ -341,7 +341,10 @@ def fit_exposure_stcal(exposure, output, *, algorithm="OLS_C", overwrite=False,
              ("RNSTCAL", float(np.median(rn_dn)),
               "[DN] stcal readnoise_2d, median: sqrt2*RN/GAIN"),
              ("CHI2DEF", "scenesim model", "CHI2: scenesim model chi2, not stcal's")]
-    cards += list(prep.cards)
+    # RSNOISE says what scenesim's covariance holds: here only the recomputed CHI2
+    # uses it, stcal's errors do not (a probe read the card as theirs)
+    cards += [(k, v, "[e-] rounding: in CHI2, not in stcal errors" if k == "RSNOISE"
+               else c) for k, v, c in prep.cards]
     write_fit(output, result, header_cards=cards, overwrite=overwrite)
     return result
 

@@ -466,3 +466,14 @@ def test_cosmic_rays_in_darks_are_found_and_left_out():
         assert abs(est.value - getattr(p, name)) < 5 * est.sigma, (name, est)
     note = [n for n in res.notes if "jumped" in n]
     assert note and note[0].startswith(f"{n_hits} read steps"), res.notes
+
+
+def test_detector_options_that_match_a_file_are_accepted(tmp_path):
+    # the same clock under another name (an uncal's DETECTOR is the JWST one) or
+    # pixel pitch is the same detector: a probe found it refused
+    import dataclasses
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    dn = _write_dark(tmp_path / "dn.fits", det, NoiseParams(), seed=3, nints=1,
+                     unit="DN", gain=2.0)
+    alias = dataclasses.replace(det, name="NRCA1", pixel_pitch=10.0)
+    assert load_darks([dn], detector=alias).detector == det
