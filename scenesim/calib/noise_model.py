@@ -140,39 +140,54 @@ def _k2_per_group(fp):
     rho = fp["rho"][ok]
     u = g.chi2[ok].astype(np.float64) * (1 + rho) - rho
     nu = g.dof[ok].astype(np.float64)
-    k2[:] = _trimmed_k2(u, nu)
-    order = np.argsort(fp["groups"][ok], kind="stable")
-    lab, u, nu = fp["groups"][ok][order], u[order], nu[order]
-    uniq, start, count = np.unique(lab, return_index=True, return_counts=True)
-    for lb, a, c in zip(uniq, start, count):        # one estimate per group
-        if c >= NOISE_MIN_PIXELS:
-            k2[lb] = _trimmed_k2(u[a:a + c], nu[a:a + c])
+    k2[:] = _trimmed_k2(u, nu, np.zeros(u.size, np.intp), 1)[0]
+    lab = fp["groups"][ok].astype(np.intp)
+    count = np.bincount(lab, minlength=k2.size)
+    est = _trimmed_k2(u, nu, lab, k2.size)          # one estimate per group
+    big = count >= NOISE_MIN_PIXELS
+    k2[big] = est[big]
     return k2
 
 
-def _trimmed_k2(u, nu):
-    """``k^2`` of values ``u = k^2 X / nu``, ``X ~ chi^2_nu`` (``nu`` per value), robust
-    to a few large ones (ramps with jumps).
+def _trimmed_k2(u, nu, lab, ngr):
+    """``k^2`` of each group ``lab`` (ints in ``[0, ngr)``) of values ``u = k^2 X /
+    nu``, ``X ~ chi^2_nu`` (``nu`` per value), robust to a few large ones (ramps with
+    jumps); an array of ``ngr`` (groups without values: nan).
 
-    A first, robust scale ``k0^2``: the median of ``u`` over the chi-square's median
-    (biased where ``u`` takes few values, module notes, but only used for the cut).
-    Values above ``t_i = k0^2`` times :data:`_CUT` times the chi-square's
-    :data:`_CUT_QUANTILE` quantile (per degree of freedom) are left out, and the mean
-    of the rest is divided by what that cut keeps of a scaled chi-square's mean,
-    ``E[u 1(u <= t)] = k^2 F_{nu+2}(t nu / k^2)`` (``F`` the chi-square
-    distribution function), solved for ``k^2`` by a few fixed-point steps.  The
-    mean of the kept values is right whatever their shape near 0 (the median is
-    not, for whole-DN differences)."""
-    med = 2 * gammaincinv(nu / 2, 0.5) / nu                 # median of chi2_nu / nu
-    k0 = float(np.median(u / med))
-    if not k0 > 0:
-        return k0
-    t = k0 * _CUT * 2 * gammaincinv(nu / 2, _CUT_QUANTILE) / nu
-    kept = float(np.sum(np.where(u <= t, u, 0.0)))
-    k2 = k0
+    A first, robust scale ``k0^2`` per group: the median of ``u`` over the
+    chi-square's median (biased where ``u`` takes few values, module notes, but only
+    used for the cut).  Values above ``t = k0^2`` times :data:`_CUT` times the
+    chi-square's :data:`_CUT_QUANTILE` quantile (per degree of freedom) are left out,
+    and the mean of the rest is divided by what that cut keeps of a scaled
+    chi-square's mean, ``E[u 1(u <= t)] = k^2 F_{nu+2}(t nu / k^2)`` (``F`` the
+    chi-square distribution function), solved for ``k^2`` by a few fixed-point steps.
+    The mean of the kept values is right whatever their shape near 0 (the median is
+    not, for whole-DN differences).  The special functions run once per distinct
+    (group, nu), not per value (per value they took 1.7 s of a 1024^2 fit)."""
+    nus, inv_nu = np.unique(nu, return_inverse=True)
+    med = (2 * gammaincinv(nus / 2, 0.5) / nus)[inv_nu]    # median of chi2_nu / nu
+    x = u / med
+    order = np.lexsort((x, lab))
+    xs, ls = x[order], lab[order]
+    start = np.searchsorted(ls, np.arange(ngr))
+    cnt = np.bincount(lab, minlength=ngr)
+    k0 = np.full(ngr, np.nan)
+    has = cnt > 0
+    lo = start[has] + (cnt[has] - 1) // 2                   # the sorted middle(s)
+    hi = start[has] + cnt[has] // 2
+    k0[has] = 0.5 * (xs[lo] + xs[hi])                       # per-group median
+    qcut = _CUT * 2 * gammaincinv(nus / 2, _CUT_QUANTILE) / nus
+    key = lab * nus.size + inv_nu                           # (group, nu) pairs
+    keys, kinv, kcnt = np.unique(key, return_inverse=True, return_counts=True)
+    kg, kn = keys // nus.size, keys % nus.size
+    t = k0[kg] * qcut[kn]
+    kept = np.bincount(lab, weights=np.where(u <= t[kinv], u, 0.0), minlength=ngr)
+    k2 = k0.copy()
     for _ in range(8):
-        frac = float(np.sum(gammainc(nu / 2 + 1, t * nu / (2 * k2))))
-        k2 = kept / max(frac, 1e-300)
+        a = nus[kn] / 2
+        frac = np.bincount(kg, weights=kcnt * gammainc(a + 1, t * a / np.maximum(
+            k2[kg], 1e-300)), minlength=ngr)
+        k2 = np.where(has & (k0 > 0), kept / np.maximum(frac, 1e-300), k0)
     return k2
 
 
