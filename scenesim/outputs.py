@@ -24,8 +24,8 @@ from noise.fitsio import (check_output_name, derived_path, record_replacing,
                           remove_stale_temps, same_file)
 from noise.validate import check_writable
 
-__all__ = ["PLOT_FILES", "scene_inputs", "scene_id", "check_outputs", "check_plot_dir",
-           "fit_path_for", "clean_stale_temps", "check_not_dangling"]
+__all__ = ["PLOT_FILES", "scene_inputs", "scene_id", "file_sha256", "check_outputs",
+           "check_plot_dir", "fit_path_for", "clean_stale_temps", "check_not_dangling"]
 
 #: The figures ``compare --plots DIR`` writes into ``DIR``.
 PLOT_FILES = ("slope.png", "residuals.png", "noise_vs_flux.png")
@@ -78,12 +78,18 @@ def scene_id(scene):
                     ("detector", "noise", "readout", "sources", "effects", "instrument"))
     own = os.path.abspath(scene.path) if scene.path else None
     for path in sorted(set(scene_inputs(scene)) - {own}, key=len, reverse=True):
-        h = hashlib.sha256()
-        with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        text = text.replace(repr(path), f"<file sha256 {h.hexdigest()}>")
+        text = text.replace(repr(path), f"<file sha256 {file_sha256(path)}>")
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def file_sha256(path):
+    """sha256 (hex) of a file's bytes, read in 1 MB blocks."""
+    import hashlib
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 #: The name endings of a FITS output (``.gz``: written gzip-compressed).

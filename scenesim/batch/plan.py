@@ -72,7 +72,7 @@ from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.validate import (check_bool, check_choice, check_int, check_path, check_str,
                             describe, suggest)
 from scenesim.calib.refpix import SCHEMES, applied_scheme
-from scenesim.outputs import fit_path_for, scene_inputs
+from scenesim.outputs import file_sha256, fit_path_for, scene_inputs
 from scenesim.scene import load_scene, parse_scene
 from scenesim.scene.schema import MAX_SEED
 
@@ -213,7 +213,7 @@ class BatchPlan:
                "seed": None if self.seed_source == "drawn" else self.batch_seed,
                "fit": list(self.fitters), "ramp": self.ramp, "refpix": self.refpix}
         if inputs:
-            out["inputs_sha256"] = {f: _file_sha256(f) for f in inputs}
+            out["inputs_sha256"] = {f: file_sha256(f) for f in inputs}
         return out
 
     def tasks(self, *, threads=None):
@@ -245,15 +245,6 @@ class BatchPlan:
                                 compare=self.compare, refpix=self.refpix,
                                 threads=threads))
         return out
-
-
-def _file_sha256(path):
-    """sha256 of a file's bytes, read in 1 MB blocks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _jsonable(value):
