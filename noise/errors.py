@@ -5,7 +5,7 @@ allowed, and is raised before any work starts (and before any file is opened).
 """
 
 __all__ = ["ScenesimError", "ParameterError", "ParameterTypeError", "FileFormatError",
-           "OutputError", "HelperProcessError"]
+           "OutputError", "HelperProcessError", "ScenesimWarning"]
 
 
 class ScenesimError(Exception):
@@ -47,3 +47,9 @@ class HelperProcessError(ScenesimError, RuntimeError):
     The message says what happened (its traceback when it raised, or that it exited
     without a result, e.g. after SIGKILL); the run stops and leaves no partial output.
     """
+
+
+class ScenesimWarning(UserWarning):
+    """Base class of the warnings this project issues on purpose: a run that works
+    but probably not as its user meant (the commands print them as one line,
+    ``'<command>: warning: <message>'``)."""

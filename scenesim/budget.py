@@ -194,7 +194,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from noise.clock import Detector, exposure_slots
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ScenesimWarning
 from noise.fast.memory import available_memory
 from noise.fitsio import derived_path
 from noise.params import NoiseParams
@@ -231,21 +231,23 @@ _FIT_CHUNK_BYTES = 36
 _PRODUCT_FIXED = 32 * _MB         # the data models' schemas and validation
 
 
-class BudgetWarning(UserWarning):
+class BudgetWarning(ScenesimWarning):
     """A run uses more than :data:`WARN_FRACTION` of the available memory or of the
     free disk space, or exceeds a limit and was forced (:meth:`Budget.warn`)."""
 
 
 @contextlib.contextmanager
 def one_line_warnings(prog):
-    """Inside the block, a :class:`BudgetWarning` is printed on stderr as the one line
+    """Inside the block, a :class:`~noise.errors.ScenesimWarning` (a
+    :class:`BudgetWarning`, a :class:`scenesim.sky.rates.SceneWarning`) is printed on
+    stderr as the one line
     ``'<prog>: warning: <message>'`` (Python's default adds the file, the line number
     and the source line); other warnings are shown as before."""
     with warnings.catch_warnings():
         show = warnings.showwarning
 
         def _show(message, category, filename, lineno, file=None, line=None):
-            if issubclass(category, BudgetWarning):
+            if issubclass(category, ScenesimWarning):
                 print(f"{prog}: warning: {message}", file=sys.stderr)
             else:
                 show(message, category, filename, lineno, file, line)

@@ -31,11 +31,13 @@ Random streams (:mod:`noise.streams`), under the scene's seed: hot pixels draw f
 on or off leaves the other draws unchanged.
 """
 
+import warnings
+
 import numpy as np
 from astropy.table import vstack
 
 from noise import streams
-from noise.errors import ParameterError
+from noise.errors import ParameterError, ScenesimWarning
 
 from scenesim.detector.flat import apply_flat
 from scenesim.engine import CosmicRayHits, VariableSource
@@ -44,7 +46,16 @@ from scenesim.sky.maps import load_map
 from scenesim.sky.psf import render_point_sources
 from scenesim.sky.sources import draw_hot_pixels
 
-__all__ = ["scene_rates", "cosmic_ray_hits"]
+__all__ = ["scene_rates", "cosmic_ray_hits", "SceneWarning"]
+
+#: Stars named one by one in the warning about stars that miss the array.
+_NAMED = 3
+
+
+class SceneWarning(ScenesimWarning):
+    """A scene that runs but probably not as meant: stars that put no charge on the
+    array's collecting pixels (a catalogue wider than the array is normal; a lone
+    star a million pixels away is more likely a unit slip)."""
 
 
 def _seed(scene):
@@ -117,8 +128,28 @@ def scene_rates(scene):
             info["light_curve"] = [name]
             rendered_parts.append(info)
         rendered = vstack(rendered_parts) if rendered_parts else None
+        _warn_missed(rendered, det.shape)
     rate = np.where(refmask, 0.0, rate)
     return rate, variable, rendered
+
+
+def _warn_missed(rendered, shape):
+    """A :class:`SceneWarning` naming the stars whose PSF puts nothing on the
+    collecting pixels (``frac_on_array`` 0: the stamp misses the array, or covers only
+    reference pixels); the truth catalogue keeps them, with ``flux_on_array`` 0."""
+    missed = np.flatnonzero(np.asarray(rendered["frac_on_array"]) <= 0)
+    if not missed.size:
+        return
+    ny, nx = shape
+    named = ", ".join(f"({rendered['x'][i]:.6g}, {rendered['y'][i]:.6g})"
+                      for i in missed[:_NAMED])
+    more = f" and {missed.size - _NAMED} more" if missed.size > _NAMED else ""
+    warnings.warn(
+        f"{missed.size} of {len(rendered)} stars put no charge on the array's "
+        f"collecting pixels, at (x, y) = {named}{more} (the array spans "
+        f"-0.5 to {nx - 0.5:g} in x and -0.5 to {ny - 0.5:g} in y, pixel centres at "
+        f"integers); they are kept "
+        f"in the truth catalogue with flux_on_array = 0", SceneWarning, stacklevel=3)
 
 
 def cosmic_ray_hits(scene, t_total):

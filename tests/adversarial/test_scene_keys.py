@@ -40,13 +40,14 @@ import re
 import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 import pytest
 from astropy.io import fits
 
 from noise.clock import Detector, Interleave, Subarray
-from noise.errors import FileFormatError, ParameterError, ScenesimError
+from noise.errors import FileFormatError, ParameterError, ScenesimError, ScenesimWarning
 from noise.params import NoiseParams
 from scenesim.budget import check_budget
 from scenesim.engine import EngineOptions
@@ -323,18 +324,25 @@ def test_parse_accepts_or_names_the_key(table, key, entry, ctx, cls, scene_dir):
 def test_accepted_huge_and_zero_values_run(table, key, entry, ctx, cls, scene_dir,
                                            tmp_path):
     """What the parser and the size check accept runs (16 x 16 pixels), or fails with
-    the project's error -- never a numpy error, an overflow or a warning."""
+    the project's error -- never a numpy error, an overflow or a warning other than
+    the project's own (a star a huge distance off the array is named in a
+    SceneWarning)."""
     m = _with(table, key, entry, ctx, copy.deepcopy(VALUES[cls]))
     try:
         scene = _parse(m, scene_dir)
         check_budget(scene)
     except ScenesimError:
         return
-    try:
-        run_scene(scene, output=str(tmp_path / "out.fits"), progress=False,
-                  options=EngineOptions(threads=1))
-    except ScenesimError as exc:
-        assert "\n" not in str(exc)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            run_scene(scene, output=str(tmp_path / "out.fits"), progress=False,
+                      options=EngineOptions(threads=1))
+        except ScenesimError as exc:
+            assert "\n" not in str(exc)
+    for w in caught:
+        assert issubclass(w.category, ScenesimWarning), w
+        assert "\n" not in str(w.message)
 
 
 # ---------------------------------------------------------------- the command

@@ -128,3 +128,30 @@ def test_scene_rates_and_cosmic_rays_use_their_own_streams(tmp_path):
     for name in ("time", "index", "charge"):
         np.testing.assert_array_equal(getattr(hits, name), getattr(again, name))
     assert not ref.ravel()[hits.index].any()            # no charge on reference pixels
+
+
+def test_stars_that_miss_the_array_are_named_in_a_warning_and_kept_in_the_truth():
+    # A star whose PSF puts nothing on the collecting pixels (far off the array)
+    # runs, but the run says so, naming it;
+    # the truth catalogue keeps it with flux_on_array = 0.  Stars on the array do not
+    # warn.
+    from scenesim.sky.rates import SceneWarning
+    base = {
+        "seed": 3, "detector": DETECTOR, "noise": {"preset": "none"},
+        "readout": {"pattern": "RAPID", "ngroups": 2},
+        "sources": {"psf": {"kind": "gaussian", "fwhm": 1.0},
+                    "stars": [{"x": 30.0, "y": 30.0, "flux": 100.0}]},
+    }
+    scene_rates(parse_scene(base))                      # no warning (errors here)
+    far = [{"x": 1e6, "y": 30.0, "flux": 100.0}, {"x": 30.0, "y": -9.0, "flux": 5.0},
+           {"x": -40.0, "y": -40.0, "flux": 1.0}, {"x": 30.0, "y": 1e9, "flux": 1.0}]
+    scene = parse_scene({**base, "sources": {**base["sources"],
+                                             "stars": base["sources"]["stars"] + far}})
+    with pytest.warns(SceneWarning) as caught:
+        rate, _, rendered = scene_rates(scene)
+    text = str(caught[0].message)
+    assert text.startswith("4 of 5 stars put no charge") and "(1e+06, 30)" in text
+    assert "(30, -9)" in text and "1 more" in text
+    assert list(rendered["flux_on_array"][1:]) == [0.0] * 4
+    assert rendered["flux_on_array"][0] > 0 and rate.sum() == pytest.approx(
+        rendered["flux_on_array"][0], rel=1e-12)
