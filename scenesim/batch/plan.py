@@ -154,6 +154,7 @@ class Task:
     compare: bool
     refpix: str
     threads: int | None = None
+    detector: str = ""          # the point's [[detectors]] name ("" without them)
 
     @property
     def path(self):
@@ -243,7 +244,8 @@ class BatchPlan:
                                 scene=p.scene.replace(seed=seed, output=cfg),
                                 paths=tuple(paths.items()), fitters=self.fitters,
                                 compare=self.compare, refpix=self.refpix,
-                                threads=threads))
+                                threads=threads,
+                                detector=dict(p.params).get("detector", "")))
         return out
 
 

@@ -8,7 +8,7 @@ as ``scenesim run`` does, so a worker needs the memory of one exposure.
 
 The simulation is the one loop of :func:`scenesim.run.write_exposure` on the engine
 of :func:`scenesim.run.build_engine`, with the header cards of ``scenesim run`` plus
-the batch's (``BATCHSD``, ``BATCHKEY``, ``BATCHTSK``); so the arrays equal those of
+the batch's (``BATCHSD``, ``BATCHKEY``, ``BATCHTSK``, ``BATCHDET``); so the arrays equal those of
 ``scenesim run SCENE --seed <seed>``.  The fits are
 :func:`scenesim.calib.prepare.fit_exposure_file` (cds, ols, gls) and
 :func:`scenesim.adapters.stcal.fit_exposure_stcal` (stcal-ols_c, stcal-likely) on
@@ -47,11 +47,15 @@ RECORD_FORMAT = "scenesim-batch-task 1"
 
 
 def batch_cards(task):
-    """Header cards naming the batch seed, the spawn key and the task."""
-    return [("BATCHSD", task.batch_seed, "batch seed (SEED is spawned from it)"),
-            ("BATCHKEY", ",".join(str(k) for k in task.spawn_key),
-             "spawn key of SEED under BATCHSD"),
-            ("BATCHTSK", task.name[:68], "scenesim batch task")]
+    """Header cards naming the batch seed, the spawn key, the task and, for a batch
+    with ``[[detectors]]``, the task's detector (``BATCHDET``)."""
+    cards = [("BATCHSD", task.batch_seed, "batch seed (SEED is spawned from it)"),
+             ("BATCHKEY", ",".join(str(k) for k in task.spawn_key),
+              "spawn key of SEED under BATCHSD"),
+             ("BATCHTSK", task.name[:68], "scenesim batch task")]
+    if task.detector:
+        cards.append(("BATCHDET", task.detector[:68], "batch [[detectors]] name"))
+    return cards
 
 
 def file_entry(path, *, checksum=True):

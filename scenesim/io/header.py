@@ -75,7 +75,7 @@ __all__ = ["COPIED_KEYS", "CARD_LENGTH", "exposure_cards", "psf_cards", "card",
 #: Exposure header keywords copied into the header of a fit.
 COPIED_KEYS = ("DETECTOR", "SUBARRAY", "READPATT", "NINTS", "NGROUPS", "TFRAME",
                 "SEED", "SCENE", "SCENEID", "IPC", "IPCKERN", "BATCHSD", "BATCHKEY",
-                "BATCHTSK")
+                "BATCHTSK", "BATCHDET")
 
 
 CARD_LENGTH = 80                       # characters in a FITS header card

@@ -313,8 +313,11 @@ name = "SCA02"
     assert rows["p001/r0000"]["params"] == [["detector", "SCA02"],
                                             ["noise.rd_noise", 12.0]]
     for t in plan.tasks():
-        assert fits.getheader(t.path["exposure"])["BATCHKEY"] == \
-            f"{t.point},{t.realisation}"
+        head = fits.getheader(t.path["exposure"])
+        assert head["BATCHKEY"] == f"{t.point},{t.realisation}"
+        # which detector a file is, in the file itself (it was only in the manifest)
+        assert head["BATCHDET"] == ("SCA01", "SCA02")[t.point]
+        assert fits.getheader(t.path["gls"])["BATCHDET"] == head["BATCHDET"]
     # the second detector's read noise is its own
     rdn = [fits.getheader(plan.tasks()[i].path["truth"])["RDNOISE"] for i in (0, 2)]
     assert rdn[1] == 12.0 and rdn[0] != 12.0
