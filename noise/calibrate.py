@@ -104,7 +104,11 @@ output's median is a jump (:func:`_find_jumps`).  A CDS difference with one take
 its row and output's median at that pixel (the 1/f banding stays, the pixel's own
 white noise of that difference is lost: a negligible share), and a pixel with one in
 any integration is left out of the reset-level fit (kTC, bias).  Smaller jumps are
-not seen.  A note says how many were found.
+not seen one by one, but a pixel that collects charge all along (hot or lit) is
+found by the sum of its steps (``last - first`` read, summed over integrations, more
+than :data:`_JUMP_SIGMA` robust sigmas above its row and output's median): every
+difference of its takes the median.  The white-noise model keeps the share of
+samples not replaced.  Notes say how many were found.
 """
 
 import functools
@@ -556,6 +560,21 @@ class _Layout:
         self.norm_ref = det.dt / np.mean([self.ref[o, g].sum() for o, g in self.ref_pairs]) \
             if self.has_ref else 0.0
 
+    def pixel_weights(self):
+        """``(regular, reference)`` images (ny, nx): 1 where a pixel's sample enters
+        the ``'auto'`` (the regular mask shared by the outputs) or the ``'ref'``
+        statistic, else 0 (a segment's tail, a mask gap, a lone reference sample)."""
+        det = self.det
+        ref = np.zeros_like(self.ref)
+        o, g = self.ref_pairs.T
+        ref[o, g] = self.ref[o, g]
+        out = []
+        for m in (np.broadcast_to(self.reg, self.ref.shape), ref):
+            full = np.zeros((self.n_out, det.ny * self.R))
+            full[:, :self.nseg * self.Ls] = m.reshape(self.n_out, -1)
+            out.append(full.reshape(-1)[self.flat])
+        return tuple(out)
+
     def _timeorder(self, image):
         """``image`` (ny, nx) as (n_out, nseg, Ls) in time order (0 in the gaps)."""
         det = self.det
@@ -735,41 +754,83 @@ def _row_output_median(d, det):
 
 def _find_jumps(ramps):
     """Charge that arrived at a pixel between two reads (a cosmic ray, a lit or hot
-    pixel): ``(jumps, jumped, n)``.  ``jumps[k][j]`` holds the flat indices of the
-    pixels of integration ``k`` whose read step ``read(j+1) - read(j)``, less its row
-    and output's median (the 1/f banding), exceeds :data:`_JUMP_SIGMA` robust sigmas
-    of that step (1.4826 times its median absolute deviation); ``jumped`` (ny, nx)
-    the pixels with any; ``n`` the number of steps flagged.
+    pixel): ``(jumps, stepped, n, hot)``.  ``jumps[k][j]`` holds the flat indices of
+    the pixels of integration ``k`` whose read step ``read(j+1) - read(j)``, less its
+    row and output's median (the 1/f banding), exceeds :data:`_JUMP_SIGMA` robust
+    sigmas of that step (1.4826 times its median absolute deviation), and every
+    ``hot`` pixel; ``stepped`` (ny, nx) the pixels with such a step; ``n`` the number
+    of steps flagged; ``hot`` (ny, nx) the pixels whose charge over all integrations
+    (``last read - first read`` summed, less its row and output's median) exceeds
+    :data:`_JUMP_SIGMA` robust sigmas of that sum.
 
     A Gaussian step passes 6 sigma with probability 1e-9: ~0.1 false flags in 1e8
     steps, which only take their median (:func:`_differences`) or leave a pixel out
     of the reset-level fit.  Left in, the steps of ~1 % of pixels hit by cosmic rays
-    biased a probe's rd_noise by +5.5 sigma, ref_ratio -8, u_pink +5 and kTC +4."""
+    biased a probe's rd_noise by +5.5 sigma, ref_ratio -8, u_pink +5 and kTC +4.
+    The sum finds the hot pixels whose steps are too small to pass one by one: a
+    dark current ``i`` puts ``i T`` in each of ``n`` steps but ``n i T`` in their sum,
+    whose noise does not grow with ``n`` (the reads in between cancel).  Left in,
+    1 % of pixels at 20-900 e-/s (4-180 e- per 0.195 s frame) had biased rd_noise by
+    +15 sigma and ref_ratio by -5."""
+    det = ramps.detector
     out, n = [], 0
-    jumped = np.zeros(ramps.detector.shape, bool)
+    total = np.zeros(det.shape)
     for cube in ramps.integrations:
         steps = []
         for j in range(np.shape(cube)[0] - 1):
             d = (np.asarray(cube[j + 1], dtype=np.float64)
                  - np.asarray(cube[j], dtype=np.float64))
-            d -= _row_output_median(d, ramps.detector)
-            sigma = 1.4826 * float(np.median(np.abs(d)))
-            hit = np.flatnonzero(d > _JUMP_SIGMA * sigma) if sigma > 0 else \
-                np.zeros(0, np.intp)
-            jumped.flat[hit] = True
-            n += hit.size
-            steps.append(hit)
+            d -= _row_output_median(d, det)
+            total += d
+            steps.append(_above(d))
+            n += steps[-1].size
         out.append(steps)
-    return out, jumped, n
+    hot = np.zeros(det.shape, bool)
+    hot.flat[_above(total)] = True
+    stepped = np.zeros(det.shape, bool)
+    hot_idx = np.flatnonzero(hot)
+    for steps in out:
+        for j, hit in enumerate(steps):
+            stepped.flat[hit] = True
+            if hot_idx.size:
+                steps[j] = np.union1d(hit, hot_idx)
+    return out, stepped, n, hot
+
+
+def _above(d):
+    """Flat indices of ``d`` above :data:`_JUMP_SIGMA` robust sigmas (1.4826 times
+    the median absolute value; none if that is 0)."""
+    sigma = 1.4826 * float(np.median(np.abs(d)))
+    if sigma <= 0:
+        return np.zeros(0, np.intp)
+    return np.flatnonzero(d > _JUMP_SIGMA * sigma)
 
 
 def _collect(ramps, lay, jumps=None):
-    """Binned statistics of every difference, ``{stat: (n_diff, nbins)}``."""
+    """Binned statistics of every difference, ``{stat: (n_diff, nbins)}``, and the
+    white-noise share the median replacements kept, ``{'auto': 1 - r, 'ref': 1 -
+    r_ref}``: ``r`` the fraction of the statistic's masked samples, over every
+    difference, that took their row's median (:func:`_differences`), which carries
+    the row's 1/f level but not the pixel's own white noise (the median's own, about
+    ``pi / (2 m)`` of it for ``m`` pixels in the row and output, is neglected)."""
     per = {}
     for y in _differences(ramps, jumps):
         for k, v in lay.stats(y).items():
             per.setdefault(k, []).append(v)
-    return {k: np.array(v) for k, v in per.items()}
+    n_diff = len(per["auto"])
+    kept = {"auto": 1.0, "ref": 1.0}
+    if jumps is not None:
+        w_reg, w_ref = lay.pixel_weights()
+        taken = {"auto": 0.0, "ref": 0.0}
+        for k, cube in enumerate(ramps.integrations):
+            for m in range(np.shape(cube)[0] // 2):
+                hit = jumps[k][2 * m]
+                taken["auto"] += w_reg.flat[hit].sum()
+                taken["ref"] += w_ref.flat[hit].sum()
+        kept["auto"] = 1.0 - taken["auto"] / (n_diff * w_reg.sum())
+        if w_ref.sum() > 0:
+            kept["ref"] = 1.0 - taken["ref"] / (n_diff * w_ref.sum())
+    return {k: np.array(v) for k, v in per.items()}, kept
 
 
 def _fit(per, basis, cols, counts):
@@ -1017,9 +1078,14 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
     NoiseParams(f_min=f_min).check_detector(det)
     lay = _layout(det, template_file)
     template = lay.template
-    jumps, jumped, n_jumps = _find_jumps(ramps)
-    per = _collect(ramps, lay, jumps)
-    basis = lay.cached_basis(f_min, pink_spectrum)
+    jumps, stepped, n_jumps, hot = _find_jumps(ramps)
+    jumped = stepped | hot
+    per, kept = _collect(ramps, lay, jumps)
+    basis = dict(lay.cached_basis(f_min, pink_spectrum))
+    for key, col in (("auto", 0), ("ref", 1)):        # the white noise the medians lost
+        if key in basis and kept[key] != 1.0:
+            basis[key] = basis[key].copy()
+            basis[key][:, col] *= kept[key]
     n_out = det.n_out_active
     cols = [0, 2, 4, 5, 6]          # white, c_pink (= all pink), acn, pedestal, pca0
     if n_out > 1:
@@ -1090,11 +1156,17 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
                      f"variance {q:.4g} e-^2 removed from the white noise")
     if n_jumps:
         notes.append(
-            f"{n_jumps} read steps of {int(jumped.sum())} pixels jumped by more than "
+            f"{n_jumps} read steps of {int(stepped.sum())} pixels jumped by more than "
             f"{_JUMP_SIGMA:g} robust sigma (cosmic rays, hot or lit pixels): those CDS "
             f"differences took their row's median, those pixels were left out of kTC "
             f"and the bias; smaller jumps are not seen and still bias the white noise "
             f"up")
+    if hot.any():
+        notes.append(
+            f"{int(hot.sum())} pixels collected more charge over the integrations "
+            f"than {_JUMP_SIGMA:g} robust sigma of the sum of their read steps (hot "
+            f"or lit pixels, or a large jump): every CDS difference of theirs took "
+            f"its row's median, and they were left out of kTC and the bias")
     kw = {}
     for name in ("rd_noise", "ref_ratio", "c_pink", "u_pink", "acn", "pedestal", "ktc",
                  "bias_amp", "bias_offset", "pca0"):
