@@ -865,41 +865,73 @@ class ChargeEngine:
                 if progress is not None:
                     progress(done)
 
-    def integration_windows(self):
-        """``(start, end)`` (nints,) arrays, s from the start of the exposure: the span
-        each integration's slope measures, from its first resultant's mean read time
-        to its last's (from its reset to its one resultant's mean time with one
-        group), on the frame clock (a pixel's own offset, under one frame, left out).
+    def integration_windows(self, pixel_time=0.0):
+        """``(start, end)``, s from the start of the exposure: the span each
+        integration's slope measures at a pixel of clock offset ``pixel_time`` (s,
+        float or array of shape S; :meth:`noise.clock.Detector.pixel_time`), from its
+        first resultant's mean read time to its last's (from its reset to its one
+        resultant's mean time with one group).  Shape ``(nints,) + S``.
+
+        The reset is the pixel's own in its integration's reset frame (rolling), or
+        the start of the first read frame for every pixel (global,
+        docs/CONVENTIONS.md); a pixel's reads come ``pixel_time`` into their frames.
         """
         ro, tf = self.readout, self.detector.frame_time
-        tbar = ro.mean_times(tf)
-        t0 = np.arange(ro.nints) * exposure_slots(1, ro.nreads) * tf    # resets
+        pix = np.asarray(pixel_time, dtype=np.float64)
+        tbar = ro.mean_times(tf, pix)                                # from the reset
+        t0 = np.arange(ro.nints) * exposure_slots(1, ro.nreads) * tf    # reset frames
+        t0 = t0.reshape((ro.nints,) + (1,) * pix.ndim)
+        reset = t0 + (tf if ro.reset_mode == "global" else pix)
         first = tbar[0] if ro.ngroups > 1 else 0.0
-        return t0 + first, t0 + tbar[-1]
+        return reset + first, reset + tbar[-1]
 
     def light_curve_means(self):
         """Mean relative flux of every variable source over each integration's window
-        (:meth:`integration_windows`): (n_variable, nints) float64."""
-        t1, t2 = self.integration_windows()
-        return np.array([v.light_curve.integral(t1, t2) / (t2 - t1)
-                         for v in self.variable]).reshape(len(self.variable), t1.size)
+        (:meth:`integration_windows`), each stamp pixel at its own clock offset and
+        the pixels weighted by their rate (what the source's summed CDS slopes
+        measure; a source with no pixel on the array: at offset 0): (n_variable,
+        nints) float64."""
+        out = np.zeros((len(self.variable), self.readout.nints))
+        for k, v in enumerate(self.variable):
+            if v.index.size and v.weight.sum() > 0:
+                out[k] = (self._pixel_means(v) * (v.weight / v.weight.sum())).sum(axis=1)
+            else:
+                out[k] = v.light_curve.mean(*self.integration_windows())
+        return out
+
+    def _pixel_means(self, v):
+        """The light curve of variable source ``v`` averaged over each integration's
+        window at each of its stamp pixels: (nints, npix)."""
+        t1, t2 = self.integration_windows(self._pixel_time_flat(v.index))
+        return v.light_curve.mean(t1, t2)      # a window of length 0: the value there
+
+    def source_windows(self, v):
+        """:meth:`integration_windows` at the clock offset of the stamp pixel of
+        ``v`` with the largest rate (offset 0 without any): the windows ``LCINTS``
+        lists, ``(start, end)`` of shape (nints,)."""
+        pix = self._pixel_time_flat(v.index[np.argmax(v.weight)]) if v.index.size \
+            else 0.0
+        return self.integration_windows(pix)
 
     def expected_rate(self, t1=None, t2=None):
         """Expected rate of collected charge (e-/s) per pixel, before IPC (after the
         QE flat, which is in the rates); light curves averaged over ``[t1, t2]``, by
-        default over the integrations' windows (the mean of their means,
-        :meth:`integration_windows`: what the slopes measure; the exposure's span
-        would count resets and gaps no read sees).  Shape (ny, nx), float64."""
+        default over the integrations' windows at each pixel's own clock offset (the
+        mean of their means, :meth:`integration_windows`: what the slopes measure;
+        the exposure's span would count resets and gaps no read sees).  Shape (ny,
+        nx), float64."""
         rate = self.rate.copy()
         if t1 is None and t2 is None:
-            means = self.light_curve_means().mean(axis=1) if self.variable else []
-        else:
-            det, ro = self.detector, self.readout
-            t1 = 0.0 if t1 is None else t1
-            t2 = exposure_slots(ro.nints, ro.nreads) * det.frame_time if t2 is None else t2
-            means = [float(v.light_curve.integral(np.array([t1]), np.array([t2]))[0])
-                     / (t2 - t1) for v in self.variable]
-        for v, mean in zip(self.variable, means):
+            for v in self.variable:
+                np.add.at(rate.ravel(), v.index,
+                          v.weight * self._pixel_means(v).mean(axis=0))
+            return rate
+        det, ro = self.detector, self.readout
+        t1 = 0.0 if t1 is None else t1
+        t2 = exposure_slots(ro.nints, ro.nreads) * det.frame_time if t2 is None else t2
+        for v in self.variable:
+            mean = float(v.light_curve.integral(np.array([t1]), np.array([t2]))[0]) \
+                / (t2 - t1)
             np.add.at(rate.ravel(), v.index, v.weight * mean)
         return rate
 

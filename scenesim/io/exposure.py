@@ -432,10 +432,13 @@ def _read_back_table(table, name):
 
 def _light_curve_table(engine, sources):
     """The ``LCINTS`` table of the variable sources (None without any): per source
-    and integration, the window its slope measures (s from the exposure's start,
-    :meth:`scenesim.engine.ChargeEngine.integration_windows`), the light curve's mean
-    over it and the rate the array collects then (``FLUX``, e-/s: ``flux_on_array``
-    times that mean).  That box mean is what a CDS slope, or a shot-noise dominated
+    and integration, the window its slope measures at its brightest pixel (s from
+    the exposure's start, :meth:`scenesim.engine.ChargeEngine.source_windows`; each
+    pixel's own clock offset shifts its window by under one frame time), the light
+    curve's mean over the windows of its pixels weighted by their rates
+    (``LC_MEAN``) and the rate the array collects then (``FLUX``, e-/s:
+    ``flux_on_array`` times that mean: the sum of the source's pixels' CDS slopes).
+    That box mean is what a CDS slope, or a shot-noise dominated
     GLS slope, of the integration measures; an OLS or read-noise dominated GLS slope
     weights the window's middle more (a parabola), so where the light curve changes
     within an integration they differ (a step at a quarter of the window: OLS +3.8
@@ -443,9 +446,9 @@ def _light_curve_table(engine, sources):
     measures ``FLUX``."""
     if not engine.variable:
         return None
-    t1, t2 = engine.integration_windows()
+    windows = [engine.source_windows(v) for v in engine.variable]
     means = engine.light_curve_means()
-    nint = t1.size
+    nint = engine.readout.nints
     src = Table(sources)
     rows = np.flatnonzero(np.asarray(src["light_curve"]) != "") \
         if "light_curve" in src.colnames else np.arange(len(engine.variable))
@@ -456,7 +459,8 @@ def _light_curve_table(engine, sources):
                   "X": np.repeat(np.asarray(src["x"], dtype=float)[rows], nint),
                   "Y": np.repeat(np.asarray(src["y"], dtype=float)[rows], nint),
                   "INTEGRATION": np.tile(np.arange(nint), rows.size),
-                  "T_START": np.tile(t1, rows.size), "T_END": np.tile(t2, rows.size),
+                  "T_START": np.concatenate([w[0] for w in windows]),
+                  "T_END": np.concatenate([w[1] for w in windows]),
                   "LC_MEAN": means.ravel(), "FLUX": (on[:, None] * means).ravel()})
 
 

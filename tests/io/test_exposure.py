@@ -147,11 +147,13 @@ def test_truth_file_contents(tmp_path):
     # expected rate: 2000 e-/s on regular pixels, 0 on reference pixels; the step
     # source (on from 2 tf) at its mean over the integrations' windows, the spans of
     # their resultants' mean times: integration i resets at 6 i tf, its resultants
-    # average reads at 1, (2, 3) and 5 tf after, so [1, 5] tf (on for 3/4 of it)
-    # and [7, 11] tf (on): 0.875
+    # average reads at 1, (2, 3) and 5 tf after, each read t_p (the pixel's clock
+    # offset) into its frame, so [1, 5] tf + t_p (on for (3 + t_p / tf) / 4 of it)
+    # and [7, 11] tf + t_p (on)
     reg = ~det.reference_mask()
     exp_rate = np.where(reg, 2000.0, 0.0)
-    exp_rate[33, 33] += 500.0 * (0.75 + 1.0) / 2
+    tp = det.pixel_time()[33, 33]
+    exp_rate[33, 33] += 500.0 * ((3 + tp / tf) / 4 + 1.0) / 2
     np.testing.assert_allclose(truth["RATE"], exp_rate, rtol=1e-6)
     # RATE_IPC conserves flux away from the border (kernel sums to 1)
     np.testing.assert_allclose(truth["RATE_IPC"][10:50, 10:50].sum(),
