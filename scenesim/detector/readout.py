@@ -339,7 +339,10 @@ class Readout:
         with ``nframes``, ``None`` otherwise.
     nskip : int
         Frames dropped after each reset before the first group (JWST ``DROPFRM1``,
-        >= 0); the first read used must be >= ``nskip``.
+        >= 0); the first read used must be >= ``nskip``.  Without ``nframes`` (read
+        lists that are not a MULTIACCUM pattern) it is the first read's index
+        (a smaller value given is raised to it): those frames are dropped (a probe found ``DROPFRM1 = 0``
+        written for the reads ``[[5], [7, 8]]``).
 
     Raises
     ------
@@ -399,6 +402,8 @@ class Readout:
                 f"'nskip'={self.nskip} frames are dropped after reset, so the first "
                 f"read used must be >= {self.nskip}; got first read {res[0][0]} "
                 f"(allowed nskip: 0..{res[0][0]})")
+        if self.nframes is None:
+            object.__setattr__(self, "nskip", res[0][0])
 
     # ------------------------------------------------------------ constructors
     @classmethod

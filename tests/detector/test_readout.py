@@ -218,6 +218,20 @@ def test_tgroup_single_custom_resultant():
 
 
 # ------------------------------------------------------------------ headers and tables
+@pytest.mark.parametrize("reads", [[[5], [7, 8]], [[3, 4, 5], [9]], [[1], [2], [4]]])
+def test_dropped_frames_of_read_lists_are_the_first_read(reads):
+    # DROPFRM1 counts the frames after the reset that no resultant reads: for read
+    # lists that are not a MULTIACCUM pattern it had been written 0 (a probe:
+    # [[5], [7, 8]] drops 5 frames), and a truth without its READS table rebuilt
+    # from it would have read from the reset
+    ro = Readout.from_reads(reads)
+    assert not ro.is_multiaccum
+    assert dict((k, v) for k, v, _ in ro.to_header_cards(T_FRAME))["DROPFRM1"] == \
+        reads[0][0]
+    assert ro.read_table(T_FRAME).meta["DROPFRM1"] == reads[0][0]
+    assert Readout(tuple(map(tuple, reads)), nskip=0).nskip == reads[0][0]
+
+
 def test_header_cards_multiaccum():
     ro = Readout.named("SHALLOW4", 6, nints=3)
     cards = ro.to_header_cards(T_FRAME)
