@@ -145,8 +145,11 @@ def synthetic_template(naxis2, naxis1):
 def load_template(path, detector):
     """Read a user template FITS (primary or first image HDU) for ``detector``.
 
-    The image may be the full array (it is then cut to the subarray) or exactly the
-    read-out shape.  It is normalised to zero median and unit robust sigma.
+    The image may be the full array or exactly the read-out shape.  It is normalised
+    to zero median and unit robust sigma, a full-array image before it is cut to the
+    subarray, so that a window sees the same values as the full frame there (a
+    probe found a window's pattern normalised on its own: 1998 e- apart at
+    ``bias_amp`` 500); an image of the read-out shape only is normalised as given.
     """
     if not os.path.isfile(path):
         raise FileFormatError(f"'pca0_file': {path!r} does not exist")
@@ -157,9 +160,9 @@ def load_template(path, detector):
             raise FileFormatError(f"'pca0_file': {path!r} has no 2-D image HDU")
         data = np.array(data, dtype=np.float64)
     if data.shape == (detector.naxis2, detector.naxis1):
-        data = data[detector.y0:detector.y0 + detector.ny,
-                    detector.x0:detector.x0 + detector.nx]
-    elif data.shape != detector.shape:
+        return _normalise(data)[detector.y0:detector.y0 + detector.ny,
+                                detector.x0:detector.x0 + detector.nx]
+    if data.shape != detector.shape:
         raise FileFormatError(
             f"'pca0_file': {path!r} has shape {data.shape}; expected the full array "
             f"{(detector.naxis2, detector.naxis1)} or the read-out shape {detector.shape}")

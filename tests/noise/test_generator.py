@@ -333,6 +333,38 @@ def test_template_range_is_the_templates_least_and_largest_value(window):
     assert template_range(det) == (float(t.min()), float(t.max()))
 
 
+def test_a_template_file_gives_a_window_the_full_frames_values(tmp_path):
+    # A full-array template file is normalised (zero median, unit robust sigma) on
+    # the full array, then cut: a window's bias pattern is the full frame's there
+    # (a probe: normalised on the window alone, 1998 e- apart at bias_amp 500).  An
+    # image of the window's shape only is normalised as given.
+    from astropy.io import fits
+    rng = np.random.default_rng(0)
+    img = rng.normal(size=(256, 256))
+    img[:, :128] += 10.0
+    path = tmp_path / "t.fits"
+    fits.writeto(path, img)
+    full = preset("H2RG", naxis1=256, naxis2=256)
+    win = full.window(0, 0, 64, 64)
+    med = np.median(img)
+    mad = 1.4826 * np.median(np.abs(img - med))
+    np.testing.assert_allclose(template_for(win, str(path)),
+                               ((img - med) / mad)[:64, :64], rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(template_for(win, str(path)),
+                                  template_for(full, str(path))[:64, :64])
+    p = ZERO_NOISE.replace(bias_amp=500.0, pca0_file=str(path))
+    a = NoiseGenerator(full, p, rng=1, threads=1).cube(1)[0, 0, :64, :64]
+    b = NoiseGenerator(win, p, rng=1, threads=1).cube(1)[0, 0]
+    np.testing.assert_array_equal(a, b)
+    small = tmp_path / "w.fits"
+    fits.writeto(small, img[:64, :64])
+    part = img[:64, :64]
+    m = np.median(part)
+    np.testing.assert_allclose(template_for(win, str(small)),
+                               (part - m) / (1.4826 * np.median(np.abs(part - m))),
+                               rtol=1e-6, atol=1e-6)
+
+
 def test_bias_pattern_is_template():
     params = ZERO_NOISE.replace(bias_offset=1000.0, bias_amp=300.0)
     img = _gen(params, rng=43).cube(1)[0, 0]
