@@ -96,7 +96,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from noise.validate import check_float, describe, is_real, is_sequence
-from noise.errors import ParameterError, ParameterTypeError
+from noise.errors import ParameterError, ParameterTypeError, ScenesimWarning
 
 __all__ = ["NoiseParams", "NIRSPEC_DEFAULTS", "ZERO_NOISE", "MAX_AMPLITUDE",
            "BIAS_SPREAD_SIGMA", "TEMPLATE_CHECK_PIXELS", "MIN_F_MIN", "PSD_RANGE",
@@ -413,6 +413,26 @@ class NoiseParams:
                 f"noise's rms spread s = {spread:.6g} e- is {rtn_top:.6g} e-, beyond "
                 f"{adc}; 'rtn_amp' must be <= "
                 f"{adc_range - self.bias_offset - b_hi - k * spread:.6g} e-")
+
+    def warn_quantisation(self, gain, name="'gain'"):
+        """Warn (:class:`~noise.errors.ScenesimWarning`) when the ADC's rounding
+        swamps the read noise asked for: the smallest white read noise per read is
+        above 0 and below half an ADC step (``gain / 2`` e-), so the rounding's own
+        ``gain / sqrt(12)`` rms is over 0.58 of it and most reads of a dark pixel
+        repeat one code (a probe: ``--unit DN --gain 1000`` wrote one code for every
+        read, without a word).  A noise-free detector (``rd_noise`` 0) is not
+        warned about."""
+        rd = float(np.min(np.asarray(self.rd_noise, dtype=float)))
+        gain = float(gain)
+        if 0 < rd < gain / 2:
+            import warnings
+            warnings.warn(
+                f"{name} {gain:g} e-/DN: half an ADC step ({gain / 2:g} e-) "
+                f"exceeds the white read noise per read ('rd_noise' {rd:g} e-), so "
+                f"the rounding ({gain / math.sqrt(12):.3g} e- rms) dominates the "
+                f"noise and most reads of a dark pixel repeat one code; a gain "
+                f"below {2 * rd:g} e-/DN keeps the noise", ScenesimWarning,
+                stacklevel=3)
 
     def bias_pattern_range(self, detector):
         """``(lo, hi)``, e-: the least and largest value of the fixed bias pattern,

@@ -48,9 +48,13 @@ def noise_command(args):
     from scenesim.outputs import FITS_ENDINGS, check_outputs, clean_stale_temps
     from scenesim.progress import progress_bar
     from noise.validate import check_float, check_int
+    from noise.generator import MAX_FRAMES, MAX_FRAMES_TOTAL
     # the options by the names the user typed, before any work
-    check_int("--frames", args.frames, minimum=1)
-    check_int("--nints", args.nints, minimum=1)
+    check_int("--frames", args.frames, minimum=1, maximum=MAX_FRAMES)
+    check_int("--nints", args.nints, minimum=1, maximum=MAX_FRAMES)
+    if args.frames * args.nints > MAX_FRAMES_TOTAL:
+        raise ParameterError(f"'--frames' x '--nints' = {args.frames} x {args.nints}: "
+                             f"at most {MAX_FRAMES_TOTAL} frames per file")
     if args.threads is not None:
         check_int("--threads", args.threads, minimum=1)
     if args.seed is not None:                # as a scene's seed: a FITS integer card
@@ -67,6 +71,12 @@ def noise_command(args):
     nominal = noise.NoiseParams()
     params = nominal if args.noise == "nirspec" else noise.ZERO_NOISE.replace(
         rd_noise=nominal.rd_noise, bias_offset=nominal.bias_offset)
+    try:                                   # by the options, not the library's names
+        params.check_detector(det)
+    except ParameterError as exc:
+        text = str(exc).replace("set 'acn' to 0", "use '--noise white' (no ACN)") \
+            .replace("'naxis1'/'n_out'/the subarray", "'--naxis'/'--n-out'")
+        raise type(exc)(text) from exc
     if args.unit == "DN":                  # no noise clipped or lost at the 16-bit ADC
         try:
             params.check_adc(gain, 16, det)
@@ -78,6 +88,8 @@ def noise_command(args):
                                 unit=args.unit, path=args.output, force=args.force)
     with one_line_warnings("scenesim noise"):
         budget.warn()
+        if args.unit == "DN":
+            params.warn_quantisation(gain, "'--gain'")
     gen = noise.NoiseGenerator(det, params, rng=args.seed, threads=args.threads)
     cleaned = clean_stale_temps([args.output])
     if cleaned and not args.quiet:

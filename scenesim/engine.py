@@ -342,6 +342,7 @@ class ChargeEngine:
         if noise_params is not None:
             # no noise clipped at the ADC (noise.params module notes)
             noise_params.check_adc(self.gain, self.adc_bits, detector)
+            noise_params.warn_quantisation(self.gain, "[effects] 'gain'")
         self.full_well = None if full_well is None else FullWell(full_well, shape)
         self.nonlinearity = nonlinearity if (nonlinearity is not None
                                              and not nonlinearity.is_linear) else None

@@ -450,6 +450,13 @@ def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
     (["--unit", "DN", "--gain", "nan"], "'--gain'"),
     (["--gain", "2"], "'--unit DN'"),                # a gain that would change nothing
     (["--unit", "DN", "--gain", "1e30"], "'gain' = 1e+30"),
+    # the library's limits, by the options' names (a probe: 'nframes' for --frames)
+    (["--frames", "1048577"], "'--frames' must be <= 1048576, got 1048577"),
+    (["--nints", "1048577"], "'--nints' must be <= 1048576, got 1048577"),
+    (["--frames", "1048576", "--nints", "1048576"], "'--frames' x '--nints' = "),
+    # ACN on one column per output: the way out by the command's options (a probe:
+    # "set 'acn' to 0", which no option of the command does)
+    (["--n-out", "64"], "use '--noise white' (no ACN) or change '--naxis'/'--n-out'"),
 ])
 def test_noise_options_are_named_as_typed_before_any_work(tmp_path, args, named):
     """Each bad option of `scenesim noise` is refused in one line naming the option
@@ -461,6 +468,24 @@ def test_noise_options_are_named_as_typed_before_any_work(tmp_path, args, named)
     assert res.returncode == 2, res.stderr
     _one_line(res.stderr, named)
     assert "%" not in res.stderr and os.listdir(tmp_path) == []
+
+
+def test_a_gain_that_rounds_the_noise_away_is_warned_about_in_one_line(tmp_path):
+    """--gain 1000 on 5.2 e- of read noise: every read one code (a probe: written
+    without a word).  Written, with one warning line naming the option and the gain
+    that keeps the noise; at 2 e-/DN no warning."""
+    res = _cli(["noise", "--preset", "H2RG", "--naxis", "64", "--frames", "2",
+                "--noise", "white", "--unit", "DN", "--gain", "1000", "-q", "-o",
+                "n.fits"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        "scenesim noise: warning: '--gain' 1000 e-/DN: half an ADC step"), res.stderr
+    assert "below 10.4 e-/DN" in lines[0]
+    res = _cli(["noise", "--preset", "H2RG", "--naxis", "64", "--frames", "2",
+                "--noise", "white", "--unit", "DN", "--gain", "2", "-q", "-o",
+                "m.fits"], tmp_path)
+    assert res.returncode == 0 and res.stderr == "", res.stderr
 
 
 def test_naxis_and_n_out_are_applied_together(tmp_path):

@@ -68,3 +68,19 @@ def test_a_per_output_amplitude_must_be_one_dimensional(value):
     with pytest.raises(ParameterTypeError, match="'rd_noise' must be a number or a"):
         NoiseParams(rd_noise=value)
     assert NoiseParams(rd_noise=np.full(4, 3.0)).rd_noise == (3.0,) * 4
+
+
+def test_a_gain_whose_rounding_swamps_the_read_noise_is_warned_about():
+    # half an ADC step above the white read noise per read: most reads of a dark
+    # pixel repeat one code (a probe's --unit DN --gain 1000 wrote one code for every
+    # read without a word).  At or below, and with no read noise at all, no warning.
+    import warnings
+    from noise.errors import ScenesimWarning
+    p = NoiseParams(rd_noise=(3.0, 6.0))              # the smallest output counts
+    with pytest.warns(ScenesimWarning, match=r"'gain' 6\.5 e-/DN: half an ADC step "
+                                             r"\(3\.25 e-\) exceeds .* 3 e-"):
+        p.warn_quantisation(6.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        p.warn_quantisation(6.0)
+        NoiseParams(rd_noise=0.0).warn_quantisation(1e4)
