@@ -76,8 +76,8 @@ class Report:
     rows : list of dict
         One dict per flux bin: ``lo``, ``hi`` (e-/s), ``n_regular`` (regular pixels),
         ``n`` (of which not ``DO_NOT_USE``), ``bias_rep``, ``chi2_rep``, ``bias_opt``,
-        ``se_bias``, ``std_opt``, ``std_eff``, ``ols_ratio``, ``chi2_fit``,
-        ``frac_flagged`` (NaN when empty; :mod:`scenesim.validate.stats`).
+        ``se_bias``, ``n_cl`` (its clusters), ``dof_bias``, ``p_bias``, ``std_opt``, ``std_eff``,
+        ``ols_ratio``, ``chi2_fit``, ``frac_flagged`` (NaN when empty; :mod:`scenesim.validate.stats`).
     jumps : dict
         ``n_hit``, ``completeness``, ``n_clean``, ``false_positive``, ``threshold_e``.
     photometry : dict
@@ -114,7 +114,7 @@ class Report:
         """Printable text tables (flux bins, jumps, photometry, notes)."""
         cols = [("lo", "{:>8.3g}"), ("hi", "{:>8.3g}"), ("n", "{:>8d}"),
                 ("bias_rep", "{:>9.3f}"), ("chi2_rep", "{:>9.3f}"),
-                ("bias_opt", "{:>9.3f}"), ("se_bias", "{:>8.3f}"),
+                ("bias_opt", "{:>9.3f}"), ("se_bias", "{:>8.3f}"), ("p_bias", "{:>8.2g}"),
                 ("std_opt", "{:>8.3f}"), ("std_eff", "{:>8.3f}"),
                 ("ols_ratio", "{:>9.3f}"), ("chi2_fit", "{:>9.3f}"),
                 ("frac_flagged", "{:>12.4f}")]
@@ -131,8 +131,9 @@ class Report:
                   "  bias_rep, chi2_rep: mean r/sigma and r^2/sigma^2 with the errors the "
                   "fit reported (0 and 1 if right)",
                   "  bias_opt +- se_bias: mean r/sigma_opt; se_bias counts the pixels of "
-                  "one output and 16 rows as one draw (correlated noise); an error "
-                  "common to the whole array",
+                  "one output and 16 rows as one draw (correlated noise); p_bias: the "
+                  "chance of so large a bias from noise alone (Student's t over those "
+                  "draws: few in a bin of few stars); an error common to the whole array",
                   "    (correlated 1/f noise) is one draw per exposure and not in it: "
                   "pool realisations (scenesim batch) to measure a bias to that level",
                   "  std_opt: scatter against the white-read-noise optimum (> 1 with 1/f "

@@ -11,7 +11,8 @@ from astropy.table import Table
 from scenesim.detector.dq import JUMP_DET
 from scenesim.validate.compare import compare
 from scenesim.validate.jumps import jump_stats
-from scenesim.validate.stats import cluster_se, usable_variance
+from scenesim.validate.stats import (bias_p_value, cluster_dof, cluster_se,
+                                     usable_variance)
 
 TF, NG = 10.0, 6
 TIMES = [np.array([(k + 1) * TF]) for k in range(NG)]     # RAPID: single reads
@@ -107,6 +108,35 @@ def test_cluster_se_matches_the_variance_of_a_clustered_mean():
     z = rng.normal(size=1000)
     assert cluster_se(z, np.arange(1000)) == pytest.approx(z.std(ddof=1) / math.sqrt(1000),
                                                            rel=1e-3)
+
+
+def test_a_bias_from_few_unequal_clusters_is_judged_by_student_t():
+    # A bin of a few stars holds a few clusters of unequal sizes (a probe: 3-7 in
+    # the quick scene's star bins, where |bias / se| > 3 came 13-40 times as often
+    # as a normal law says).  For independent N(0, 1) values: the CR2 variance is
+    # unbiased whatever the sizes (mean of se^2 vs 1/n: 4000 draws of a variance
+    # estimate with ~4 degrees of freedom, relative SE sqrt(2/4/4000) = 1.1 %, 5
+    # sigma 6 %), and p_bias < alpha comes at most alpha of the time (Satterthwaite
+    # degrees of freedom: conservative for unequal sizes; binomial SE of a rate of
+    # 0.05 over 4000 draws is 0.0034, 5 sigma 0.017).  Equal clusters: B - 1 dof.
+    rng = np.random.default_rng(11)
+    sizes = [30, 20, 10, 10, 5]
+    labels = np.repeat(np.arange(len(sizes)), sizes)
+    n = labels.size
+    dof = cluster_dof(labels)
+    assert 1.0 < dof < len(sizes) - 1
+    se2, p = [], []
+    for _ in range(4000):
+        z = rng.standard_normal(n)
+        se = cluster_se(z, labels)
+        se2.append(se ** 2)
+        p.append(bias_p_value(z.mean(), se, dof))
+    assert np.mean(se2) * n == pytest.approx(1.0, abs=0.06)
+    p = np.array(p)
+    assert np.mean(p < 0.05) < 0.05 + 0.017
+    assert np.mean(p < 0.01) < 0.01 + 5 * math.sqrt(0.01 * 0.99 / 4000)
+    assert cluster_dof(np.repeat(np.arange(7), 12)) == pytest.approx(6.0, rel=1e-12)
+    assert math.isnan(bias_p_value(0.1, 0.0, 4.0))
 
 
 def test_jump_hit_threshold_includes_the_pixels_shot_noise():
