@@ -66,7 +66,10 @@ one common ``f``); OLS and CDS combine their per-integration slopes with inverse
 model variances evaluated at the joint rate (JWST style).
 
 chi-square: ``chi2 = (d - f_hat)^T C^-1 (d - f_hat) / dof`` with ``dof = n_diff - 1``
-(usable differences of all integrations minus one).  For GLS its expectation is 1;
+(usable differences of all integrations minus one).  For GLS its expectation is 1
+at the true rate; with ``variance_rate='local'`` it is taken at the weight rate,
+shrunk toward 0 near 0, which reads it high for faint pixels (1.03-1.07 at 0.05
+e-/s and 1 e- read noise; docs/VALIDATION_FIT.md);
 for OLS and CDS it is ``1 + (V/V_opt - 1)/dof`` (slightly above 1).  ``chi2 = 0`` where
 ``dof <= 0``.  :func:`scenesim.rampfit.variance.model_chi2` evaluates the same
 quantity for a rate from elsewhere (e.g. another fitter's).

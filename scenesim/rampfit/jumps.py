@@ -10,7 +10,10 @@ standardised score statistic for a jump of signature ``s`` is::
 
 ``r = d - f_hat 1`` the GLS residuals (:func:`jump_statistics`).  Without a jump it
 is exactly N(0, 1) for Gaussian noise whatever the readout, so a (one-sided)
-threshold ``k`` gives ``Q(k)`` false alarms per test.  A single difference ``i`` has ``s = e_i``;
+threshold ``k`` gives ``Q(k)`` false alarms per test at the true rate.  With the
+covariance at the clipped mean (below) it gives more where read noise dominates:
+1.3-1.5 ``Q(k)`` at 0.3-3 e-/s, 10 e- read noise, RAPID x 10, k = 4 (a probe,
+docs/VALIDATION_FIT.md); ``Q(k)`` from 10 e-/s up.  A single difference ``i`` has ``s = e_i``;
 a hit halfway through a multi-read resultant ``R_{i+1}`` adds half its charge to
 ``D_i`` and half to ``D_{i+1}``: ``s = e_i / dt_i + e_{i+1} / dt_{i+1}``.
 
