@@ -38,15 +38,9 @@ posterior mean would be ``w max(f_hat, 0) + (1 - w) max(m, 0)``,
 structure ``w -> 1`` (the pixel's own rate, where ``kappa`` is small because such
 pixels are bright).  The variance rate keeps only the own share *beyond* that of a
 flat neighbourhood, ``w' = (w - w_flat) / (1 - w_flat)``,
-``r = w' max(f_hat, 0) + (1 - w') max(m, 0)``; by the algebra of ``w``,
-``w' = tau^2 / (tau^2 + (1 + c) V)``, and ``V``, the pixel's own noise variance, is
-taken at the neighbours' lower quartile rather than at their median (a dark pixel
-between bright ones, in a trace, at a slit edge or on a checkerboard, has the noise
-of the dark ones: at the median its share went to the bright neighbours' rate, and
-a probe's 0 e-/s pixels among 1 e-/s ones, 2 e- read noise, RAPID x 30, read
-``E[z^2]`` 0.32-0.56, now 0.69-0.72 as with their own rate, the limit at rate 0
-below).  In a flat region it is the neighbours' median alone (``tau = 0``), so that
-``V_hat`` is independent of the pixel's own error (at rate 0 with read noise 1 e- and 100 reads the 6 % own share made
+``r = w' max(f_hat, 0) + (1 - w') max(m, 0)``: in a flat region it is the
+neighbours' median alone, so that ``V_hat`` is independent of the pixel's own
+error (at rate 0 with read noise 1 e- and 100 reads the 6 % own share made
 ``E[z^2]`` 0.05 lower than ``E[V / V_hat]``).  A pixel 3 to 5 sigma away from
 ``m`` (hot pixel, unresolved source) moves linearly to ``w = 1``, as do pixels with
 fewer than 8 usable neighbours; pixels with ``kappa^2 < 3e-3`` (own-rate error of
@@ -130,9 +124,7 @@ def local_rate(slope, var_read, pcoef, *, usable, pool=None):
     neighbours.  The rate is ``w' max(f_hat, 0) + (1 - w') max(m, 0)`` with
     ``w = MSE / (MSE + V_m)`` and ``w'`` its excess over a flat neighbourhood's
     (module notes: 0 there, so that the rate does not depend on the pixel's own
-    noise; ``V`` in ``w`` is the noise variance at the neighbours' lower quartile,
-    the pixel's own where its neighbourhood is part dark, part bright); ``w`` rises
-    to 1 where ``|f_hat - m|`` exceeds 3 to 5
+    noise); ``w`` rises to 1 where ``|f_hat - m|`` exceeds 3 to 5
     standard deviations (hot pixels, unresolved sources) and where fewer than 8
     neighbours are usable.
 
@@ -282,27 +274,22 @@ def _shrunk_rate(stack, n, f, vr, pc, own_share=True):
         nn = np.maximum(n, 1).astype(_F32)
         spread = ((q3 - q1) / _F32(_IQR_SIGMA)) ** 2
         gate = v_m * (1 + _F32(2 * _IQR_VAR) / np.sqrt(nn))
-        tau2 = np.maximum(spread - gate, 0)
-        mse = tau2 + _F32(math.pi / 2) * v_m / nn
+        mse = np.maximum(spread - gate, 0) + _F32(math.pi / 2) * v_m / nn
+        w = mse / np.maximum(mse + v_m, _F32(TINY))
         dev = np.abs(f - med) / np.sqrt(np.maximum(v_m + mse, _F32(TINY)))
+        w = np.maximum(w, np.clip((dev - _F32(3)) / _F32(2), 0, 1))
+        w = np.where((n >= _LOCAL_MIN) & np.isfinite(w), w, _F32(1))
+        # weight rate: the own share beyond that of a flat neighbourhood, and the
+        # neighbours' median shrunk toward 0 by _WEIGHT_LOWER of its errors
         c = _F32(math.pi / 2) / nn
         w_flat = c / (1 + c)
-        # the own share beyond a flat neighbourhood's: (w - w_flat) / (1 - w_flat)
-        # of w = MSE / (MSE + V) is tau^2 / (tau^2 + (1 + c) V), with V the pixel's
-        # own noise variance, taken at the neighbours' lower quartile (module notes)
-        v_lo = vr + pc * np.maximum(np.nan_to_num(q1), _F32(0))
-        wv = tau2 / np.maximum(tau2 + (1 + c) * v_lo, _F32(TINY))
-        wv = np.maximum(wv, (np.clip((dev - _F32(3)) / _F32(2), 0, 1) - w_flat)
-                        / (1 - w_flat))
-        wv = np.clip(np.where((n >= _LOCAL_MIN) & np.isfinite(wv), wv, _F32(1)), 0, 1)
-        # weight rate: that own share, and the neighbours' median shrunk toward 0
-        # by _WEIGHT_LOWER of its errors
-        wx = wv * _F32(own_share)
+        wx = np.clip((w - w_flat) / (1 - w_flat), 0, 1) * _F32(own_share)
         # non-negative garrote: 0 below k standard errors, -> the median far above
         k2mse = _F32(_WEIGHT_LOWER ** 2) * mse
         mz = np.nan_to_num(med)
         low = np.where(mz * mz > k2mse, mz - k2mse / np.where(mz > 0, mz, 1), 0)
         low = np.where(np.isfinite(low) & (mz > 0), low, 0)
     fpos = np.maximum(f, _F32(0))
+    wv = np.clip((w - w_flat) / (1 - w_flat), 0, 1)
     return (wv * fpos + (1 - wv) * mpos).astype(_F32), \
         (wx * fpos + (1 - wx) * low).astype(_F32)

@@ -5,8 +5,9 @@ is one field, read noise and the two seeds' ``E[z^2] = mean((f_hat - f)^2 / V_ha
 over the selected pixels, with the count and the standard error ``sqrt(2 / n)``.
 RAPID x 30 of 10 s, Poisson charge and Gaussian read noise drawn here, independent
 of the simulator.  ``dark among bright``: the 0 e-/s pixels of 2-pixel stripes and of
-a checkerboard of 0 and 1 e-/s (the limit at rate 0 of scenesim.rampfit.local_rate:
-~0.7 with 2 e- read noise, as with the pixel's own rate).
+a checkerboard of 0 and 1 e-/s (errors too large: the dark pixels take a share of
+the bright ones' rate); ``0.3|1 checker``: the 0.3 e-/s pixels of a checkerboard of
+0.3 and 1 e-/s (docs/VALIDATION_FIT.md, "Structured neighbourhoods").
 """
 
 import numpy as np
@@ -30,6 +31,7 @@ def fields():
             ("checker, bright", checker, checker > 0),
             ("checker, dark", checker, checker == 0),
             ("stripes, dark", stripes, stripes == 0),
+            ("0.3|1 checker, 0.3", 0.3 + 0.7 * checker, checker == 0),
             ("stars > 1 e-/s", stars, stars > 1)]
 
 
@@ -47,7 +49,7 @@ def main():
                 r = fit_ramps(q, TIMES, read_noise=rn)
                 z2 = (r.slope - rate) ** 2 / (r.var_read + r.var_poisson)
                 out.append(float(np.mean(z2[m])))
-            print(f"read noise {rn:4.1f} e-  {name:16s} E[z^2] {out[0]:.3f} {out[1]:.3f}"
+            print(f"read noise {rn:4.1f} e-  {name:18s} E[z^2] {out[0]:.3f} {out[1]:.3f}"
                   f"  (n = {int(m.sum())}, s.e. {np.sqrt(2 / m.sum()):.3f})")
 
 
