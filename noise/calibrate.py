@@ -99,8 +99,9 @@ cards win: options that contradict them are refused, and so are darks of differe
 gains together.  Measured round trips are in ``docs/NOISE_CALIBRATION.md``.
 
 Jumps.  Charge that arrives between two reads (cosmic rays; hot or lit pixels) is not
-noise: a read step more than :data:`_JUMP_SIGMA` robust sigmas above its row and
-output's median is a jump (:func:`_find_jumps`).  A CDS difference with one takes
+noise: a read step more than :data:`_JUMP_SIGMA` robust sigmas (of the pixels of its
+kind, regular or reference, and output) above its row and output's median is a jump
+(:func:`_find_jumps`).  A CDS difference with one takes
 its row and output's median at that pixel (the 1/f banding stays, the pixel's own
 white noise of that difference is lost: a negligible share), and a pixel with one in
 any integration is left out of the reset-level fit (kTC, bias).  Smaller jumps are
@@ -755,10 +756,11 @@ def _row_output_median(d, det):
 def _find_jumps(ramps):
     """Charge that arrived at a pixel between two reads (a cosmic ray, a lit or hot
     pixel): ``(jumps, stepped, n, hot)``.  ``jumps[k][j]`` holds the flat indices of
-    the pixels of integration ``k`` whose read step ``read(j+1) - read(j)``, less its
-    row and output's median (the 1/f banding), exceeds :data:`_JUMP_SIGMA` robust
-    sigmas of that step (1.4826 times its median absolute deviation), and every
-    ``hot`` pixel; ``stepped`` (ny, nx) the pixels with such a step; ``n`` the number
+    the pixels of integration ``k`` whose read step ``read(j+1) - read(j)``, less
+    its row and output's median (the 1/f banding), exceeds :data:`_JUMP_SIGMA`
+    robust sigmas of that step over the pixels of their kind (regular or reference)
+    and output (1.4826 times the median absolute deviation), and every ``hot``
+    pixel; ``stepped`` (ny, nx) the pixels with such a step; ``n`` the number
     of steps flagged; ``hot`` (ny, nx) the pixels whose charge over all integrations
     (``last read - first read`` summed, less its row and output's median) exceeds
     :data:`_JUMP_SIGMA` robust sigmas of that sum.
@@ -773,6 +775,11 @@ def _find_jumps(ramps):
     1 % of pixels at 20-900 e-/s (4-180 e- per 0.195 s frame) had biased rd_noise by
     +15 sigma and ref_ratio by -5."""
     det = ramps.detector
+    # each output's regular and reference pixels against their own spreads (one
+    # spread for the array flagged the steps of an output of higher read noise, and
+    # reference pixels under a strong picture frame); hot pixels among the regular
+    # ones only (reference pixels collect no charge)
+    regular = ~det.reference_mask()
     out, n = [], 0
     total = np.zeros(det.shape)
     for cube in ramps.integrations:
@@ -781,12 +788,14 @@ def _find_jumps(ramps):
             d = (np.asarray(cube[j + 1], dtype=np.float64)
                  - np.asarray(cube[j], dtype=np.float64))
             d -= _row_output_median(d, det)
-            total += d
-            steps.append(_above(d))
+            steps.append(np.union1d(_above_per_output(d, det, regular),
+                                    _above_per_output(d, det, ~regular)))
             n += steps[-1].size
+            d.flat[steps[-1]] = 0.0        # a jump is not a hot pixel's charge
+            total += d
         out.append(steps)
     hot = np.zeros(det.shape, bool)
-    hot.flat[_above(total)] = True
+    hot.flat[_above_per_output(total, det, regular)] = True
     stepped = np.zeros(det.shape, bool)
     hot_idx = np.flatnonzero(hot)
     for steps in out:
@@ -795,6 +804,21 @@ def _find_jumps(ramps):
             if hot_idx.size:
                 steps[j] = np.union1d(hit, hot_idx)
     return out, stepped, n, hot
+
+
+def _above_per_output(d, det, regular):
+    """Flat indices of the ``regular`` pixels of ``d`` (ny, nx) above
+    :data:`_JUMP_SIGMA` robust sigmas of their own output's regular pixels
+    (:func:`_above`), sorted."""
+    ncol = det.nx // det.n_out_active
+    idx = np.arange(d.size).reshape(d.shape)
+    found = []
+    for o in range(det.n_out_active):
+        cols = slice(o * ncol, (o + 1) * ncol)
+        reg = regular[:, cols]
+        if reg.any():
+            found.append(idx[:, cols][reg][_above(d[:, cols][reg])])
+    return np.sort(np.concatenate(found)) if found else np.zeros(0, np.intp)
 
 
 def _above(d):
