@@ -159,6 +159,13 @@ def load_template(path, detector):
         if data is None:
             raise FileFormatError(f"'pca0_file': {path!r} has no 2-D image HDU")
         data = np.array(data, dtype=np.float64)
+    bad = ~np.isfinite(data)
+    if bad.any():            # a NaN made the normalisation all zeros: no pattern
+        y, x = (int(v) for v in np.argwhere(bad)[0])
+        raise FileFormatError(
+            f"'pca0_file': {path!r} has {int(bad.sum())} NaN or inf values (the first "
+            f"at row {y}, column {x}); a template must be finite everywhere (replace "
+            f"bad pixels, e.g. by their neighbours' median)")
     if data.shape == (detector.naxis2, detector.naxis1):
         return _normalise(data)[detector.y0:detector.y0 + detector.ny,
                                 detector.x0:detector.x0 + detector.nx]

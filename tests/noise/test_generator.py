@@ -356,6 +356,14 @@ def test_a_template_file_gives_a_window_the_full_frames_values(tmp_path):
     a = NoiseGenerator(full, p, rng=1, threads=1).cube(1)[0, 0, :64, :64]
     b = NoiseGenerator(win, p, rng=1, threads=1).cube(1)[0, 0]
     np.testing.assert_array_equal(a, b)
+    # a NaN anywhere is refused, naming it (it had made the whole pattern 0)
+    from noise.errors import FileFormatError
+    bad = img.copy()
+    bad[5, 7] = np.nan
+    fits.writeto(tmp_path / "nan.fits", bad)
+    with pytest.raises(FileFormatError, match=r"1 NaN or inf values \(the first at "
+                                              r"row 5, column 7\)"):
+        template_for(win, str(tmp_path / "nan.fits"))
     small = tmp_path / "w.fits"
     fits.writeto(small, img[:64, :64])
     part = img[:64, :64]
