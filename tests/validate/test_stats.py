@@ -137,6 +137,9 @@ def test_a_bias_from_few_unequal_clusters_is_judged_by_student_t():
     assert np.mean(p < 0.01) < 0.01 + 5 * math.sqrt(0.01 * 0.99 / 4000)
     assert cluster_dof(np.repeat(np.arange(7), 12)) == pytest.approx(6.0, rel=1e-12)
     assert math.isnan(bias_p_value(0.1, 0.0, 4.0))
+    # nearly one cluster (a star's band and two stray pixels): no calibrated test
+    assert cluster_dof(np.repeat(np.arange(3), [100, 1, 1])) < 2
+    assert math.isnan(bias_p_value(0.5, 0.1, 1.02))
 
 
 def test_jump_hit_threshold_includes_the_pixels_shot_noise():
