@@ -418,7 +418,7 @@ class NoiseParams:
         """Warn (:class:`~noise.errors.ScenesimWarning`) when the ADC's rounding
         swamps the read noise asked for: the smallest white read noise per read is
         above 0 and below half an ADC step (``gain / 2`` e-), so the rounding's own
-        ``gain / sqrt(12)`` rms is over 0.58 of it and most reads of a dark pixel
+        ``gain / sqrt(12)`` rms is over 0.58 of it and reads of a dark pixel often
         repeat one code (a probe: ``--unit DN --gain 1000`` wrote one code for every
         read, without a word).  A noise-free detector (``rd_noise`` 0) is not
         warned about."""
@@ -429,9 +429,10 @@ class NoiseParams:
             warnings.warn(
                 f"{name} {gain:g} e-/DN: half an ADC step ({gain / 2:g} e-) "
                 f"exceeds the white read noise per read ('rd_noise' {rd:g} e-), so "
-                f"the rounding ({gain / math.sqrt(12):.3g} e- rms) dominates the "
-                f"noise and most reads of a dark pixel repeat one code; a gain "
-                f"below {2 * rd:g} e-/DN keeps the noise", ScenesimWarning,
+                f"the rounding ({gain / math.sqrt(12):.3g} e- rms) is "
+                f"{gain / math.sqrt(12) / rd:.2g} of that noise and reads of a dark "
+                f"pixel often repeat one code; a gain below {2 * rd:g} e-/DN keeps "
+                f"the rounding under 0.58 of it", ScenesimWarning,
                 stacklevel=3)
 
     def bias_pattern_range(self, detector):
