@@ -244,6 +244,8 @@ def one_line_warnings(prog):
     ``'<prog>: warning: <message>'`` (Python's default adds the file, the line number
     and the source line); other warnings are shown as before."""
     with warnings.catch_warnings():
+        # a command says its own warnings, whatever filter the caller set
+        warnings.filterwarnings("always", category=ScenesimWarning)
         show = warnings.showwarning
 
         def _show(message, category, filename, lineno, file=None, line=None):

@@ -62,11 +62,13 @@ def batch_command(args):
         if not args.quiet:
             _say(line)
 
-    res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
-                    threads=args.threads, retries=args.retries,
-                    connect_timeout=args.connect_timeout,
-                    progress=not args.quiet and sys.stderr.isatty(), log=log,
-                    force=args.force)
+    from scenesim.budget import one_line_warnings
+    with one_line_warnings("scenesim batch"):    # the tasks' warnings, each once
+        res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
+                        threads=args.threads, retries=args.retries,
+                        connect_timeout=args.connect_timeout,
+                        progress=not args.quiet and sys.stderr.isatty(), log=log,
+                        force=args.force)
     n = len(res.ran)
     rate = (f" ({60 * n / res.seconds:.1f} exposures/min; the tasks alone "
             f"{60 * n / res.task_seconds:.1f}/min after {res.startup_seconds:.1f} s "

@@ -47,9 +47,10 @@ import secrets
 import signal
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 
-from noise.errors import ParameterError, ScenesimError
+from noise.errors import ParameterError, ScenesimError, ScenesimWarning
 from noise.fitsio import TEMP_PATTERN, output_error, remove_stale_temps
 from scenesim.budget import check_batch_budget
 from scenesim.batch.manifest import (Manifest, batch_lock, check_same_batch,
@@ -530,6 +531,7 @@ def _submit_and_collect(client, todo, manifest, records, ran, failed, retries,
     from scenesim.run import progress_bar
     token = secrets.token_hex(4)
     futures = {}
+    warned = set()
     for t, grade_only in todo:
         fut = client.submit(run_task, t, grade_only=grade_only, pure=False,
                             retries=retries, key=f"scenesim-{t.name}-{token}")
@@ -546,6 +548,10 @@ def _submit_and_collect(client, todo, manifest, records, ran, failed, retries,
                 manifest.failed(t.name, _one_line(exc))
                 failed.append(t.name)
             else:
+                for message in rec.get("warnings", ()):      # each said once
+                    if message not in warned:
+                        warned.add(message)
+                        warnings.warn(message, ScenesimWarning, stacklevel=2)
                 manifest.done(t.name, rec)
                 records.append(rec)
                 ran.append(t.name)

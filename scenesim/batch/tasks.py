@@ -28,8 +28,9 @@ import json
 import os
 import socket
 import time
+import warnings
 
-from noise.errors import ParameterTypeError
+from noise.errors import ParameterTypeError, ScenesimWarning
 from noise.fast.memory import keep_freed_memory
 from noise.validate import describe
 from noise.fitsio import atomic_file
@@ -152,12 +153,33 @@ def run_task(task, *, grade_only=False):
         ``batch_seed``, ``files`` (``{kind: {size, mtime_ns, sha256}}``, names
         relative to the record's directory in ``outputs``), ``reports`` (``{fitter:
         rows, jumps, photometry, notes}`` when comparing), ``seconds``, ``host``,
-        ``pid``.
+        ``pid``, ``warnings`` (the distinct messages of the project's own warnings
+        the task raised, :class:`noise.errors.ScenesimWarning`).
     """
     # dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (memory handed
     # back to the kernel, then zeroed again on every exposure); the malloc policy of
     # the scenesim command instead (noise.fast.memory)
     keep_freed_memory()
+    # the project's own warnings (a star off the array, a gain that rounds the noise
+    # away) go back in the record, for the client to say once; others pass on
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        record = _run_task(task, grade_only)
+    said = []
+    for w in caught:
+        if issubclass(w.category, ScenesimWarning):
+            if str(w.message) not in said:
+                said.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    record["warnings"] = said
+    with atomic_file(task.path["record"], overwrite=True) as fh:
+        fh.write(json.dumps(record, indent=1, allow_nan=True).encode())
+    return record
+
+
+def _run_task(task, grade_only):
+    """:func:`run_task`'s work: the record, not yet written."""
     t0 = time.perf_counter()
     paths = task.path
     exp_path = paths.get("exposure")
@@ -192,6 +214,4 @@ def run_task(task, *, grade_only=False):
               "files": {k: file_entry(paths[k]) for k in kinds},
               "reports": reports, "seconds": time.perf_counter() - t0,
               "host": socket.gethostname(), "pid": os.getpid()}
-    with atomic_file(paths["record"], overwrite=True) as fh:
-        fh.write(json.dumps(record, indent=1, allow_nan=True).encode())
     return record

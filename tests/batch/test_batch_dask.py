@@ -292,6 +292,26 @@ def test_compare_pools_gls_and_stcal(small_scene, tmp_path, capsys):
     assert "1 of the 2 finished tasks" in err and "r0001" in err
 
 
+def test_a_tasks_own_warnings_are_said_once_in_one_line(small_scene, tmp_path,
+                                                         capsys):
+    # A star off the array warns in every task (a probe: Python's two-line form,
+    # once per task, on the workers' stderr): said once, as one line, by the
+    # command; the record keeps it
+    text = small_scene.read_text().replace("x = 45.2", "x = 1e6")
+    scene = small_scene.parent / "off.toml"
+    scene.write_text(text)
+    out = tmp_path / "b"
+    rc = main(["batch", str(scene), "-n", "2", "--out", str(out), "--workers", "1",
+               "-q"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    lines = [ln for ln in err.splitlines() if "warning" in ln]
+    assert len(lines) == 1 and lines[0].startswith(
+        "scenesim batch: warning: 1 of 2 stars put no charge"), err
+    rec = json.loads((out / "r0001.json").read_text())
+    assert len(rec["warnings"]) == 1 and "(1e+06, 15.1)" in rec["warnings"][0]
+
+
 def test_grid_of_detectors_runs_point_by_point(small_scene, tmp_path):
     grid = small_scene.parent / "grid.toml"
     grid.write_text("""\
