@@ -411,6 +411,15 @@ def _run_step(step_class, model, **references):
     return _step(step_class, **references).run(model)
 
 
+def _l1_resultants(path):
+    """Number of resultants of the L1 file ``path`` (checked by
+    :func:`check_l1_file`)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with _rdm().open(path) as model:
+            return int(np.shape(model.data)[0])
+
+
 def check_l1_file(path):
     """Raise unless ``path`` is an existing Roman L1 (``ScienceRawModel``) ASDF file."""
     from noise.validate import check_existing_file
@@ -474,7 +483,11 @@ def _check_references_match(l1, references):
             check_reference_id(reftype, ref, their_id, "L1", l1, run_id)
 
 
-def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,
+#: Fewest resultants romancal's ``likely`` fit takes (stcal's likelihood fit).
+LIKELY_MIN_RESULTANTS = 4
+
+
+def run_ramp_fit(l1, references, path, *, algorithm=None, overwrite=False,
                  inputs=()):
     """Calibrate a Roman L1 file with romancal, offline; write the L2 ASDF.
 
@@ -493,8 +506,12 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,
         run.
     path : str
         Output L2 ``.asdf`` file.
-    algorithm : {'likely', 'ols_cas22'}, keyword-only
-        romancal's fitter (``ols_cas22`` is deprecated in romancal 1.1).
+    algorithm : {'likely', 'ols_cas22'} or None, keyword-only
+        romancal's fitter (``ols_cas22`` is deprecated in romancal 1.1).  None
+        (default): ``likely``, or ``ols_cas22`` for an L1 of fewer than
+        :data:`LIKELY_MIN_RESULTANTS` resultants, which ``likely`` refuses (a probe:
+        a 3-resultant table ended in stcal's traceback).  An L1 of one resultant is
+        refused: no slope.
     overwrite : bool, keyword-only
     inputs : sequence of str, keyword-only
         Other files the caller reads (a truth, an exposure): like the L1 and the
@@ -515,9 +532,19 @@ def run_ramp_fit(l1, references, path, *, algorithm="likely", overwrite=False,
         raise ParameterError(f"'references' must give both 'linearity' and "
                              f"'inverselinearity' (romancal's linearity step reads "
                              f"both) or neither, got {sorted(references)}")
-    if algorithm not in ("likely", "ols_cas22"):
-        raise ParameterError(f"'algorithm' must be 'likely' or 'ols_cas22', got "
+    if algorithm not in (None, "likely", "ols_cas22"):
+        raise ParameterError(f"'algorithm' must be 'likely', 'ols_cas22' or None, got "
                              f"{algorithm!r}")
+    nres = _l1_resultants(l1)
+    if nres < 2:
+        raise ParameterError(f"L1 {l1!r} has {nres} resultant: a ramp fit needs at "
+                             f"least 2")
+    if algorithm is None:
+        algorithm = "likely" if nres >= LIKELY_MIN_RESULTANTS else "ols_cas22"
+    elif algorithm == "likely" and nres < LIKELY_MIN_RESULTANTS:
+        raise ParameterError(
+            f"'algorithm' 'likely' needs at least {LIKELY_MIN_RESULTANTS} resultants; "
+            f"L1 {l1!r} has {nres}: use 'ols_cas22' (or None, which chooses it)")
     _check_references_match(l1, references)
     from scenesim.outputs import check_outputs
     # never the L1 or a reference, even with overwrite

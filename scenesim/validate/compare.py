@@ -716,6 +716,9 @@ def _truth_and_exposure(truth_path, exposure):
         if t_frame is None:
             raise FileFormatError("lacks header keyword 'TFRAME'")
         ro = readout_from_table(ehdr, reads)
+        if ro.ngroups < 2:             # as the truth's own readout is checked
+            raise FileFormatError(f"'NGROUPS' = {ro.ngroups}: a slope needs at least "
+                                  f"2 resultants")
         read_times = ro.read_times(t_frame)
         check_read_times(read_times)
     except (FileFormatError, ParameterError) as exc:

@@ -315,6 +315,48 @@ def test_romancal_slopes_are_unbiased_and_its_pulls_follow_its_error_model(tmp_p
     assert predicted < -2 * 5 / np.sqrt(n)
 
 
+@pytest.mark.filterwarnings("ignore:The ols_cas22 function is deprecated")
+def test_a_short_ma_table_is_fitted_by_ols_cas22_and_likely_refused_first(tmp_path):
+    """romancal's 'likely' fit needs 4 resultants (stcal's likelihood fit): a
+    3-resultant table ended in stcal's traceback (a probe).  By default the loop
+    takes 'ols_cas22' there; 'likely' asked for is refused before any step runs,
+    and one resultant (no slope) is refused whatever the algorithm.  The
+    ols_cas22 slopes of the 30 e-/s background are unbiased against the optimum
+    within 5 of the bin's standard errors."""
+    import dataclasses
+    from noise.errors import ParameterError
+    from scenesim.pipelines.reffiles import detector_reference
+    from scenesim.pipelines.roman import run_ramp_fit, write_l1, write_reference_files
+    from scenesim.run import run_scene
+    from scenesim.scene import load_scene
+    scene = load_scene(os.path.join(DATA, "roman_loop.toml"))
+    refs = None
+    for name, table in (("three", [[0, 1], [1, 2], [3, 3]]), ("one", [[0, 4]])):
+        ro = dataclasses.replace(scene.readout, ma_table=table, name="SHORT")
+        sc = scene.replace(readout=ro)
+        res = run_scene(sc, output=str(tmp_path / f"{name}.fits"), progress=False)
+        write_l1(res.exposure, str(tmp_path / f"{name}_l1.asdf"))
+        refs = write_reference_files(detector_reference(sc, res.engine),
+                                     tmp_path / f"{name}_refs")
+        if name == "one":
+            with pytest.raises(ParameterError, match="1 resultant: a ramp fit needs"):
+                run_ramp_fit(str(tmp_path / "one_l1.asdf"), refs,
+                             str(tmp_path / "one_l2.asdf"))
+            assert not (tmp_path / "one_l2.asdf").exists()
+            continue
+        with pytest.raises(ParameterError, match="'likely' needs at least 4 "
+                                                 "resultants.*has 3"):
+            run_ramp_fit(str(tmp_path / "three_l1.asdf"), refs,
+                         str(tmp_path / "three_l2.asdf"), algorithm="likely")
+        assert not (tmp_path / "three_l2.asdf").exists()
+        run_ramp_fit(str(tmp_path / "three_l1.asdf"), refs, str(tmp_path / "three_l2.asdf"))
+        report = compare_files(str(tmp_path / "three_l2.asdf"),
+                               str(tmp_path / "three_truth.fits"),
+                               exposure=str(tmp_path / "three.fits"))
+        row = max(report.rows, key=lambda r: r["n"])
+        assert row["n"] > 1000 and abs(row["bias_opt"]) < 5 * row["se_bias"], row
+
+
 def test_pipeline_roman_never_replaces_an_input_and_checks_first(roman_loop, tmp_path):
     """The L2 may not be the L1, a reference or the truth, even with --overwrite; the
     input must be an L1 (not an L2 or a FITS file); the L2 ends in .asdf."""

@@ -459,3 +459,26 @@ def test_a_truth_grades_a_custom_readout_without_its_exposure(tmp_path):
         compare_files(res.fit, str(old))
     np.testing.assert_equal(compare_files(res.fit, str(old), exposure=res.exposure).rows,
                             given.rows)
+
+
+@pytest.mark.parametrize("with_exposure", [False, True])
+def test_a_one_group_exposure_is_refused_before_the_slope_file_is_made(
+        tmp_path, with_exposure):
+    # `scenesim pipeline jwst --truth --exposure` checks the comparison's inputs
+    # before Detector1 runs; a one-group exposure passed that check when the
+    # exposure was given (its readout, not the truth's, was used) and failed after
+    # the pipeline, blaming the dark reference (a probe)
+    from scenesim.run import run_scene
+    from scenesim.scene import parse_scene
+    from scenesim.validate.compare import check_compare_inputs
+    scene = parse_scene({"seed": 1, "detector": {"preset": "H2RG", "naxis1": 32,
+                                                 "naxis2": 32},
+                         "readout": {"pattern": "RAPID", "ngroups": 1},
+                         "output": {"path": str(tmp_path / "one.fits"), "truth": True,
+                                    "fit": ""}})
+    run_scene(scene, progress=False)
+    with pytest.raises(FileFormatError, match="'NGROUPS' = 1: a slope needs at least "
+                                              "2 resultants"):
+        check_compare_inputs(str(tmp_path / "one_truth.fits"),
+                             exposure=str(tmp_path / "one.fits") if with_exposure
+                             else None)
