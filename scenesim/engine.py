@@ -897,14 +897,39 @@ class ChargeEngine:
             if v.index.size and v.weight.sum() > 0:
                 out[k] = (self._pixel_means(v) * (v.weight / v.weight.sum())).sum(axis=1)
             else:
-                out[k] = v.light_curve.mean(*self.integration_windows())
+                out[k] = self._slope_means(v.light_curve, np.float64(0.0))
         return out
 
     def _pixel_means(self, v):
-        """The light curve of variable source ``v`` averaged over each integration's
-        window at each of its stamp pixels: (nints, npix)."""
-        t1, t2 = self.integration_windows(self._pixel_time_flat(v.index))
-        return v.light_curve.mean(t1, t2)      # a window of length 0: the value there
+        """:meth:`_slope_means` of variable source ``v`` at each of its stamp pixels:
+        (nints, npix)."""
+        return self._slope_means(v.light_curve, self._pixel_time_flat(v.index))
+
+    def _slope_means(self, lc, pix):
+        """The relative flux a CDS slope of each integration measures at pixels of
+        clock offset ``pix`` (array, shape S): the expected difference of its last
+        and first resultants, each the mean of its reads' charge ``Q(t) = int from
+        the reset to t`` of the light curve, over the difference of their mean read
+        times (one group: its mean charge over its mean time, the value at the
+        reset where that time is 0).  For one-read resultants it is the light
+        curve's mean over :meth:`integration_windows`; for averaged groups each read
+        counts (a probe: a step inside a 4-frame group, box mean 1.0 where the
+        noise-free slopes read 0.96).  Shape (nints,) + S."""
+        ro, tf = self.readout, self.detector.frame_time
+        pix = np.asarray(pix, dtype=np.float64)
+        t0 = np.arange(ro.nints) * exposure_slots(1, ro.nreads) * tf
+        reset = t0.reshape((ro.nints, 1) + (1,) * pix.ndim) + \
+            (tf if ro.reset_mode == "global" else pix)          # (nints, 1) + S
+        times = ro.read_times(tf, pix)                           # from the reset
+        tbar = ro.mean_times(tf, pix)
+
+        def charge(t):                      # mean over a resultant's reads of Q(t)
+            return lc.integral(reset, reset + t[None]).mean(axis=1)
+        if ro.ngroups > 1:
+            return (charge(times[-1]) - charge(times[0])) / (tbar[-1] - tbar[0])
+        q = charge(times[0])
+        width, at_reset, q = np.broadcast_arrays(tbar[0], lc(reset[:, 0]), q)
+        return np.where(width > 0, q / np.where(width > 0, width, 1.0), at_reset)
 
     def source_windows(self, v):
         """:meth:`integration_windows` at the clock offset of the stamp pixel of

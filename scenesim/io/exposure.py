@@ -434,10 +434,12 @@ def _light_curve_table(engine, sources):
     """The ``LCINTS`` table of the variable sources (None without any): per source
     and integration, the window its slope measures at its brightest pixel (s from
     the exposure's start, :meth:`scenesim.engine.ChargeEngine.source_windows`; each
-    pixel's own clock offset shifts its window by under one frame time), the light
-    curve's mean over the windows of its pixels weighted by their rates
-    (``LC_MEAN``) and the rate the array collects then (``FLUX``, e-/s:
-    ``flux_on_array`` times that mean: the sum of the source's pixels' CDS slopes).
+    pixel's own clock offset shifts its window by under one frame time), the
+    relative flux its CDS slopes measure (``LC_MEAN``: the light curve's mean over
+    each pixel's window, or with averaged groups each read's charge counted,
+    :meth:`scenesim.engine.ChargeEngine._slope_means`; the pixels weighted by their
+    rates) and the rate the array collects then (``FLUX``, e-/s: ``flux_on_array``
+    times that mean: the expected sum of the source's pixels' CDS slopes).
     That box mean is what a CDS slope, or a shot-noise dominated
     GLS slope, of the integration measures; an OLS or read-noise dominated GLS slope
     weights the window's middle more (a parabola), so where the light curve changes

@@ -113,6 +113,42 @@ def test_each_integration_has_its_light_curve_mean_and_rate_their_mean(
     assert 0.5 < lc["LC_MEAN"][1] < 1.0
 
 
+@pytest.mark.parametrize("reset", ["rolling", "global"])
+def test_rate_is_what_the_noise_free_slopes_of_averaged_groups_measure(tmp_path, reset):
+    # Groups of 4 frames (1 dropped between): a step inside the first group of
+    # integration 1 weighs each of its reads, not a box between the groups' mean
+    # times (a probe: box mean 1.0 where the noise-free slopes read 0.96).  The
+    # truth's RATE must be the mean over the integrations of the noise-free CDS
+    # slopes (charge without shot noise, save_charge), pixel by pixel, to float32
+    # precision of the charge (1e-5 relative here).
+    from astropy.table import Table
+    tf = build_engine(_scene(tmp_path, 1.0, reset=reset))[0].detector.frame_time
+    ro = {"nframes": 4, "ngroups": 3, "groupgap": 1, "nints": 2, "reset": reset}
+    T1 = (1 + 4 * 3 + 2) * tf                       # integration 1's reset frame
+    scene = parse_scene({
+        "seed": 2, "detector": {"preset": "H2RG", "naxis1": 32, "naxis2": 32},
+        "noise": {"preset": "none"}, "readout": ro,
+        "sources": {"psf": {"kind": "gaussian", "fwhm": 2.0},
+                    "stars": [{"x": 15.3, "y": 16.1, "flux": 1e5, "light_curve": "s"}],
+                    "light_curves": {"s": {"kind": "step", "t_on": T1 + 2.5 * tf,
+                                           "after": 0.2}}},
+        "output": {"path": str(tmp_path / "m.fits"), "truth": True, "fit": "",
+                   "save_charge": True}})
+    run_scene(scene, progress=False, options=EngineOptions(threads=1, shot_noise=False))
+    with fits.open(tmp_path / "m_truth.fits") as t:
+        rate = t["RATE"].data.astype(float)
+        charge = t["CHARGE"].data.astype(float)              # (nints, ngroups, y, x)
+        reads = Table(t["READS"].data)
+    tbar = np.asarray(reads["TMEAN"], float)
+    # (a global reset's reads come t_p into their frames: the same shift of both
+    # groups' mean times, so their difference is the table's)
+    slopes = (charge[:, -1] - charge[:, 0]) / (tbar[-1] - tbar[0])
+    lit = rate > 1e-3 * rate.max()
+    np.testing.assert_allclose(rate[lit], slopes.mean(axis=0)[lit], rtol=1e-4)
+    # and the step moved it: the box mean between the groups' mean times is not it
+    assert not np.allclose(rate[lit], slopes[0][lit], rtol=1e-2)
+
+
 def test_a_scene_without_variable_sources_has_no_light_curve_table(tmp_path):
     scene = _scene(tmp_path, 1.0)
     scene = scene.replace(sources=parse_scene({
