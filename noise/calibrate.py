@@ -62,7 +62,7 @@ differences; docs/NOISE_CALIBRATION.md).
 The reset level is fitted from the mean of each integration's reads, ``M``:
 
 * ``ktc``: the per-pixel variance of ``M`` over integrations (each pixel's value
-  minus its row and output's mean, which removes pedestal and 1/f banding, and minus
+  minus the mean of its row, output and column parity (ACN's two series), which removes pedestal and 1/f banding, and minus
   the row's projection on the template, which removes the picture frame's drift),
   minus the variance of the read noise in ``M``, which ``(mean of the even reads -
   mean of the odd reads) / 2`` estimates without any reset level; divided by the
@@ -345,9 +345,11 @@ def load_darks(paths, *, detector=None, gain=None):
             if hdu is None:
                 raise FileFormatError(f"dark ramp {path!r} has no data in its primary "
                                       f"HDU and no 'SCI' extension")
-            data = np.asarray(hdu.data)
             hdr = hdu.header
+            data = _read_order(path, np.asarray(hdu.data), hdr, hdr0)
             scenesim_file = hdr0.get("FILETYPE") == "noise"
+            if "READS" in hdul:      # a read list says more than NFRAMES/GROUPGAP
+                _check_single_reads(path, hdul["READS"].data)
             if not scenesim_file:
                 nfr = hdr0.get("NFRAMES", hdr.get("NFRAMES", 1))
                 gap = hdr0.get("GROUPGAP", hdr.get("GROUPGAP", 0))
@@ -412,6 +414,12 @@ def load_darks(paths, *, detector=None, gain=None):
                 raise ParameterError(
                     f"dark ramp {path!r} has another detector or clock than "
                     f"{paths[0]!r}; calibrate files of one detector and readout together")
+            if det_all is not None and is_dn != dn_any:
+                raise ParameterError(
+                    f"dark ramp {path!r} is in {'DN' if is_dn else 'electrons'} and "
+                    f"{paths[0]!r} in {'electrons' if is_dn else 'DN'}: calibrate darks "
+                    f"of one unit together (the ADC's rounding, gain^2 / 12 per read, "
+                    f"is taken out of DN data only)")
             if gain_all is not None and g is not None and g != gain_all:
                 raise ParameterError(
                     f"dark ramp {path!r} has gain {g!r} e-/DN, {paths[0]!r} "
@@ -435,6 +443,56 @@ def load_darks(paths, *, detector=None, gain=None):
             f"electrons (BUNIT); leave the gain out")
     return DarkRamps(tuple(ints), det_all, gain_all if dn_any else None,
                      tuple(str(p) for p in paths))
+
+
+def _check_single_reads(path, reads):
+    """Refuse a file whose read table (``READS``) has a resultant of more than one
+    read or a gap between reads: the CDS statistics assume single, consecutive reads
+    (a read list's ``NFRAMES``/``GROUPGAP`` cards describe its first resultant only:
+    a probe's 4-read averages after two single reads were fitted as single reads)."""
+    names = [n.upper() for n in reads.dtype.names or ()]
+    if "READS" not in names:
+        return
+    rows = [[int(k) for k in np.atleast_1d(r) if k >= 0]
+            for r in reads[reads.dtype.names[names.index("READS")]]]
+    flat = [k for r in rows for k in r]
+    if any(len(r) != 1 for r in rows) or any(b - a != 1 for a, b in zip(flat, flat[1:])):
+        bad = next((i for i, r in enumerate(rows) if len(r) != 1), None)
+        what = (f"resultant {bad} averages {len(rows[bad])} reads" if bad is not None
+                else "its reads skip frames")
+        raise FileFormatError(
+            f"dark ramp {path!r}: {what} (READS table); calibration needs one read per "
+            f"resultant and no gap (a RAPID-like readout)")
+
+
+def _read_order(path, data, hdr, hdr0):
+    """``data`` (..., ny, nx) in the detector's read orientation, from the file's
+    ``FASTAXIS``/``SLOWAXIS`` (a JWST file in the DMS frame): ``(1, 2)`` or none as
+    it is, ``-1``/``-2`` reversed along that axis, ``(2, 1)`` transposed, ``(-2,
+    -1)`` reversed on both axes and transposed; others refused.  (A probe: a
+    transposed NRS1 uncal was fitted along the wrong axis, c_pink and acn read 0.)"""
+    fa = hdr.get("FASTAXIS", hdr0.get("FASTAXIS"))
+    sa = hdr.get("SLOWAXIS", hdr0.get("SLOWAXIS"))
+    if fa is None and sa is None:
+        return data
+    try:
+        fa, sa = int(fa), int(sa)
+    except (TypeError, ValueError) as exc:
+        raise FileFormatError(f"dark ramp {path!r} has FASTAXIS = {fa!r}, SLOWAXIS = "
+                              f"{sa!r}: expected integers") from exc
+    if (abs(fa), abs(sa)) == (1, 2):
+        if fa < 0:
+            data = data[..., ::-1]
+        if sa < 0:
+            data = data[..., ::-1, :]
+        return data
+    if (fa, sa) == (2, 1):
+        return np.swapaxes(data, -1, -2)
+    if (fa, sa) == (-2, -1):
+        return np.swapaxes(data[..., ::-1, ::-1], -1, -2)
+    raise FileFormatError(f"dark ramp {path!r} has FASTAXIS = {fa}, SLOWAXIS = {sa}: "
+                          f"an orientation the calibration does not undo (it takes "
+                          f"(1, 2), (2, 1), their reversals by sign, and (-2, -1))")
 
 
 def _clock_text(det):
@@ -920,11 +978,15 @@ def _reset_level(ramps, lay, template, jumped=None):
     det = lay.det
     ref = det.reference_mask()
     ncol = det.ncols_out
-    groups = (np.arange(det.ny)[:, None] * det.n_out_active
-              + (np.arange(det.nx) // ncol)[None, :])            # row x output labels
+    # row x output x column-parity labels: ACN's even and odd samples have their own
+    # slow offsets, which a row's mean alone left in M (a probe: kTC pulls +0.8 at
+    # acn 2 e-, +6.7 at 6 e-)
+    groups = ((np.arange(det.ny)[:, None] * det.n_out_active
+               + (np.arange(det.nx) // ncol)[None, :]) * 2
+              + (np.arange(det.nx) % 2)[None, :])
     regular = ~ref if jumped is None else ~ref & ~jumped
     lab = groups[regular]
-    nlab = det.ny * det.n_out_active
+    nlab = det.ny * det.n_out_active * 2
     m_count = np.bincount(lab, minlength=nlab).astype(float)
 
     def demean(v):
@@ -1168,9 +1230,13 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
     ktc2 = est["ktc"].value ** 2 if est["ktc"].value is not None else est["ktc"].upper ** 2
     var_off = _offset_variance(det, nreads, theta, ktc2, int((~det.reference_mask()).sum()),
                                f_min, pink_spectrum)
-    est["bias_offset"] = Estimate(
-        "bias_offset", off, math.sqrt(var_off), None,
-        f"sigma from the fitted 1/f drift, pedestal and kTC with f_min = {f_min:g} Hz")
+    note = f"sigma from the fitted 1/f drift, pedestal and kTC with f_min = {f_min:g} Hz"
+    if est["bias_amp"].value is None:
+        tmean = float(template[~det.reference_mask()].mean())
+        note = (f"the mean reset level, bias_offset + bias_amp x {tmean:.4g} (the "
+                f"template's mean here): bias_amp is not identifiable in this window, "
+                f"so neither is bias_offset alone; " + note)
+    est["bias_offset"] = Estimate("bias_offset", off, math.sqrt(var_off), None, note)
     est["pca0"] = _amp("pca0", theta[6], theta_cov[6, 6],
                        note="picture-frame noise, with the template used")
     est["rtn_fraction"] = Estimate("rtn_fraction", None, None, None,

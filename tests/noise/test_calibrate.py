@@ -542,3 +542,76 @@ def test_detector_options_that_match_a_file_are_accepted(tmp_path):
                      unit="DN", gain=2.0)
     alias = dataclasses.replace(det, name="NRCA1", pixel_pitch=10.0)
     assert load_darks([dn], detector=alias).detector == det
+
+
+def test_acn_does_not_leak_into_ktc():
+    # ACN's even and odd series have their own slow offsets, which a row's mean
+    # alone left in the integration means: kTC pulls +0.8 at acn 2 e-, +6.7 at 6 e-
+    # (a probe, 12 seeds).  Demeaned by row, output and column parity: over 12
+    # seeds the mean pull is within 5 standard errors (5 / sqrt(12) = 1.44) of 0.
+    det = preset("H2RG", naxis1=128, naxis2=128)
+    pulls = []
+    for s in range(12):
+        p = NoiseParams(rd_noise=3.0, c_pink=0.0, u_pink=0.0, acn=6.0, pca0=0.0,
+                        pedestal=0.0, ktc=10.0, bias_offset=1000.0, bias_amp=100.0)
+        cube = NoiseGenerator(det, p, rng=1000 + s, threads=1).cube(8, nints=4)
+        e = calibrate_darks(DarkRamps(tuple(cube), det)).estimates["ktc"]
+        pulls.append((e.value - 10.0) / e.sigma)
+    assert abs(np.mean(pulls)) < 5 / np.sqrt(12), pulls
+
+
+def test_files_the_statistics_do_not_describe_are_refused_or_turned(tmp_path):
+    # three probes' cases: (1) a read list of averaged resultants passed the
+    # NFRAMES/GROUPGAP check (its cards describe its first resultant only) and was
+    # fitted as single reads; (2) a JWST file in the DMS frame (FASTAXIS = 2) was
+    # fitted along the wrong axis; (3) an e- dark and a DN dark together had the
+    # ADC rounding removed from both (rd_noise -5 sigma)
+    from astropy.io import fits
+    from scenesim.run import run_scene
+    from scenesim.scene import parse_scene
+    res = [[0], [1]] + [[4 * k + 2 + i for i in range(4)] for k in range(3)]
+    scene = parse_scene({"seed": 7, "detector": {"preset": "H2RG", "naxis1": 64,
+                                                 "naxis2": 64},
+                         "readout": {"resultants": res},
+                         "output": {"path": str(tmp_path / "avg.fits"), "fit": ""}})
+    run_scene(scene, progress=False)
+    with pytest.raises(FileFormatError, match="resultant 2 averages 4 reads"):
+        load_darks([str(tmp_path / "avg.fits")])
+    # (2) the same dark in the DMS frame (transposed, FASTAXIS = 2) fits as itself
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    path = _write_dark(tmp_path / "d.fits", det, NoiseParams(), seed=5)
+    with fits.open(path) as h:
+        data = np.ascontiguousarray(np.swapaxes(h[0].data, -1, -2))
+        hdr = h[0].header.copy()
+    hdr["FASTAXIS"], hdr["SLOWAXIS"] = 2, 1
+    fits.writeto(tmp_path / "dms.fits", data, hdr)
+    a, b = (load_darks([str(p)]) for p in (path, tmp_path / "dms.fits"))
+    for x, y in zip(a.integrations, b.integrations):
+        np.testing.assert_array_equal(x, y)
+    hdr["FASTAXIS"], hdr["SLOWAXIS"] = 2, -1
+    fits.writeto(tmp_path / "odd.fits", data, hdr)
+    with pytest.raises(FileFormatError, match="FASTAXIS = 2, SLOWAXIS = -1"):
+        load_darks([str(tmp_path / "odd.fits")])
+    # (3) units mixed
+    dn = _write_dark(tmp_path / "dn.fits", det, NoiseParams(), seed=6, unit="DN",
+                     gain=6.0)
+    with pytest.raises(ParameterError, match="in DN and .* in electrons: calibrate "
+                                             "darks of one unit together"):
+        load_darks([path, dn])
+
+
+def test_a_window_without_a_pattern_within_rows_says_what_bias_offset_is():
+    # a window away from the array's left and right edges: the synthetic template is
+    # constant along each row, bias_amp is not identifiable, and bias_offset is the
+    # mean reset level (it had read 5320 for 5000 with bias_amp 500, without a word)
+    from noise.template import template_for
+    det = preset("H2RG", naxis1=256, naxis2=256).window(100, 2, 64, 64)
+    p = NoiseParams(bias_amp=500.0, bias_offset=5000.0)
+    cube = NoiseGenerator(det, p, rng=3, threads=1).cube(16, nints=4)
+    r = calibrate_darks(DarkRamps(tuple(cube), det))
+    assert r.estimates["bias_amp"].value is None
+    off = r.estimates["bias_offset"]
+    tmean = float(template_for(det)[~det.reference_mask()].mean())
+    assert "bias_offset + bias_amp x" in off.note and "not identifiable" in off.note
+    # it is that combination, within 5 of its sigmas
+    assert abs(off.value - (5000.0 + 500.0 * tmean)) < 5 * off.sigma
