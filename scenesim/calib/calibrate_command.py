@@ -30,10 +30,23 @@ def _detector(args):
     return preset_detector(args.preset, args.naxis, args.n_out)
 
 
+def _check_options(args, files):
+    """``--f-min``, ``--template`` and every input file, checked before any dark is
+    read (a probe: a bad ``--f-min`` or a missing second file failed only after the
+    first had been read and fitted)."""
+    from noise.validate import check_existing_file, check_float
+    check_float("--f-min", args.f_min, minimum=0.0, strict_min=True)
+    if args.template is not None:
+        check_existing_file("--template", args.template)
+    for path in files:
+        check_existing_file("dark ramp", path)
+
+
 def calibrate_command(args):
     """``scenesim calibrate DARK.fits [...] -o noise.toml``."""
     check_outputs({"output": args.output}, inputs=[os.path.abspath(d) for d in args.darks],
                   overwrite=args.overwrite, endings={"output": (".toml",)})
+    _check_options(args, args.darks)
     ramps = load_darks(args.darks, detector=_detector(args), gain=args.gain)
     template = None if args.template is None else os.path.abspath(args.template)
     res = calibrate_darks(ramps, f_min=args.f_min, template_file=template)
@@ -60,6 +73,7 @@ def psd_command(args):
     if args.plot is not None:
         check_outputs({"plot": args.plot}, inputs=[os.path.abspath(f) for f in args.files],
                       overwrite=args.overwrite, endings={"plot": (".png",)})
+    _check_options(args, args.files)
     det = _detector(args)
     results = []
     for path in args.files:

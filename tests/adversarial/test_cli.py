@@ -567,3 +567,25 @@ def test_compare_refuses_the_exposure_of_another_run(workdir):
     res = _cli(["compare", "out_gls.fits", "out_truth.fits", "--exposure", "out.fits"],
                workdir)
     assert res.returncode == 0, res.stderr
+
+
+@pytest.mark.parametrize("args, named", [
+    (["calibrate", "d.fits", "-o", "n.toml", "--f-min", "-1"],
+     "'--f-min' must be > 0, got -1.0"),
+    (["calibrate", "d.fits", "-o", "n.toml", "--template", "nope.fits"],
+     "'--template' file"),
+    (["psd", "d.fits", "missing.fits"], "missing.fits' does not exist"),
+])
+def test_calibrate_and_psd_check_every_option_before_reading_a_dark(tmp_path, args,
+                                                                     named):
+    """A bad --f-min or --template, or a missing second file, failed only after the
+    first dark had been read and fitted (a probe): now before any dark is read,
+    one line, status 2, nothing written."""
+    res = _cli(["noise", "--preset", "H2RG", "--naxis", "64", "--frames", "4", "-q",
+                "-o", "d.fits"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    before = sorted(os.listdir(tmp_path))
+    res = _cli(args, tmp_path)
+    assert res.returncode == 2, res.stderr
+    _one_line(res.stderr, named)
+    assert sorted(os.listdir(tmp_path)) == before
