@@ -269,8 +269,16 @@ def check_writable(name, path, *, overwrite=True):
             "does not exist"
         raise ParameterError(
             f"{name!r}: directory {directory!r} of output {path!r} {what}")
+    # as the kernel resolves it: 'missing/../x.fits' goes through 'missing' (the
+    # text-normalised directory above exists; the write failed after the work)
+    raw = os.path.dirname(os.path.expanduser(path)) or "."
+    if not os.path.isdir(raw):
+        raise ParameterError(
+            f"{name!r}: the directory part {raw!r} of output {path!r} cannot be entered "
+            f"(a component of it does not exist or is not a directory)")
     if not os.access(directory, os.W_OK):
         raise ParameterError(f"{name!r}: directory {directory!r} is not writable")
+    check_name_length(name, path)
     if os.path.isdir(path):
         raise ParameterError(f"{name!r}: {path!r} is a directory, expected a file path")
     if os.path.exists(path) and not os.path.isfile(path):
@@ -279,6 +287,29 @@ def check_writable(name, path, *, overwrite=True):
     if os.path.lexists(path) and not overwrite:    # a link to nothing too
         raise ParameterError(f"{name!r}: {path!r} exists; pass overwrite=True to replace it")
     return path
+
+
+#: Bytes of a file name kept free for the temporary files written beside an output
+#: (``.scenesim-<pid>-<random>.<name>.tmp``, noise.fitsio).
+TEMP_NAME_ROOM = 48
+
+
+def check_name_length(name, path):
+    """Refuse a file or directory name that the file system, or the temporary file
+    written beside it (:data:`TEMP_NAME_ROOM` bytes more), could not hold (a name
+    of 300 bytes failed after the work)."""
+    base = os.path.basename(os.path.normpath(os.path.expanduser(path)))
+    parent = os.path.dirname(os.path.abspath(os.path.expanduser(path))) or "."
+    try:
+        limit = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    n = len(os.fsencode(base))
+    if n + TEMP_NAME_ROOM > limit:
+        raise ParameterError(
+            f"{name!r}: the name {base[:40]!r}... is {n} bytes; this file system takes "
+            f"{limit}, of which {TEMP_NAME_ROOM} are kept for the temporary file "
+            f"written beside it: at most {limit - TEMP_NAME_ROOM} bytes")
 
 
 def check_existing_file(name, path, extensions=None):

@@ -19,10 +19,10 @@ partial file either.
 import contextlib
 import os
 
-from noise.errors import ParameterError
+from noise.errors import OutputError, ParameterError
 from noise.fitsio import (check_output_name, derived_path, record_replacing,
                           remove_stale_temps, same_file)
-from noise.validate import check_writable
+from noise.validate import check_name_length, check_writable
 
 __all__ = ["PLOT_FILES", "scene_inputs", "scene_id", "file_sha256", "check_outputs",
            "check_plot_dir", "fit_path_for", "clean_stale_temps", "check_not_dangling"]
@@ -192,10 +192,19 @@ def check_plot_dir(directory, *, inputs=(), overwrite=False):
         raise ParameterError(
             f"'plots' {directory!r} is a file; expected a directory for the figures")
     parent = os.path.dirname(os.path.abspath(directory))
-    if not os.path.isdir(parent):
+    raw = os.path.dirname(os.path.expanduser(directory).rstrip(os.sep)) or "."
+    if not os.path.isdir(parent) or not os.path.isdir(raw):    # 'missing/../plots'
+        parent = parent if not os.path.isdir(parent) else raw
         raise ParameterError(
             f"'plots': the directory {parent!r} that would hold {directory!r} does not "
             f"exist")
+    if not os.path.isdir(directory):
+        # created later: a parent it cannot be made in, or a name too long, failed
+        # with a traceback after the run (a probe)
+        if not os.access(parent, os.W_OK):
+            raise ParameterError(f"'plots': the directory {parent!r} that would hold "
+                                 f"{directory!r} is not writable")
+        check_name_length("plots", directory)
     if not os.path.isdir(directory):
         return {name: os.path.join(directory, name) for name in PLOT_FILES}
     return check_outputs({f"figure {name}": os.path.join(directory, name)
@@ -209,7 +218,11 @@ def made_directory(directory):
     nothing."""
     made = directory is not None and not os.path.isdir(directory)
     if made:
-        os.makedirs(directory)
+        try:
+            os.makedirs(directory)
+        except OSError as exc:
+            raise OutputError(f"cannot create the directory {directory!r}: "
+                              f"{exc.strerror or exc}", errno=exc.errno) from exc
     try:
         yield directory
     except BaseException:

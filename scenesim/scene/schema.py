@@ -1033,10 +1033,12 @@ class Scene:
     def to_header_cards(self):
         """``(key, value, comment)`` FITS cards: scene file name, its content digest
         (:func:`scenesim.outputs.scene_id`) and seed."""
+        from scenesim.io.header import card
         from scenesim.outputs import scene_id
         name = os.path.basename(self.path) if self.path else "(in memory)"
         return [
-            ("SCENE", name[:68], "scene file"),
+            # printable ASCII, one card (a probe: 'scène.toml' crashed the write)
+            card("SCENE", name[:68], "scene file"),
             ("SCENEID", scene_id(self), "scene content digest (not seed, outputs)"),
             ("SEED", self.seed, "master seed (numpy SeedSequence entropy)"),
         ]

@@ -589,3 +589,41 @@ def test_calibrate_and_psd_check_every_option_before_reading_a_dark(tmp_path, ar
     assert res.returncode == 2, res.stderr
     _one_line(res.stderr, named)
     assert sorted(os.listdir(tmp_path)) == before
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["run", "scene.toml", "-o", "nosuch/../x.fits", "-q"], "'nosuch/..'"),
+    (["noise", "--naxis", "64", "--frames", "2", "-o", "nosuch/../n.fits", "-q"],
+     "'nosuch/..'"),
+    (["run", "scene.toml", "-o", "a" * 300 + ".fits", "-q"], "305 bytes"),
+    (["compare", "out_gls.fits", "out_truth.fits", "--plots", "nosuch/../pq"],
+     "'nosuch/..'"),
+    (["compare", "out_gls.fits", "out_truth.fits", "--plots", "p" * 300],
+     "300 bytes"),
+])
+def test_paths_the_kernel_cannot_write_are_refused_before_any_work(workdir, argv,
+                                                                   named):
+    """'nosuch/../x.fits' exists as text ('x.fits' in this directory) but the kernel
+    goes through 'nosuch'; a name of 300 bytes exceeds the file system's 255.  A
+    probe: refused only after the simulation (run, noise), a traceback (--plots),
+    or a stray 'nosuch' directory made by compare.  Now one line, status 2, before
+    any work, nothing made."""
+    if argv[0] == "compare":
+        res = _cli(["run", "scene.toml", "-q", "--fit", "gls"], workdir)
+        assert res.returncode == 0, res.stderr
+    before = sorted(os.listdir(workdir))
+    res = _cli(argv, workdir)
+    assert res.returncode == 2, res.stderr
+    _one_line(res.stderr, named)
+    assert "%" not in res.stderr                  # no progress bar: nothing ran
+    assert sorted(os.listdir(workdir)) == before
+
+
+def test_a_scene_file_of_any_name_runs(workdir):
+    # 'scène.toml' crashed the write of the SCENE card (FITS takes ASCII) after the
+    # engine was built, and failed every batch task: written printable now
+    from astropy.io import fits
+    (workdir / "scène 'ü'.toml").write_text((workdir / "scene.toml").read_text())
+    res = _cli(["run", "scène 'ü'.toml", "-o", "o.fits", "-q"], workdir)
+    assert res.returncode == 0, res.stderr
+    assert fits.getheader(workdir / "o.fits")["SCENE"] == "sc?ne '?'.toml"
