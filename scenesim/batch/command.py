@@ -74,8 +74,8 @@ def batch_command(args):
             f"{60 * n / res.task_seconds:.1f}/min after {res.startup_seconds:.1f} s "
             f"of start-up)") if n and res.task_seconds > 0 else ""
     log(f"batch: {n} run, {len(res.skipped)} already finished, {len(res.failed)} "
-        f"failed, in {res.seconds:.1f} s{rate}; batch seed {plan.batch_seed} "
-        f"({plan.seed_source}); manifest {os.path.join(args.out, 'batch.json')}")
+        f"failed, in {res.seconds:.1f} s{rate}; batch seed {res.plan.batch_seed} "
+        f"({res.plan.seed_source}); manifest {os.path.join(args.out, 'batch.json')}")
     if res.pooled and not args.quiet:
         _say()
         _say(format_tables(res.pooled, source=plan.source,

@@ -57,7 +57,7 @@ from scenesim.batch.manifest import (Manifest, batch_lock, check_same_batch,
                                      load_record, read_manifest)
 from scenesim.batch.pool import pool_reports
 from scenesim.batch.tasks import run_task, warm_worker
-from scenesim.outputs import check_not_dangling
+from scenesim.outputs import check_not_dangling, scene_inputs
 
 __all__ = ["run_batch", "BatchResult", "BatchError", "check_scheduler"]
 
@@ -480,9 +480,37 @@ def _check_positive(name, value):
     return value
 
 
+def _outputs_not_inputs(plan):
+    """Refuse a batch one of whose task files is a file its scenes read (any
+    spelling or link): resumed or extended, a task had replaced the scene's
+    background map (a probe; the check by name ran only without a manifest)."""
+    inputs = sorted({f for p in plan.points for f in scene_inputs(p.scene)})
+    if not inputs:
+        return
+    real = {os.path.realpath(f): f for f in inputs}
+    ids = {}
+    for f in inputs:
+        with contextlib.suppress(OSError):
+            st = os.stat(f)
+            ids[(st.st_dev, st.st_ino)] = f
+    for t in plan.tasks():
+        for kind, path in t.paths:
+            hit = real.get(os.path.realpath(path))
+            if hit is None and ids and os.path.lexists(path):
+                with contextlib.suppress(OSError):
+                    st = os.stat(path)
+                    hit = ids.get((st.st_dev, st.st_ino))
+            if hit is not None:
+                raise ParameterError(
+                    f"'out': task {t.name}'s {kind} file {path!r} is {hit!r}, a file the "
+                    f"scene reads; it is never replaced: use another output directory")
+
+
 def _checked_against_manifest(plan):
-    """``plan``, refused if the directory holds another batch's manifest; a drawn
-    seed is replaced by the one the manifest recorded (the same batch, resumed)."""
+    """``plan``, refused if the directory holds another batch's manifest or if a
+    task's file is one the scenes read (:func:`_outputs_not_inputs`); a drawn seed
+    is replaced by the one the manifest recorded (the same batch, resumed)."""
+    _outputs_not_inputs(plan)
     existing = read_manifest(plan.out_dir) if os.path.isdir(plan.out_dir) else None
     if existing is None:
         if os.path.isdir(plan.out_dir):

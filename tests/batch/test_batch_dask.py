@@ -312,6 +312,50 @@ def test_a_tasks_own_warnings_are_said_once_in_one_line(small_scene, tmp_path,
     assert len(rec["warnings"]) == 1 and "(1e+06, 15.1)" in rec["warnings"][0]
 
 
+def test_an_extended_batch_never_writes_over_a_file_its_scene_reads(small_scene,
+                                                                    tmp_path, capsys):
+    # the scene's background map lies in the output directory under the name of
+    # realisation 1's truth: -n 1 runs; -n 2 (an extension) had replaced the map
+    # (a probe; the name check ran only without a manifest): refused, untouched
+    from astropy.io import fits as _fits
+    out = tmp_path / "b"
+    out.mkdir()
+    bg = out / "r0001_truth.fits"
+    _fits.writeto(bg, np.full((64, 64), 0.5, np.float32))
+    text = small_scene.read_text().replace("background = 1.0",
+                                           f'background = "{bg}"')
+    scene = small_scene.parent / "map.toml"
+    scene.write_text(text)
+    before = bg.read_bytes()
+    assert main(["batch", str(scene), "-n", "1", "--out", str(out), "--workers", "1",
+                 "-q"]) == 0
+    assert main(["batch", str(scene), "-n", "2", "--out", str(out), "--workers", "1",
+                 "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "r0001's truth file" in err and "a file the scene reads" in err, err
+    assert bg.read_bytes() == before
+
+
+def test_a_resumed_batch_with_a_drawn_seed_prints_the_seed_it_used(small_scene,
+                                                                   tmp_path, capsys):
+    # the summary printed a freshly drawn seed on a resume; the data used the
+    # manifest's (a probe)
+    text = "\n".join(ln for ln in small_scene.read_text().splitlines()
+                     if not ln.startswith("seed"))
+    scene = small_scene.parent / "noseed.toml"
+    scene.write_text(text + "\n")
+    out = tmp_path / "d"
+    seeds = []
+    for n in ("1", "2"):
+        assert main(["batch", str(scene), "-n", n, "--out", str(out), "--workers",
+                     "1"]) == 0
+        line = [ln for ln in capsys.readouterr().out.splitlines()
+                if "batch seed" in ln][-1]
+        seeds.append(line.split("batch seed ")[1].split()[0])
+    manifest = json.loads((out / "batch.json").read_text())
+    assert seeds[0] == seeds[1] == str(manifest["batch_seed"]), seeds
+
+
 def test_grid_of_detectors_runs_point_by_point(small_scene, tmp_path):
     grid = small_scene.parent / "grid.toml"
     grid.write_text("""\
