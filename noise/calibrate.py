@@ -819,9 +819,10 @@ def _find_jumps(ramps):
     robust sigmas of that step over the pixels of their kind (regular or reference)
     and output (1.4826 times the median absolute deviation), and every ``hot``
     pixel; ``stepped`` (ny, nx) the pixels with such a step; ``n`` the number
-    of steps flagged; ``hot`` (ny, nx) the pixels whose charge over all integrations
-    (``last read - first read`` summed, less its row and output's median) exceeds
-    :data:`_JUMP_SIGMA` robust sigmas of that sum.
+    of steps flagged; ``hot`` (ny, nx) the regular pixels whose charge over all
+    integrations (their read steps less their row and output's median, summed over
+    every step not flagged) exceeds :data:`_JUMP_SIGMA` robust sigmas of that sum
+    over their output's regular pixels.
 
     A Gaussian step passes 6 sigma with probability 1e-9: ~0.1 false flags in 1e8
     steps, which only take their median (:func:`_differences`) or leave a pixel out
@@ -864,18 +865,18 @@ def _find_jumps(ramps):
     return out, stepped, n, hot
 
 
-def _above_per_output(d, det, regular):
-    """Flat indices of the ``regular`` pixels of ``d`` (ny, nx) above
-    :data:`_JUMP_SIGMA` robust sigmas of their own output's regular pixels
-    (:func:`_above`), sorted."""
+def _above_per_output(d, det, mask):
+    """Flat indices of the pixels of ``d`` (ny, nx) selected by ``mask`` that lie
+    above :data:`_JUMP_SIGMA` robust sigmas of the selected pixels of their own
+    output (:func:`_above`), sorted."""
     ncol = det.nx // det.n_out_active
     idx = np.arange(d.size).reshape(d.shape)
     found = []
     for o in range(det.n_out_active):
         cols = slice(o * ncol, (o + 1) * ncol)
-        reg = regular[:, cols]
-        if reg.any():
-            found.append(idx[:, cols][reg][_above(d[:, cols][reg])])
+        sel = mask[:, cols]
+        if sel.any():
+            found.append(idx[:, cols][sel][_above(d[:, cols][sel])])
     return np.sort(np.concatenate(found)) if found else np.zeros(0, np.intp)
 
 
@@ -1255,7 +1256,8 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
         notes.append(
             f"{int(hot.sum())} pixels collected more charge over the integrations "
             f"than {_JUMP_SIGMA:g} robust sigma of the sum of their read steps (hot "
-            f"or lit pixels, or a large jump): every CDS difference of theirs took "
+            f"or lit pixels; steps flagged as jumps left out): every CDS difference of "
+            f"theirs took "
             f"its row's median, and they were left out of kTC and the bias")
     kw = {}
     for name in ("rd_noise", "ref_ratio", "c_pink", "u_pink", "acn", "pedestal", "ktc",

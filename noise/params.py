@@ -91,6 +91,7 @@ the values).
 import dataclasses
 import math
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -425,7 +426,6 @@ class NoiseParams:
         rd = float(np.min(np.asarray(self.rd_noise, dtype=float)))
         gain = float(gain)
         if 0 < rd < gain / 2:
-            import warnings
             warnings.warn(
                 f"{name} {gain:g} e-/DN: half an ADC step ({gain / 2:g} e-) "
                 f"exceeds the white read noise per read ('rd_noise' {rd:g} e-), so "
