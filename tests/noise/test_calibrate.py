@@ -439,18 +439,24 @@ def test_a_recorded_gain_or_detector_wins_over_the_options(tmp_path):
     assert "--gain" not in str(err.value)
 
 
+def _full_model_dark(naxis, *, seed):
+    """``(detector, params, cube, regular flat indices)``: darks (4 integrations of
+    16 reads) of an H2RG of ``naxis``^2 with every fitted component on."""
+    det = preset("H2RG", naxis1=naxis, naxis2=naxis)
+    p = NoiseParams(rd_noise=7.0, ref_ratio=0.7, c_pink=2.0, u_pink=1.5, acn=1.0,
+                    pca0=0.5, pedestal=3.0, ktc=25.0, bias_offset=4000.0,
+                    bias_amp=300.0)
+    cube = NoiseGenerator(det, p, rng=seed, threads=1).cube(16, nints=4)
+    return det, p, cube, np.flatnonzero(~det.reference_mask())
+
+
 def test_cosmic_rays_in_darks_are_found_and_left_out():
     # 1 % of the pixels of every integration take a hit (lognormal, median 1000 e-)
     # between two random reads: left in, a probe's rd_noise came out +5.5 sigma and
     # kTC +3.9 sigma.  Found (> 6 robust sigma of the read step) and left out, every
     # fitted parameter is within 5 of its sigmas of the truth.
-    det = preset("H2RG", naxis1=64, naxis2=64)
-    p = NoiseParams(rd_noise=7.0, ref_ratio=0.7, c_pink=2.0, u_pink=1.5, acn=1.0,
-                    pca0=0.5, pedestal=3.0, ktc=25.0, bias_offset=4000.0,
-                    bias_amp=300.0)
+    det, p, cube, regular = _full_model_dark(64, seed=18)
     rng = np.random.default_rng(17)
-    cube = NoiseGenerator(det, p, rng=18, threads=1).cube(16, nints=4)
-    regular = np.flatnonzero(~det.reference_mask())
     n_hits = 0
     for k in range(cube.shape[0]):
         hit = rng.choice(regular, size=regular.size // 100, replace=False)
@@ -477,13 +483,8 @@ def test_hot_pixels_below_the_step_threshold_are_found_by_their_sum():
     # the white-noise basis keeps the share of samples that were not replaced (left
     # out, 1 % of the white variance missing had put rd_noise at -2.3 sigma).
     # Tolerance: 5 of each estimate's own sigmas.
-    det = preset("H2RG", naxis1=256, naxis2=256)
-    p = NoiseParams(rd_noise=7.0, ref_ratio=0.7, c_pink=2.0, u_pink=1.5, acn=1.0,
-                    pca0=0.5, pedestal=3.0, ktc=25.0, bias_offset=4000.0,
-                    bias_amp=300.0)
+    det, p, cube, regular = _full_model_dark(256, seed=101)
     rng = np.random.default_rng(1)
-    cube = NoiseGenerator(det, p, rng=101, threads=1).cube(16, nints=4)
-    regular = np.flatnonzero(~det.reference_mask())
     hot = rng.choice(regular, size=regular.size // 100, replace=False)
     rate = np.exp(rng.uniform(np.log(20.0), np.log(900.0), size=hot.size))
     y, x = np.divmod(hot, det.nx)
