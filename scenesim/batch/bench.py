@@ -74,7 +74,7 @@ def _scheduler_overhead():
     from dask.distributed import Client, LocalCluster
     t0 = time.perf_counter()
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, \
+                      dashboard_address=":0") as cluster, \
             Client(cluster, set_as_default=False) as client:
         client.submit(_noop, -1, pure=False).result()          # warm
         t1 = time.perf_counter()

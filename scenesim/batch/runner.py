@@ -176,6 +176,16 @@ def _check_out_writable(out_dir):
                              f"writable")
 
 
+def _failed_message(failed, ntasks, first_error, manifest_path):
+    """What a batch whose tasks ``failed`` (names, of ``ntasks``) says at its end."""
+    rest = ntasks - len(failed)
+    others = ("" if rest == 0 else "; the other task is finished" if rest == 1
+              else f"; the other {rest} are finished")
+    return (f"{len(failed)} of {ntasks} tasks failed (first: {failed[0]}: "
+            f"{first_error}){others}. Errors are in {manifest_path}; run the same "
+            f"command again to retry them")
+
+
 @contextlib.contextmanager
 def _client(target, workers, connect_timeout, log):
     """A dask Client on the scheduler ``target``, or on a new LocalCluster."""
@@ -188,10 +198,13 @@ def _client(target, workers, connect_timeout, log):
     environ = dict(os.environ)
     try:
         if target is None:
-            dashboard = ":0" if importlib.util.find_spec("bokeh") is not None else None
             with _sigint_blocked():
+                # the scheduler serves HTTP with or without bokeh; dashboard_address
+                # None is its default port 8787, where a second batch (or any other
+                # cluster) printed distributed's "port 8787 is already in use" even
+                # with -q: a free port, always
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
-                                       processes=True, dashboard_address=dashboard,
+                                       processes=True, dashboard_address=":0",
                                        # a worker whose scheduler stops first (Ctrl-C)
                                        # logs its failed heartbeat at ERROR; task errors
                                        # reach the manifest through their futures
@@ -456,10 +469,9 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
             manifest.data["pooled"] = pooled
         manifest.write()
     if failed:
-        raise BatchError(
-            f"{len(failed)} of {len(tasks)} tasks failed (first: {failed[0]}: "
-            f"{manifest.data['tasks'][failed[0]]['error']}); the others are finished. "
-            f"Errors are in {manifest.path}; run the same command again to retry them")
+        raise BatchError(_failed_message(failed, len(tasks),
+                                         manifest.data["tasks"][failed[0]]["error"],
+                                         manifest.path))
     return BatchResult(plan=plan, manifest=manifest.data, ran=ran, skipped=skipped,
                        failed=failed, pooled=pooled, seconds=time.perf_counter() - t0,
                        dashboard=dashboard, workers=nworkers,

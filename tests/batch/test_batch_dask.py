@@ -212,6 +212,26 @@ def _free_port():
         return s.getsockname()[1]
 
 
+def test_quiet_batch_prints_nothing_when_port_8787_is_taken(small_scene, tmp_path):
+    # a probe: with another cluster's dashboard on dask's default port, a -q batch
+    # printed distributed's three-line "Port 8787 is already in use" warning
+    held = socket.socket()
+    try:
+        held.bind(("127.0.0.1", 8787))
+        held.listen()
+    except OSError:
+        pass                                    # taken already: the case itself
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "scenesim.cli", "batch", str(small_scene), "-n", "1",
+             "--out", str(tmp_path / "q"), "--workers", "1", "-q"],
+            capture_output=True, text=True, timeout=300)
+    finally:
+        held.close()
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == "" and proc.stdout == ""
+
+
 def test_bad_input_is_one_error_before_any_task(small_scene, tmp_path, capsys):
     out = tmp_path / "o"
     # an address no scheduler answers

@@ -1,9 +1,11 @@
-"""The manifest's periodic writes take a bounded share of the driver's time."""
+"""The manifest's periodic writes take a bounded share of the driver's time; what a
+batch with failed tasks says of the others."""
 
 import time
 
 from scenesim.batch.manifest import WRITE_SHARE, Manifest
 from scenesim.batch.plan import plan_batch
+from scenesim.batch.runner import _failed_message
 
 
 def test_periodic_writes_wait_for_their_share(small_scene, tmp_path):
@@ -21,3 +23,12 @@ def test_periodic_writes_wait_for_their_share(small_scene, tmp_path):
     m._written = time.monotonic() - 1.0 / WRITE_SHARE - 0.1
     assert m.write(every=1.0)
     assert m.write()                                # unconditional writes: always
+
+
+def test_the_failure_message_counts_the_finished_tasks():
+    # it said "the others are finished" when every task had failed
+    msg = _failed_message(["a", "b"], 2, "boom", "m.json")
+    assert msg.startswith("2 of 2 tasks failed (first: a: boom). Errors are in m.json")
+    assert "finished" not in msg
+    assert "; the other task is finished." in _failed_message(["a"], 2, "x", "m")
+    assert "; the other 3 are finished." in _failed_message(["a"], 4, "x", "m")
