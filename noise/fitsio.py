@@ -163,9 +163,10 @@ def _file_size_limit():
     return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
-def output_error(path, exc):
+def output_error(path, exc, *, what=None):
     """:class:`noise.errors.OutputError` for the OS error ``exc`` met writing ``path``:
-    one line, ``cannot write 'path': <reason> (<ERRNO>)``.
+    one line, ``cannot write 'path': <reason> (<ERRNO>)``; with ``what``, ``cannot
+    write 'path' (<what>): ...`` (a temporary file, which the user never named).
 
     The error number is looked for along the exception's chain (astropy re-raises
     write errors without it).  A short write without one (numpy's ``tofile``, which
@@ -201,7 +202,8 @@ def output_error(path, exc):
     if code == _errno.EFBIG and limit is not None:
         details.insert(1, f"the file-size limit, ulimit -f, is {limit} bytes")
     reason = f"{text} ({'; '.join(details)})" if details else text
-    return OutputError(f"cannot write {path!r}: {reason}", code)
+    said = f"{path!r} ({what})" if what else repr(path)
+    return OutputError(f"cannot write {said}: {reason}", code)
 
 
 # ---------------------------------------------------------------- temporary files

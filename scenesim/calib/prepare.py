@@ -802,7 +802,10 @@ def fit_exposure_file(exposure, output, *, fitter="gls", jump_threshold=5.0,
             except OSError as exc:        # the temporary cube: disk full, size limit
                 if isinstance(exc, ScenesimError):
                     raise
-                raise output_error(output, exc) from exc
+                nbytes = 4 * int(np.prod(src.shape))
+                raise output_error(output, exc, what=(
+                    f"first its prepared ramps, a temporary float32 cube of {nbytes} "
+                    f"bytes beside it")) from exc
             result = fit_ramps(resultants, prep.read_times, read_noise=prep.read_noise,
                                gain=prep.gain, fitter=fitter, saturated=saturated,
                                jump_threshold=jump_threshold or None,

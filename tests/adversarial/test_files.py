@@ -392,6 +392,20 @@ def test_file_size_limit_on_the_fit_of_a_run(tmp_path):
             [np.asarray(h.data) for h in hdul]
 
 
+def test_file_size_limit_on_the_fits_temporary_cube_says_so(good, tmp_path):
+    """``scenesim fit`` prepares the ramps into a temporary float32 cube first (here
+    3 x SHAPE x 4 bytes, above the limit; the exposure read is not limited).  The line
+    named the slope file alone, which is smaller than the limit it was said to pass."""
+    shutil.copyfile(good["exposure"], tmp_path / "e.fits")
+    cube = 4 * 3 * SHAPE[0] * SHAPE[1]
+    res = _cli(["fit", "e.fits", "-o", "f.fits", "-q"], tmp_path,
+               preexec_fn=_limit_fsize(cube // 2))
+    assert res.returncode == 2, res.stderr
+    _one_line(res.stderr, "'f.fits'", f"temporary float32 cube of {cube} bytes",
+              "File too large", f"is {cube // 2} bytes")
+    assert os.listdir(tmp_path) == ["e.fits"]
+
+
 def _unshare_works():
     if shutil.which("unshare") is None or not sys.platform.startswith("linux"):
         return False
