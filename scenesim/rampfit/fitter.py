@@ -67,9 +67,10 @@ model variances evaluated at the joint rate (JWST style).
 
 chi-square: ``chi2 = (d - f_hat)^T C^-1 (d - f_hat) / dof`` with ``dof = n_diff - 1``
 (usable differences of all integrations minus one).  For GLS its expectation is 1
-at the true rate; with ``variance_rate='local'`` it is taken at the weight rate,
-shrunk toward 0 near 0, which reads it high for faint pixels (1.03-1.07 at 0.05
-e-/s and 1 e- read noise; docs/VALIDATION_FIT.md);
+at the true rate; with ``variance_rate='local'`` the refitted pixels' chi-square is
+taken at the variance rate, not at the weight rate (which is shrunk toward 0 near 0
+and read it 1.03-1.07 for faint pixels; now 1.006-1.025 at 0.05 e-/s and 1 e- read
+noise, against 1.000-1.015 with ``'fit'``; docs/VALIDATION_FIT.md);
 for OLS and CDS it is ``1 + (V/V_opt - 1)/dof`` (slightly above 1).  ``chi2 = 0`` where
 ``dof <= 0``.  :func:`scenesim.rampfit.variance.model_chi2` evaluates the same
 quantity for a rate from elsewhere (e.g. another fitter's).
@@ -322,15 +323,19 @@ def fit_ramps(resultants, read_times, *, read_noise, gain=1.0, fitter="gls",
             variance_rate == "local"
         rate_v, rate_w, refit = _variance_rate(variance_rate, out, pool,
                                                own_share=not local)
+        # with 'local' the weight rate is shrunk toward 0 where it cannot be told
+        # from 0: the chi-square is taken at the variance rate (one more solve; at
+        # the weight rate it read 1.03-1.07 for faint uniform pixels)
         if fitter == "gls" and refit is not None:
-            _refit_at_rate(setup, out, rate_w, refit, pool)
+            _refit_at_rate(setup, out, rate_w, refit, pool,
+                           chi_rate=rate_v if local else None)
         if local and refit.any():
             # second round, from the refitted (efficient) slopes: the own rate
             # joins the weight rate where the pixel stands out from its neighbours
             prev = rate_w
             rate_v, rate_w, refit = _variance_rate(variance_rate, out, pool)
             _refit_at_rate(setup, out, rate_w, refit & _moved(prev, rate_w, out),
-                           pool)
+                           pool, chi_rate=rate_v)
     pcoef, pcoef_ints = out.pop("pcoef"), out.pop("pcoef_ints")
     out["var_poisson"] = (rate_v * pcoef).astype(_F32)
     out["var_ints"] += rate_v[None] * pcoef_ints
@@ -620,8 +625,9 @@ def _moved(prev, rate, out):
     return np.abs(rate - prev) * out["pcoef"] > _F32(0.05) * v
 
 
-def _refit_at_rate(setup, out, rate, refit, pool):
-    """GLS of the pixels ``refit`` again, with the covariance at ``rate``.
+def _refit_at_rate(setup, out, rate, refit, pool, chi_rate=None):
+    """GLS of the pixels ``refit`` again, with the covariance at ``rate`` (and their
+    chi-squares at ``chi_rate``, when given).
 
     One solve per pixel (started from the first fit's slope), on the same usable
     differences: jump detection does not depend on the weights, so it is only
@@ -650,6 +656,8 @@ def _refit_at_rate(setup, out, rate, refit, pool):
         got = _fit_block(*args[:6], 1, None, None,
                          frate=rate[y0:y1].reshape(-1),
                          fstart=out["slope"][y0:y1].reshape(-1),
+                         fchi=None if chi_rate is None else
+                         chi_rate[y0:y1].reshape(-1),
                          jumped=jumped[y0:y1].reshape(-1),
                          jump_pixels=setup.jump_block)
         y, x = np.divmod(np.arange((y1 - y0) * nx), nx)
@@ -660,6 +668,7 @@ def _refit_at_rate(setup, out, rate, refit, pool):
         s2 = setup.s2 if np.isscalar(setup.s2) else setup.s2[y, x]
         got = _fit_block(res, sat, s2, setup.cov, "gls", setup.thr, 1, None, None,
                          frate=rate[y, x], fstart=out["slope"][y, x],
+                         fchi=None if chi_rate is None else chi_rate[y, x],
                          jumped=jumped[y, x], jump_pixels=setup.jump_block)
         keep(y, x, got, got["by_diff"])
 
@@ -724,11 +733,12 @@ class _Block:
 
 
 def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None,
-               fstart=None, jumped=None, jump_pixels):
+               fstart=None, fchi=None, jumped=None, jump_pixels):
     """Fit one chunk: ``res`` (nints, nres, P); returns a dict of (P,)/(nints, P) arrays.
 
     ``frate`` (P,): GLS weights at this rate (one solve from ``fstart``) instead of
-    the iteration from the CDS slope; ``jumped`` (P,) bool: run the jump detection
+    the iteration from the CDS slope; ``fchi`` (P,): the chi-square at ``C(fchi)``
+    instead of at the weights' covariance; ``jumped`` (P,) bool: run the jump detection
     on these pixels only (the others are known to have none); ``jump_pixels``: its
     first pass's block (:func:`scenesim.rampfit.jumps.jump_block`).
     """
@@ -742,7 +752,7 @@ def _fit_block(res, sat, s2, cov, fitter, thr, n_iter, zp, tshift, *, frate=None
             blk.n_jumps = _flag_jumps_of(d, valid, s2, cov, thr, jumped, jump_pixels)
         diffs = _Differences(d, valid, s2, cov)
         if fitter == "gls":
-            chi2_raw = _fit_gls(diffs, n_iter, blk, frate, fstart)
+            chi2_raw = _fit_gls(diffs, n_iter, blk, frate, fstart, fchi)
         else:
             chi2_raw = _fit_weighted(diffs, fitter, blk)
         ndof = valid.sum(axis=1, dtype=np.int32).sum(axis=0) - 1
@@ -833,9 +843,10 @@ class _Differences:
         return np.zeros(self.npix, _F32)
 
 
-def _fit_gls(diffs, n_iter, blk, frate=None, fstart=None):
+def _fit_gls(diffs, n_iter, blk, frate=None, fstart=None, fchi=None):
     """GLS with the covariance at the previous estimate (or at ``frate``, one solve
-    from ``fstart``); fills ``blk``, returns raw chi2."""
+    from ``fstart``); fills ``blk``, returns raw chi2: at the weights' covariance, or
+    with ``fchi`` at ``C(fchi)`` (one more solve, about the slope found)."""
     if frate is not None:
         fref, n_iter = fstart, 1
     else:
@@ -855,8 +866,12 @@ def _fit_gls(diffs, n_iter, blk, frate=None, fstart=None):
             fref = new
     blk.slope = new
     _gls_variances(diffs, passes, fref, np.maximum(fcov, diffs.lo), S11, blk)
+    if fchi is not None:
+        passes = diffs.model_solves(new, np.maximum(fchi, diffs.lo), want_x=False)
+        S11 = sum(p[0] for p in passes)
+        S1y = sum(p[1] for p in passes)
     syy = sum(p[2] for p in passes)
-    return syy - np.divide(S1y * S1y, S11, out=diffs.zeros(), where=blk.measured)
+    return syy - np.divide(S1y * S1y, S11, out=diffs.zeros(), where=S11 > 0)
 
 
 def _gls_variances(diffs, passes, fref, f, S11, blk):
