@@ -16,7 +16,9 @@ failed, missing or damaged ones.
 
 A second batch in the same directory is refused while the first runs
 (``OUT/.batch.lock``, an advisory ``flock``), and a manifest of another batch
-(different identity) is refused before anything starts.
+(different identity) is refused before anything starts.  The identity's file names
+are compared relative to the scene's folder, their contents by checksum: a project
+moved or copied whole resumes its batch.
 """
 
 import contextlib
@@ -68,11 +70,31 @@ def _describe(identity):
             f"point(s)")
 
 
+def _portable(identity):
+    """``identity`` with its file names relative to the scene's folder: a project
+    moved or copied whole (scene, the files it reads, the output directory) is the
+    same batch; the files' contents are compared by their checksums."""
+    if not isinstance(identity, dict) or not isinstance(identity.get("scene"), str):
+        return identity
+    out = dict(identity)
+    home = os.path.dirname(identity["scene"])
+    out["scene"] = os.path.basename(identity["scene"])
+    inputs = identity.get("inputs_sha256")
+    if isinstance(inputs, dict):
+        out["inputs_sha256"] = {os.path.relpath(f, home) if isinstance(f, str) and
+                                os.path.isabs(f) else f: v for f, v in inputs.items()}
+    return out
+
+
 def check_same_batch(existing, identity, out_dir):
-    """Refuse ``existing`` (a manifest) when it belongs to another batch."""
-    old = existing.get("identity", {})
+    """Refuse ``existing`` (a manifest) when it belongs to another batch (the same
+    batch in a moved project is not another: :func:`_portable`)."""
+    old = _portable(existing.get("identity", {}))
+    identity = _portable(identity)
     if old == identity:
         return
+    if not isinstance(old, dict):
+        old = {}
     differs = sorted(k for k in set(old) | set(identity) if old.get(k) != identity.get(k))
     raise ParameterError(
         f"'out': {out_dir!r} holds the manifest of another batch ({_describe(old)}); "

@@ -157,6 +157,36 @@ def test_the_files_a_scene_reads_are_part_of_the_batch(small_scene, tmp_path):
     assert "inputs_sha256" not in plan_batch(small_scene, out=tmp_path / "g").identity()
 
 
+def test_a_project_moved_whole_is_the_same_batch(small_scene, tmp_path):
+    # The identity held the scene's absolute path: a project moved or copied
+    # whole (scene, catalogue, outputs) was "another batch" and could not resume.
+    import shutil
+    from astropy.table import Table
+    from scenesim.batch.manifest import check_same_batch
+    home = tmp_path / "a"
+    home.mkdir()
+    Table({"x": [30.2], "y": [31.6], "flux": [3000.0]}).write(home / "stars.ecsv")
+    (home / "s.toml").write_text(small_scene.read_text().replace(
+        "[sources]", '[sources]\ncatalogue = "stars.ecsv"', 1))
+    a = plan_batch(home / "s.toml", out=home / "out").identity()
+    moved = tmp_path / "b" / "deeper"
+    shutil.copytree(home, moved)
+    b = plan_batch(moved / "s.toml", out=moved / "out").identity()
+    assert a["scene"] != b["scene"]
+    check_same_batch({"identity": a}, b, str(moved / "out"))       # no error
+    # what still makes it another batch: the files' contents, the scene's name
+    Table({"x": [30.2], "y": [31.6], "flux": [3e5]}).write(moved / "stars.ecsv",
+                                                        overwrite=True)
+    c = plan_batch(moved / "s.toml", out=moved / "out").identity()
+    with pytest.raises(ParameterError, match="differs in inputs_sha256"):
+        check_same_batch({"identity": a}, c, str(moved / "out"))
+    os.rename(moved / "s.toml", moved / "t.toml")
+    shutil.copyfile(home / "stars.ecsv", moved / "stars.ecsv")
+    d = plan_batch(moved / "t.toml", out=moved / "out").identity()
+    with pytest.raises(ParameterError, match="differs in scene"):
+        check_same_batch({"identity": a}, d, str(moved / "out"))
+
+
 def test_bad_batch_files(small_scene, tmp_path):
     with pytest.raises(ParameterError, match=r"unknown key 'realisation'.*realisations"):
         plan_batch(_batch_file(tmp_path, 'scene = "small.toml"\nrealisation = 3\n'),
