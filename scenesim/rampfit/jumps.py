@@ -64,6 +64,35 @@ differences their residuals are exactly opposite).  Detection needs >= 2 usable
 differences (no pair when only two are left: it would be the whole ramp).
 Excluding a difference splits the ramp into independent segments.
 
+Drops.  Charge can also fall: a telegraph pixel steps down, a resultant spikes up
+and the next difference reads the fall.  A drop pulls the common rate down, and the
+one-sided test then read the *clean* differences high, flagged them one by one and
+kept the drop (a probe, 2026-11-28: a 300 e- step down in RAPID x 10 at 1 e-/s and
+10 e- read noise gave 8 flags of 9 differences, slope -28 e-/s; without detection
+-3.6; a one-resultant spike of 1000 e-: -99 e-/s).  So where a pass would flag a
+positive statistic, the strongest negative single difference takes the flag
+instead when its ``|z|`` is more than :data:`_DROP_RATIO` times larger: one drop
+among ``n`` differences reads about ``n - 1`` times the clean ones it pushes up,
+while two hits read about as high as the clean differences they push down (the
+ratio 1 in the limit; 1.5 leaves every seeded two-hit case of the tests as it
+was).  A drop alone, with no clean difference pushed over the threshold, is left
+in: the false-alarm rate of clean ramps is unchanged, ``Q(k)`` per test.  With
+fewer than 4 usable differences one drop and hits in all the others look alike
+(ratio 2 both ways), and hits are kept the likelier.  The ratio is taken against
+the largest positive *single* difference (a pair of clean differences pushed up
+reads ~sqrt(2) times one), and a pixel with a dominant drop beyond the threshold
+gets no look-ahead (leaving out a clean difference would push the others higher
+still).  After the change the probe's step reads 0.99 e-/s (1 flag), the spike
+1.01 (2 flags); on 10^4-pixel sweeps of 50-500 e- drops at 0.5 and 20 e-/s
+(``tests/tools/jump_drops.py``) mean ``z^2`` fell from 270-5400 to 5-42 in RAPID x
+10, 6 groups x 4 frames and the Roman table, of spikes from 210-5000 to 1.0-190;
+clean ramps and one or two hits are as before (two-hit cells 1.381 -> 1.388 and
+1.382 -> 1.384), RAPID x 4 (3 differences) unchanged.  What is left: a drop that
+pushes no clean difference over the threshold stays in, as it did without
+detection (a 300 e- step in the Roman table: 227 of 4096 pixels unflagged, mean
+``z^2`` 2.5), and a spike in one resultant of multi-read groups still costs many
+pixels their last difference (6 groups x 4 frames at 0.5 e-/s: 3955 of 10^4).
+
 What a flag costs.  A hit adds its charge to every read after it, so it moves only
 the resultant during which it arrived (by the fraction of that resultant's reads
 after it) relative to the line through the others: the differences touching that
@@ -157,6 +186,10 @@ def jump_block(n_diff, threads=1):
 #: Pixels whose strongest statistic exceeds this fraction of the threshold get the
 #: look-ahead test for two hits masking each other (module notes).
 _LOOKAHEAD = 0.5
+#: A drop takes the flag of a pass from a positive statistic above the threshold
+#: when its ``|z|`` is this many times larger (module notes: one drop reads ~(n -
+#: 1) times the clean differences it pushes up, two hits ~1 times the clean ones).
+_DROP_RATIO = 1.5
 
 
 def flag_jumps(d, valid, s2, cov, threshold, *, block=_JUMP_BLOCK):
@@ -203,20 +236,30 @@ def _detect_jumps(d, valid, s2, cov, thr, block):
     for _ in range(nd - 1):
         if idx.size == 0:
             break
-        zmax, first, last, pair = _strongest_blocks(d, valid[:, idx], s2, idx, cov,
-                                                    thr, block)
+        zmax, first, last, pair, down, zdown = _strongest_blocks(
+            d, valid[:, idx], s2, idx, cov, thr, block)
         hit = zmax > thr
+        # A drop (a telegraph pixel's step down, the second half of a spike in one
+        # resultant) pulls the common rate down and the clean differences read
+        # high: where a pass would flag one of them, a stronger drop takes the flag
+        # instead (module notes)
+        drop = hit & (zdown > 0)
+        first[drop] = last[drop] = down[drop]
+        pair[drop] = False
         # Look-ahead: two hits can mask each other (each pulls the common rate
         # toward itself); a pixel whose strongest statistic is within a factor
         # _LOOKAHEAD of the threshold is tested again without that span, and the
         # strongest span of that test is flagged if it now exceeds the threshold.
-        look = ~hit & (zmax > _LOOKAHEAD * thr) & (valid[:, idx].sum(axis=0) >= 3)
+        # (not where a drop beyond the threshold dominates: leaving out a clean
+        # difference it pushed up would push the others higher still)
+        look = ~hit & (zmax > _LOOKAHEAD * thr) & (valid[:, idx].sum(axis=0) >= 3) \
+            & ~(zdown > thr)
         if look.any():
             il = idx[look]
             vt = valid[:, il].copy()
             rows = np.arange(nd)[:, None]
             vt &= ~((rows >= first[look]) & (rows <= last[look]))
-            z2, f2, l2, p2 = _strongest_blocks(d, vt, s2, il, cov, thr, block)
+            z2, f2, l2, p2, _, _ = _strongest_blocks(d, vt, s2, il, cov, thr, block)
             ok = z2 > thr
             sel = np.flatnonzero(look)[ok]
             hit[sel] = True
@@ -248,14 +291,17 @@ def _strongest_blocks(d, vv, s2, idx, cov, thr, block):
     parts = [_strongest(d[:, idx[c:c + block]], vv[:, c:c + block], s2,
                         idx[c:c + block], cov, thr)
              for c in range(0, idx.size, block)]
-    return tuple(np.concatenate([p[i] for p in parts]) for i in range(4))
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(6))
 
 
 def _strongest(dd, vv, s2, idx, cov, thr):
     """Largest positive statistic of each pixel and its span: (zmax, first, last,
-    pair), the statistics less their skewness allowance (:func:`_skew_allowance`).
-    With only two usable differences a pair would be the whole ramp, so only single
-    differences are tested.
+    pair), the statistics less their skewness allowance (:func:`_skew_allowance`),
+    and the strongest drop (down, zdown): the most negative single difference and
+    its ``|z|``, 0 where it does not dominate the positive single differences
+    (:data:`_DROP_RATIO`) or with fewer than 4 usable differences.  With only two usable
+    differences a pair would be the whole ramp, so only single differences are
+    tested.
     """
     med, rest = _robust_rates(dd, vv)
     s2i = s2 if np.isscalar(s2) else s2[idx]
@@ -277,10 +323,20 @@ def _strongest(dd, vv, s2, idx, cov, thr):
         f = f + _F32(1.0 / nd) * np.sqrt(np.maximum(c11, _F32(0)))
     z, zp = _signed_statistics(dd, vv, med, s2i, f, cov)
     gz, gp = _skew_allowance(s2i, f, cov, thr)
+    # the strongest drop (negative single difference), for _detect_jumps; with
+    # fewer than 4 usable differences a drop cannot be told from hits in all the
+    # others (module notes): none there
+    neg = np.where(vv.sum(axis=0) >= 4, np.maximum(-z, 0), 0)
+    down = neg.argmax(axis=0)
+    zdown = neg[down, np.arange(neg.shape[1])]
     z = np.maximum(z - gz, 0)
     if zp is not None:
         zp = np.where(vv.sum(axis=0) == 2, 0, np.maximum(zp - gp, 0))
-    return _largest_excess(z, zp)
+    # a drop dominates when its |z| is _DROP_RATIO times the largest positive single
+    # difference's (a pair of clean differences a drop pushed up reads ~sqrt(2)
+    # times one of them, so not the pairs)
+    zdown = np.where(zdown > _F32(_DROP_RATIO) * z.max(axis=0), zdown, 0)
+    return _largest_excess(z, zp) + (down, zdown)
 
 
 def _skew_allowance(s2, f, cov, thr):
