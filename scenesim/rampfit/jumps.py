@@ -326,16 +326,17 @@ def _strongest(dd, vv, s2, idx, cov, thr):
     # the strongest drop (negative single difference), for _detect_jumps; with
     # fewer than 4 usable differences a drop cannot be told from hits in all the
     # others (module notes): none there
-    neg = np.where(vv.sum(axis=0) >= 4, np.maximum(-z, 0), 0)
-    down = neg.argmax(axis=0)
-    zdown = neg[down, np.arange(neg.shape[1])]
-    z = np.maximum(z - gz, 0)
+    down = z.argmin(axis=0)
+    zdown = -z[down, np.arange(z.shape[1])]
+    zdown[vv.sum(axis=0) < 4] = 0
+    z -= gz
+    np.maximum(z, 0, out=z)
     if zp is not None:
         zp = np.where(vv.sum(axis=0) == 2, 0, np.maximum(zp - gp, 0))
     # a drop dominates when its |z| is _DROP_RATIO times the largest positive single
     # difference's (a pair of clean differences a drop pushed up reads ~sqrt(2)
     # times one of them, so not the pairs)
-    zdown = np.where(zdown > _F32(_DROP_RATIO) * z.max(axis=0), zdown, 0)
+    zdown[zdown <= _F32(_DROP_RATIO) * z.max(axis=0)] = 0
     return _largest_excess(z, zp) + (down, zdown)
 
 
