@@ -116,7 +116,7 @@ import functools
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace as _replace_fields
 
 import numpy as np
 import scipy.fft as sfft
@@ -149,6 +149,12 @@ _DETECT = 2.0        # theta below this many sigma: an upper bound is given too
 #: A read step this many robust sigmas above its row and output's median is a jump
 #: (:func:`_find_jumps`).
 _JUMP_SIGMA = 6.0
+#: The bias pattern is regressed on the template only where the template's rms
+#: within rows and outputs (in its own unit, a robust sigma of 1 over the full
+#: array) reaches this: below it a bias_amp of 1000 e- would vary by < 1 e- within
+#: a row, and a window of a full-size array (float32 steps of ~1e-5 in a template
+#: constant along rows) gave bias_amp 25331 +- 24263 for 500 (a probe).
+_TEMPLATE_MIN_RMS = 1e-3
 
 
 @dataclass(frozen=True)
@@ -813,7 +819,8 @@ def _row_output_median(d, det):
 
 def _find_jumps(ramps):
     """Charge that arrived at a pixel between two reads (a cosmic ray, a lit or hot
-    pixel): ``(jumps, stepped, n, hot)``.  ``jumps[k][j]`` holds the flat indices of
+    pixel), and pixels that never change: ``(jumps, stepped, n, hot, stuck)``.
+    ``jumps[k][j]`` holds the flat indices of
     the pixels of integration ``k`` whose read step ``read(j+1) - read(j)``, less
     its row and output's median (the 1/f banding), exceeds :data:`_JUMP_SIGMA`
     robust sigmas of that step over the pixels of their kind (regular or reference)
@@ -822,7 +829,9 @@ def _find_jumps(ramps):
     of steps flagged; ``hot`` (ny, nx) the regular pixels whose charge over all
     integrations (their read steps less their row and output's median, summed over
     every step not flagged) exceeds :data:`_JUMP_SIGMA` robust sigmas of that sum
-    over their output's regular pixels.
+    over their output's regular pixels; ``stuck`` (ny, nx) the pixels whose value is
+    the same in every read of every integration (no read noise: stuck, or at an
+    ADC limit), whose steps are all in ``jumps`` too.
 
     A Gaussian step passes 6 sigma with probability 1e-9: ~0.1 false flags in 1e8
     steps, which only take their median (:func:`_differences`) or leave a pixel out
@@ -841,8 +850,14 @@ def _find_jumps(ramps):
     regular = ~det.reference_mask()
     out, n = [], 0
     total = np.zeros(det.shape)
+    lo = np.full(det.shape, np.inf)
+    hi = np.full(det.shape, -np.inf)
     for cube in ramps.integrations:
         steps = []
+        for j in range(np.shape(cube)[0]):
+            frame = np.asarray(cube[j], dtype=np.float64)
+            np.minimum(lo, frame, out=lo)
+            np.maximum(hi, frame, out=hi)
         for j in range(np.shape(cube)[0] - 1):
             d = (np.asarray(cube[j + 1], dtype=np.float64)
                  - np.asarray(cube[j], dtype=np.float64))
@@ -855,14 +870,19 @@ def _find_jumps(ramps):
         out.append(steps)
     hot = np.zeros(det.shape, bool)
     hot.flat[_above_per_output(total, det, regular)] = True
+    # a pixel whose value never changes (stuck, or at the ADC's top or bottom code
+    # in every read) carries no read noise: taken as it is, 2 % of such pixels at
+    # the top code moved bias_offset by +2100 e- (+700 sigma) and ref_ratio by +3 %
+    stuck = hi == lo
+    hot &= ~stuck
     stepped = np.zeros(det.shape, bool)
-    hot_idx = np.flatnonzero(hot)
+    hot_idx = np.flatnonzero(hot | stuck)
     for steps in out:
         for j, hit in enumerate(steps):
             stepped.flat[hit] = True
             if hot_idx.size:
                 steps[j] = np.union1d(hit, hot_idx)
-    return out, stepped, n, hot
+    return out, stepped & ~stuck, n, hot, stuck
 
 
 def _above_per_output(d, det, mask):
@@ -1045,7 +1065,7 @@ def _reset_level(ramps, lay, template, jumped=None):
     Mbar = means.mean(axis=0)
     Mbd = demean(Mbar)
     sxx = float(Td @ Td)
-    if sxx > 0:
+    if sxx > 0 and math.sqrt(sxx / Td.size) >= _TEMPLATE_MIN_RMS:
         b = float(Td @ Mbd) / sxx
         resid = Mbd - b * Td
         s_b = math.sqrt(float(resid @ resid) / (resid.size - nlab - 1) / sxx)
@@ -1058,9 +1078,9 @@ def _reset_level(ramps, lay, template, jumped=None):
         b, s_b, row_weights = 0.0, None, None
         est["bias_amp"] = Estimate("bias_amp", None, None, None,
                                    "the template has no structure within rows here")
-    off = float(np.mean(offsets) - b * T.mean())
-    return est, n_int, off, [2 * (np.shape(c)[0] // 2) for c in ramps.integrations], \
-        (s_b, row_weights)
+    level, tbar = float(np.mean(offsets)), float(T.mean())
+    return est, n_int, (level, tbar, int(T.size)), \
+        [2 * (np.shape(c)[0] // 2) for c in ramps.integrations], (s_b, row_weights)
 
 
 def _slot_comb(det, nreads, f_min):
@@ -1165,8 +1185,8 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
     NoiseParams(f_min=f_min).check_detector(det)
     lay = _layout(det, template_file)
     template = lay.template
-    jumps, stepped, n_jumps, hot = _find_jumps(ramps)
-    jumped = stepped | hot
+    jumps, stepped, n_jumps, hot, stuck = _find_jumps(ramps)
+    jumped = stepped | hot | stuck
     per, kept = _collect(ramps, lay, jumps)
     basis = dict(lay.cached_basis(f_min, pink_spectrum))
     for key, col in (("auto", 0), ("ref", 1)):        # the white noise the medians lost
@@ -1218,8 +1238,8 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
                                  "total)")
     est["acn"] = _amp("acn", theta[4], theta_cov[4, 4], note="one value for every output")
     est["pedestal"] = _amp("pedestal", theta[5], theta_cov[5, 5])
-    reset, n_int, off, nreads, (s_b, row_weights) = _reset_level(ramps, lay, template,
-                                                                 jumped)
+    reset, n_int, (level, tbar, npix_used), nreads, (s_b, row_weights) = _reset_level(
+        ramps, lay, template, jumped)
     est.update(reset)
     if s_b is not None and np.isfinite(theta[6]) and theta[6] > 0:
         # the picture frame's drift averaged over the reads is proportional to the
@@ -1231,7 +1251,24 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
     ktc2 = est["ktc"].value ** 2 if est["ktc"].value is not None else est["ktc"].upper ** 2
     var_off = _offset_variance(det, nreads, theta, ktc2, int((~det.reference_mask()).sum()),
                                f_min, pink_spectrum)
-    note = f"sigma from the fitted 1/f drift, pedestal and kTC with f_min = {f_min:g} Hz"
+    # the white read noise of the pixels and reads averaged (left out, the sigma of
+    # a white-noise dark was 0 to 3x too small: a probe) ...
+    rd = est["rd_noise"].value
+    if rd is not None:
+        var_off += float(np.mean(np.square(rd))) / (npix_used * sum(nreads))
+    # ... and the bias pattern's share: bias_offset = level - bias_amp x mean(T),
+    # with bias_amp taken as 0 where it came out negative (it is written as 0)
+    b = est["bias_amp"].value
+    if b is not None and b < 0:
+        b = 0.0
+        est["bias_amp"] = _replace_fields(
+            est["bias_amp"], note=est["bias_amp"].note + "; written as 0, and "
+            "bias_offset is the mean reset level")
+    elif b is not None:
+        var_off += (tbar * est["bias_amp"].sigma) ** 2
+    off = level - (b or 0.0) * tbar
+    note = (f"sigma from the fitted 1/f drift, pedestal, kTC, white noise and the bias "
+            f"pattern with f_min = {f_min:g} Hz")
     if est["bias_amp"].value is None:
         tmean = float(template[~det.reference_mask()].mean())
         note = (f"the mean reset level, bias_offset + bias_amp x {tmean:.4g} (the "
@@ -1252,6 +1289,11 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
             f"differences took their row's median, those pixels were left out of kTC "
             f"and the bias; smaller jumps are not seen and still bias the white noise "
             f"up")
+    if stuck.any():
+        notes.append(
+            f"{int(stuck.sum())} pixels never changed value (stuck, or at the ADC's top "
+            f"or bottom code in every read): every CDS difference of theirs took its "
+            f"row's median, and they were left out of kTC and the bias")
     if hot.any():
         notes.append(
             f"{int(hot.sum())} pixels collected more charge over the integrations "
