@@ -63,10 +63,14 @@ class CubeRows:
         Multiplies the values (e-/DN), as float32; 1 leaves float32 data untouched.
     bzero : int
         Added to integer data before the gain (FITS ``BZERO``: 32768 for uint16).
+    name : str or None
+        The extension the cube is (``'SCI'``): float values must then be finite,
+        and the first that is not is named with its place (a file error); None:
+        values as stored.
     """
 
     def __init__(self, path, offset, shape, file_dtype, *, nres=None, gain=1.0,
-                 bzero=0):
+                 bzero=0, name=None):
         self.path = os.fspath(path)
         self._offset = int(offset)
         self._file_dtype = np.dtype(file_dtype)
@@ -79,6 +83,7 @@ class CubeRows:
         self.shape = (nints, nres, ny, nx)
         self._gain = _F32(check_float("gain", gain, minimum=0.0, strict_min=True))
         self._bzero = int(bzero)
+        self._name = name
         integer = self._file_dtype.kind in "iu"
         self.all_finite = integer
         self.dtype = np.dtype(_F32) if integer or self._file_dtype.itemsize <= 4 \
@@ -102,7 +107,9 @@ class CubeRows:
                     _read_into(fd, raw[k, r], self._pos(k, r, y0), self.path)
         finally:
             os.close(fd)
-        return self._values(raw).reshape(nints, nres, y1 - y0, nx)
+        out = self._values(raw).reshape(nints, nres, y1 - y0, nx)
+        self._check_finite(out, 0, 0, y0)
+        return out
 
     def frames(self, k, r0, r1):
         """Resultants ``r0:r1`` of integration ``k``, whole frames: ndarray ``(r1 -
@@ -114,7 +121,20 @@ class CubeRows:
             _read_into(fd, raw, self._pos(k, r0, 0), self.path)
         finally:
             os.close(fd)
-        return self._values(raw)
+        out = self._values(raw)
+        self._check_finite(out[None], k, r0, 0)
+        return out
+
+    def _check_finite(self, out, k0, r0, y0):
+        """Refuse a non-finite value of a named float cube (``out`` (nints, nres,
+        rows, nx) from integration ``k0``, resultant ``r0``, row ``y0``)."""
+        if self._name is None or self.all_finite or np.isfinite(out).all():
+            return
+        k, r, y, x = (int(v) for v in np.argwhere(~np.isfinite(out))[0])
+        raise FileFormatError(
+            f"{self.path!r}: {self._name} holds {out[k, r, y, x]} at integration "
+            f"{k0 + k}, group {r0 + r}, pixel (y={y0 + y}, x={x}); its values must be "
+            f"finite (a saturated or bad pixel is a DQ flag, not a value)")
 
     def _pos(self, k, r, y):
         """Byte position of row ``y`` of resultant ``r`` of integration ``k``."""
@@ -245,7 +265,7 @@ def exposure_rows(path, *, gain=None, nres=None):
                               f"(BZERO 0 or 32768) or floats with BSCALE 1, got BITPIX="
                               f"{bitpix}, BSCALE={bscale}, BZERO={bzero}")
     return CubeRows(path, offset, shape, kinds[bitpix], nres=nres, gain=gain,
-                    bzero=int(bzero))
+                    bzero=int(bzero), name="SCI")
 
 
 def npy_rows(path, *, nres=None):

@@ -545,6 +545,12 @@ def read_exposure(path):
         sci = np.asarray(hdul["SCI"].data)
         header = hdul[0].header.copy()
         reads = Table.read(hdul["READS"])
+    if sci.dtype.kind == "f" and not np.isfinite(sci).all():
+        k, r, y, x = (int(v) for v in np.argwhere(~np.isfinite(sci))[0])
+        raise FileFormatError(
+            f"{path!r}: SCI holds {sci[k, r, y, x]} at integration {k}, group {r}, "
+            f"pixel (y={y}, x={x}); its values must be finite (a saturated or bad "
+            f"pixel is a DQ flag, not a value)")
     return sci, header, reads
 
 

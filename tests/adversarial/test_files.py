@@ -392,6 +392,27 @@ def test_file_size_limit_on_the_fit_of_a_run(tmp_path):
             [np.asarray(h.data) for h in hdul]
 
 
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("gz", [False, True])
+def test_a_non_finite_float_sci_value_is_named_with_its_place(good, tmp_path, value,
+                                                               gz):
+    # A float SCI (accepted: float32 and float64 give the uint16 file's slopes) with
+    # one non-finite value: NaN and -inf stopped in the fitter with its internal
+    # argument names ('resultants' ... 'saturated'), +inf was silently taken as
+    # saturation.  Now one line naming the file, the value and its place, by the
+    # streamed reader and by the whole-file one (.gz).
+    with fits.open(good["exposure"]) as hdul:
+        hdul["SCI"].data = hdul["SCI"].data.astype(np.float32)
+        hdul["SCI"].data[0, 2, 5, 7] = value
+        name = "f.fits.gz" if gz else "f.fits"
+        hdul.writeto(tmp_path / name)
+    res = _cli(["fit", name, "-o", "o.fits", "-q"], tmp_path)
+    assert res.returncode == 2, res.stderr
+    _one_line(res.stderr, f"'{name}'", f"SCI holds {value}",
+              "integration 0, group 2, pixel (y=5, x=7)")
+    assert sorted(os.listdir(tmp_path)) == [name]
+
+
 def test_file_size_limit_on_the_fits_temporary_cube_says_so(good, tmp_path):
     """``scenesim fit`` prepares the ramps into a temporary float32 cube first (here
     3 x SHAPE x 4 bytes, above the limit; the exposure read is not limited).  The line
