@@ -41,6 +41,25 @@ def preset_detector(name, naxis, n_out):
         raise type(exc)(f"{', '.join(given)}: {exc}") from exc
 
 
+def _least_gain(params, det, adc_bits):
+    """``(gain, e-)``: the smallest gain (e-/DN) at which ``params``' reads without
+    charge fit an ADC of ``adc_bits`` bits (:meth:`noise.NoiseParams.check_adc`), and
+    the range they need; or None."""
+    from noise.params import BIAS_SPREAD_SIGMA as k
+    top = 2 ** adc_bits - 1
+    s = params.spread(det)
+    b_lo, b_hi = params.bias_pattern_range(det)
+    high = params.bias_offset + b_hi + k * s + (params.rtn_amp if params.rtn_fraction
+                                                 else 0.0)
+    need = max(2 * k * s + b_hi - b_lo, high)
+    least = need / top * (1 + 1e-9)
+    try:
+        params.check_adc(least, adc_bits, det)
+    except ParameterError:
+        return None
+    return least, need
+
+
 def noise_command(args):
     """``scenesim noise``: write an empty (noise-only) ramp."""
     import noise
@@ -81,6 +100,17 @@ def noise_command(args):
         try:
             params.check_adc(gain, 16, det)
         except ParameterError as exc:
+            least = _least_gain(params, det, 16)
+            if least is not None and gain < least[0]:
+                # the amplitudes it names are not options here: say what to change
+                raise type(exc)(
+                    f"'--gain' {gain:g} e-/DN is too small for '--noise {args.noise}' "
+                    f"at the 16-bit ADC: the reads of a pixel without charge need "
+                    f"{least[1]:.6g} e- (its bias, pattern and 5 x the noise's rms), "
+                    f"more than 65535 x {gain:g} = {65535 * gain:.6g} e-; '--gain' must "
+                    f"be >= {least[0]:.4g} e-/DN"
+                    + ("" if args.noise == "white" else " (or use '--noise white')")
+                    ) from exc
             raise type(exc)(f"'--unit DN' (16-bit ADC): {exc}") from exc
     check_outputs({"output": args.output}, overwrite=args.overwrite,
                   endings={"output": FITS_ENDINGS})

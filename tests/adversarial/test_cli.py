@@ -457,6 +457,16 @@ def test_an_exception_without_an_interrupt_is_still_a_bug(tmp_path):
     # ACN on one column per output: the way out by the command's options (a probe:
     # "set 'acn' to 0", which no option of the command does)
     (["--n-out", "64"], "use '--noise white' (no ACN) or change '--naxis'/'--n-out'"),
+    # a gain too small for the noise's range: the options, not 'bias_amp' or
+    # 'bias_offset' (which the command does not set; a probe).  The least gain
+    # 0.1728: (bias_offset 5000 + the pattern's top 6169.8 + 5 x 30.6) / 65535
+    (["--unit", "DN", "--gain", "0.1"],
+     "'--gain' 0.1 e-/DN is too small for '--noise nirspec' at the 16-bit ADC"),
+    (["--unit", "DN", "--gain", "0.15"],
+     "'--gain' must be >= 0.1728 e-/DN (or use '--noise white')"),
+    (["--unit", "DN", "--gain", "0.05", "--noise", "white"],
+     "'--gain' 0.05 e-/DN is too small for '--noise white' at the 16-bit ADC: "
+     "the reads of a pixel without charge need 5026 e-"),
 ])
 def test_noise_options_are_named_as_typed_before_any_work(tmp_path, args, named):
     """Each bad option of `scenesim noise` is refused in one line naming the option
