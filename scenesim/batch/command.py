@@ -10,11 +10,15 @@ the pooled tables of a batch directory again.
 import os
 import sys
 
+from noise.errors import ParameterError
 from scenesim.batch.plan import plan_batch
 from scenesim.batch.pool import format_pooled, pool_directory
-from scenesim.batch.runner import run_batch
+from scenesim.batch.runner import BatchError, run_batch
 
 __all__ = ["batch_command", "pool_command", "format_tables"]
+
+#: run_batch's arguments that are options of the command by the same name.
+_OPTIONS = ("connect_timeout", "workers", "threads", "retries", "scheduler")
 
 
 def format_tables(pooled, *, source="", points=()):
@@ -63,12 +67,24 @@ def batch_command(args):
             _say(line)
 
     from scenesim.budget import one_line_warnings
-    with one_line_warnings("scenesim batch"):    # the tasks' warnings, each once
-        res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
-                        threads=args.threads, retries=args.retries,
-                        connect_timeout=args.connect_timeout,
-                        progress=not args.quiet and sys.stderr.isatty(), log=log,
-                        force=args.force)
+    try:
+        with one_line_warnings("scenesim batch"):    # the tasks' warnings, each once
+            res = run_batch(plan, scheduler=args.scheduler, workers=args.workers,
+                            threads=args.threads, retries=args.retries,
+                            connect_timeout=args.connect_timeout,
+                            progress=not args.quiet and sys.stderr.isatty(), log=log,
+                            force=args.force)
+    except ParameterError as exc:                  # by the options' names
+        text = str(exc)
+        for name in _OPTIONS:
+            text = text.replace(f"'{name}'", f"'--{name.replace('_', '-')}'")
+        raise type(exc)(text) from exc
+    except BatchError as exc:                      # the finished tasks' tables first
+        if exc.pooled and not args.quiet:
+            _say(format_tables(exc.pooled, source=plan.source,
+                               points=exc.manifest.get("points", ())))
+            _say()
+        raise
     n = len(res.ran)
     rate = (f" ({60 * n / res.seconds:.1f} exposures/min; the tasks alone "
             f"{60 * n / res.task_seconds:.1f}/min after {res.startup_seconds:.1f} s "

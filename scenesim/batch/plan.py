@@ -272,6 +272,9 @@ def _read_toml(path, what):
         raise FileFormatError(f"{what} {path!r} cannot be read: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise FileFormatError(f"{what} {path!r} is not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:         # TOML is UTF-8 (a Latin-1 editor's file)
+        raise FileFormatError(f"{what} {path!r} is not valid TOML: byte {exc.start} is "
+                              f"not UTF-8 text (TOML files are UTF-8)") from exc
 
 
 def _flatten(table, where, prefix=""):

@@ -64,8 +64,20 @@ __all__ = ["run_batch", "BatchResult", "BatchError", "check_scheduler"]
 _ADDRESS = re.compile(r"^(?:(tcp|tls|ucx|ws|wss)://)?\[?[A-Za-z0-9_.:-]*\]?:\d{1,5}/?$")
 
 
+#: The longest wait for a scheduler, seconds (``connect_timeout``).
+MAX_CONNECT_TIMEOUT = 86400.0
+
+
 class BatchError(ScenesimError, RuntimeError):
-    """Tasks of a batch failed (after their retries); re-running retries them."""
+    """Tasks of a batch failed (after their retries); re-running retries them.
+
+    ``pooled`` and ``manifest`` hold the pooled comparison of the finished tasks
+    and the manifest (as :class:`BatchResult`'s), for the caller to show."""
+
+    def __init__(self, message, *, pooled=None, manifest=None):
+        super().__init__(message)
+        self.pooled = pooled or {}
+        self.manifest = manifest or {}
 
 
 @dataclass
@@ -364,8 +376,14 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
         threads = _check_positive("threads", threads)
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ParameterError(f"'retries' must be an integer >= 0, got {retries!r}")
-    if not (isinstance(connect_timeout, (int, float)) and connect_timeout > 0):
-        raise ParameterError(f"'connect_timeout' must be > 0 (s), got {connect_timeout!r}")
+    # finite and at most a day: dask takes it as a timedelta (inf: a KeyError from
+    # its unit parser; 1e300: an OverflowError from the clock)
+    if not (isinstance(connect_timeout, (int, float))
+            and not isinstance(connect_timeout, bool)
+            and 0 < connect_timeout <= MAX_CONNECT_TIMEOUT):
+        raise ParameterError(f"'connect_timeout' must be > 0 and <= "
+                             f"{MAX_CONNECT_TIMEOUT:g} (s, one day), got "
+                             f"{connect_timeout!r}")
     parent = os.path.dirname(plan.out_dir)
     if not os.path.isdir(parent):
         raise ParameterError(f"'out': the directory {parent!r} that would hold "
@@ -471,7 +489,8 @@ def run_batch(plan, *, scheduler=None, workers=None, threads=None, retries=2,
     if failed:
         raise BatchError(_failed_message(failed, len(tasks),
                                          manifest.data["tasks"][failed[0]]["error"],
-                                         manifest.path))
+                                         manifest.path),
+                         pooled=pooled, manifest=manifest.data)
     return BatchResult(plan=plan, manifest=manifest.data, ran=ran, skipped=skipped,
                        failed=failed, pooled=pooled, seconds=time.perf_counter() - t0,
                        dashboard=dashboard, workers=nworkers,

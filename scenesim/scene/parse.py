@@ -405,6 +405,10 @@ def load_scene(path):
         raise FileFormatError(f"scene file {path!r} cannot be read: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise FileFormatError(f"scene file {path!r} is not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:         # TOML is UTF-8 (a Latin-1 editor's file)
+        raise FileFormatError(f"scene file {path!r} is not valid TOML: byte "
+                              f"{exc.start} is not UTF-8 text (TOML files are UTF-8)") \
+            from exc
     try:
         return _parse(mapping, os.path.dirname(path), path)
     except (ParameterError, FileFormatError) as exc:

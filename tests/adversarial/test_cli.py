@@ -15,6 +15,7 @@ import signal
 import stat
 import subprocess
 import sys
+import textwrap
 import time
 
 import numpy as np
@@ -637,3 +638,25 @@ def test_a_scene_file_of_any_name_runs(workdir):
     res = _cli(["run", "scène 'ü'.toml", "-o", "o.fits", "-q"], workdir)
     assert res.returncode == 0, res.stderr
     assert fits.getheader(workdir / "o.fits")["SCENE"] == "sc?ne '?'.toml"
+
+
+def test_a_signal_after_the_work_does_not_fail_a_finished_command(tmp_path):
+    # A probe: Ctrl-C or SIGTERM in the 0.3-0.4 s the interpreter takes to shut down
+    # after the command returned ended it with status 130 or 143 and no line, its
+    # outputs complete (`scenesim run ... && next` stopped).  The console entry
+    # ignores them once the command is done: here both arrive after it returned.
+    code = textwrap.dedent("""
+        import os, signal, sys, time
+        sys.argv = ["scenesim", "noise", "--preset", "H1RG", "--naxis", "64",
+                    "--frames", "1", "-q", "-o", "n.fits"]
+        from scenesim.cli import console_main
+        rc = console_main()
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.2)
+        sys.exit(rc)
+    """)
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and res.stderr == "", (res.returncode, res.stderr)
+    assert os.listdir(tmp_path) == ["n.fits"]
