@@ -271,3 +271,26 @@ def test_a_batch_of_the_irs2_scene_fits_as_its_run_does(tmp_path):
     a, b = read_fit(task.path["gls"]), read_fit(single.fit)
     for name in ("slope", "var_read", "var_poisson", "dq"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), name)
+
+
+def test_a_file_that_is_not_utf8_and_an_endless_timeout_are_one_line(small_scene,
+                                                                      tmp_path, capsys):
+    # A probe: a Latin-1 scene (an editor's "café") was a UnicodeDecodeError
+    # traceback from run and batch; --connect-timeout inf a KeyError inside dask.
+    from scenesim.cli import main
+    bad = tmp_path / "u.toml"
+    bad.write_bytes(b'seed = 1\ndescription = "caf\xe9"\n')
+    for argv in (["run", str(bad), "-o", str(tmp_path / "u.fits")],
+                 ["batch", str(bad), "--out", str(tmp_path / "o")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "is not UTF-8 text" in err, err
+        assert "byte 27" in err
+    for value in ("inf", "1e300", "86401"):
+        assert main(["batch", str(small_scene), "--out", str(tmp_path / "o"),
+                     "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout",
+                     value]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("scenesim batch: error: '--connect-timeout' must be > 0 "
+                              "and <= 86400"), err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "u.fits").exists()
