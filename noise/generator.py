@@ -132,7 +132,8 @@ from noise.params import NoiseParams
 from noise.pink import PinkSeries
 from noise.fast.memory import available_memory
 from noise.fast.producer import ForkedProducer, available as producer_available
-from noise.streams import NOISE_COMPONENTS, KeyedStreams, generator, root_seed
+from noise.streams import (NOISE_COMPONENTS, KeyedStreams, detector_uniform, generator,
+                           root_seed)
 from noise.fast.normal import standard_normal, standard_normal_rows
 from noise.template import template_for
 
@@ -372,7 +373,10 @@ class NoiseGenerator:
         self._rtn_idx = None
         if p.rtn_fraction > 0 and p.rtn_amp > 0:
             regular = ~det.reference_mask()
-            pick = self._stream(NOISE_COMPONENTS["rtn"], 0).random(det.shape) < p.rtn_fraction
+            # drawn for the full array and cut: a pixel is a telegraph pixel in a
+            # window as in the full frame (a probe: 7 of ~210 in common)
+            pick = detector_uniform(self._stream(NOISE_COMPONENTS["rtn"], 0),
+                                    det) < p.rtn_fraction
             self._rtn_idx = np.flatnonzero(pick & regular)
             if not self._rtn_idx.size:
                 self._rtn_idx = None

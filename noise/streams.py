@@ -94,6 +94,45 @@ def generator(entropy, key):
         np.random.SeedSequence(entropy, spawn_key=tuple(key))))
 
 
+def detector_uniform(rng, detector):
+    """Uniform [0, 1) values for the pixels of ``detector``'s read-out image, as
+    ``rng.random((naxis2, naxis1))`` of the *full* array gives them at those pixels.
+
+    A property of a physical pixel (a telegraph pixel, a hot pixel) drawn this way is
+    the same in a window or stripe as in the full frame of one detector and seed (as
+    the bias template is, :func:`noise.template.template_for`); on the full array it
+    is ``rng.random(shape)`` itself.  A window costs its own pixels only: ``rng``'s
+    ``PCG64`` (one 64-bit word per double) is advanced over the pixels outside it.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        A ``PCG64`` generator (:func:`generator`), used from its current state.
+    detector : noise.clock.Detector
+
+    Returns
+    -------
+    ndarray, shape (ny, nx), float64
+    """
+    det = detector
+    full_nx = det.naxis1
+    if (det.y0, det.x0, det.ny, det.nx) == (0, 0, det.naxis2, full_nx):
+        return rng.random(det.shape)
+    bg = rng.bit_generator
+    if not isinstance(bg, np.random.PCG64):
+        raise ParameterTypeError(f"'rng' must draw from a PCG64 (it is advanced over "
+                                 f"the pixels outside the window), got "
+                                 f"{type(bg).__name__}")
+    out = np.empty(det.shape)
+    bg.advance(det.y0 * full_nx + det.x0)
+    skip = full_nx - det.nx
+    for y in range(det.ny):
+        out[y] = rng.random(det.nx)
+        if skip and y + 1 < det.ny:
+            bg.advance(skip)
+    return out
+
+
 class KeyedStreams:
     """The streams ``generator(entropy, prefix + suffix)`` of one key prefix, many at once.
 

@@ -78,13 +78,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from noise import streams
 from noise.errors import ParameterError
 from noise.template import template_for
 
 from scenesim.detector.dq import REFERENCE_PIXEL
 from scenesim.sky.maps import load_map
-from scenesim.sky.sources import draw_hot_pixels
+from scenesim.sky.rates import hot_pixel_map
 
 __all__ = ["DetectorReference", "detector_reference", "reference_id",
            "check_reference_id", "linearity_coefficients",
@@ -299,10 +298,7 @@ def _dark_rate(scene):
                                     det.shape), dtype=np.float64)
     hot = np.zeros(det.shape, dtype=bool)
     if src.hot_pixel_fraction > 0:
-        extra = draw_hot_pixels(det.shape, src.hot_pixel_fraction,
-                                rate=src.hot_pixel_rate,
-                                rng=streams.generator(scene.seed, streams.HOT_PIXELS),
-                                refmask=refmask)
+        extra = hot_pixel_map(src, det, scene.seed, refmask)
         dark = dark + extra
         hot = extra > 0
     dark[refmask] = 0.0

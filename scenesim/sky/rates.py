@@ -46,7 +46,7 @@ from scenesim.sky.maps import load_map
 from scenesim.sky.psf import render_point_sources
 from scenesim.sky.sources import draw_hot_pixels
 
-__all__ = ["scene_rates", "cosmic_ray_hits", "SceneWarning"]
+__all__ = ["scene_rates", "cosmic_ray_hits", "hot_pixel_map", "SceneWarning"]
 
 #: Stars named one by one in the warning about stars that miss the array.
 _NAMED = 3
@@ -63,6 +63,16 @@ def _seed(scene):
         raise ParameterError("'seed' must be set before drawing a scene's sky; call "
                              "scene.ensure_seed()")
     return scene.seed
+
+
+def hot_pixel_map(src, det, seed, refmask):
+    """The extra dark rate (ny, nx) e-/s of the hot pixels of ``src`` (a scene's
+    ``[sources]``) on ``det``, drawn under ``seed`` (:data:`noise.streams.HOT_PIXELS`)
+    for its full array and cut (:func:`scenesim.sky.sources.draw_hot_pixels`): the
+    one draw the engine and the pipelines' dark reference share."""
+    return draw_hot_pixels(det.shape, src.hot_pixel_fraction, rate=src.hot_pixel_rate,
+                           rng=streams.generator(seed, streams.HOT_PIXELS),
+                           refmask=refmask, detector=det)
 
 
 def scene_rates(scene):
@@ -97,10 +107,7 @@ def scene_rates(scene):
     rate = load_map(src.dark_current, det, name="dark_current")
     rate = rate + light(load_map(src.background, det, name="background"))
     if src.hot_pixel_fraction > 0:
-        rate = rate + draw_hot_pixels(det.shape, src.hot_pixel_fraction,
-                                      rate=src.hot_pixel_rate,
-                                      rng=streams.generator(seed, streams.HOT_PIXELS),
-                                      refmask=refmask)
+        rate = rate + hot_pixel_map(src, det, seed, refmask)
     stars = src.star_table()
     variable = []
     rendered = None

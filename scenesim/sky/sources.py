@@ -29,10 +29,12 @@ Hot pixels
 pixel is hot independently with probability ``fraction`` and then gets an extra dark
 rate, either fixed or log-uniform between two bounds, i.e. with density
 ``p(r) = 1 / (r ln(r_hi / r_lo))`` -- equal numbers per decade, a common first
-description of the long tail of dark-current distributions in HgCdTe arrays.  The draw
-is made as ``k ~ Binomial(n_regular, fraction)`` followed by ``k`` distinct pixels
-chosen uniformly, which has the same law as independent Bernoulli trials but costs
-``O(k)`` random numbers.
+description of the long tail of dark-current distributions in HgCdTe arrays.  One
+uniform per pixel decides both (a pixel is hot when it is below ``fraction``, and the
+rest of it places the rate), drawn for the detector's full array and cut to its
+window, so that a window has the hot pixels of the full frame (since 2026-11-28; the
+draw had been ``k ~ Binomial(n_regular, fraction)`` distinct pixels of the read-out
+image, other pixels in every window).
 """
 
 import math
@@ -43,8 +45,9 @@ from astropy import units as u
 from astropy.table import Table
 
 from noise.errors import ParameterError, ParameterTypeError
-from noise.validate import (check_float, check_mask, check_rng, check_shape, describe,
-                            is_real)
+from noise.streams import detector_uniform
+from noise.validate import (check_float, check_instance, check_mask, check_rng,
+                            check_shape, describe, is_real)
 
 from scenesim.sky.tables import column_values, find_columns, read_table
 
@@ -132,8 +135,15 @@ def read_catalogue(path_or_table):
     return out
 
 
-def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
+def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None, detector=None):
     """Draw a population of hot pixels as an extra dark-rate map.
+
+    One uniform ``u`` per pixel: a regular pixel is hot when ``u < fraction``, and its
+    rate is ``lo (hi / lo) ** (u / fraction)`` (``u / fraction`` is uniform on [0, 1)
+    given that).  With ``detector``, ``u`` is drawn for the full array and cut
+    (:func:`noise.streams.detector_uniform`): the same pixels are hot, at the same
+    rates, in a window as in the full frame of one detector and seed (drawn on the
+    read-out image, a window had other hot pixels than the full frame).
 
     Parameters
     ----------
@@ -148,6 +158,9 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
         Random source (``np.random.default_rng(rng)``).
     refmask : ndarray of bool, shape (ny, nx), or None
         True for reference pixels, which are never hot.
+    detector : noise.Detector or None
+        The detector whose read-out image ``shape`` is (its shape): the draw is
+        that of its full array, cut to it (``rng`` a ``PCG64`` generator).
 
     Returns
     -------
@@ -173,25 +186,23 @@ def draw_hot_pixels(shape, fraction, *, rate, rng, refmask=None):
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
             raise ParameterError(
                 f"'rate' bounds must satisfy 0 < lo <= hi (e-/s), got {describe(rate)}")
-    if refmask is None:
-        candidates = None
-        n_regular = ny * nx
-    else:
+    if refmask is not None:
         refmask = check_mask("refmask", refmask, (ny, nx))
-        candidates = np.flatnonzero(~refmask)
-        n_regular = candidates.size
-
     rng = check_rng("rng", rng)
-    out = np.zeros(ny * nx, dtype=np.float64)
-    k = int(rng.binomial(n_regular, fraction))
-    if k == 0:
-        return out.reshape(ny, nx)
-    chosen = rng.choice(n_regular, size=k, replace=False)
-    if candidates is not None:
-        chosen = candidates[chosen]
-    if lo == hi:
-        values = np.full(k, lo)
+    if detector is not None:
+        from noise.clock import Detector
+        check_instance("detector", detector, Detector, "a noise.Detector")
+        if tuple(detector.shape) != (ny, nx):
+            raise ParameterError(f"'detector' reads out {tuple(detector.shape)}, but "
+                                 f"'shape' is {(ny, nx)}")
+        draw = detector_uniform(rng, detector)
     else:
-        values = np.exp(rng.uniform(math.log(lo), math.log(hi), size=k))
-    out[chosen] = values
-    return out.reshape(ny, nx)
+        draw = rng.random((ny, nx))
+    hot = draw < fraction
+    if refmask is not None:
+        hot &= ~refmask
+    out = np.zeros((ny, nx), dtype=np.float64)
+    if fraction > 0 and hot.any():
+        share = draw[hot] / fraction
+        out[hot] = lo if lo == hi else lo * np.exp(share * math.log(hi / lo))
+    return out

@@ -823,3 +823,18 @@ def test_a_cube_larger_than_the_memory_available_is_refused(monkeypatch):
                                              r"frames of 128x128.*memory available"):
         gen.cube(16)                                   # 16 x 64 kB = 1.05 MB
     assert gen.cube(15).shape == (1, 15, 128, 128)     # 0.98 MB
+
+
+def test_a_window_has_the_telegraph_pixels_of_the_full_frame():
+    # A probe: RTN pixels were drawn on the read-out image; a 64^2 window of a 256^2
+    # H2RG shared 7 of ~210 with the full frame (chance: ~11).  Now the same pixels.
+    det = noise.preset("H2RG", naxis1=256, naxis2=256)
+    p = noise.params.ZERO_NOISE.replace(rd_noise=1.0, rtn_fraction=0.05, rtn_amp=50.0)
+    full = noise.NoiseGenerator(det, p, rng=3, threads=1)._rtn_idx
+    full_set = {divmod(int(i), det.nx) for i in full}
+    for x0, y0 in ((64, 64), (100, 3)):
+        win = det.window(x0, y0, 64, 48)
+        idx = noise.NoiseGenerator(win, p, rng=3, threads=1)._rtn_idx
+        got = {(y0 + y, x0 + x) for y, x in (divmod(int(i), win.nx) for i in idx)}
+        want = {(y, x) for y, x in full_set if y0 <= y < y0 + 48 and x0 <= x < x0 + 64}
+        assert got == want and len(got) > 50

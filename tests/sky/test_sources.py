@@ -111,6 +111,25 @@ def test_hot_pixels_scalar_rate_limits_and_seeding():
     assert np.all(all_hot[~ref] == 1.0) and not all_hot[ref].any()
 
 
+def test_a_window_has_the_hot_pixels_of_the_full_frame():
+    # Hot pixels are pixels of the detector: drawn on the read-out image, a window
+    # had other ones than the full frame of the same detector and seed.  Now the
+    # window's map is the full frame's, cut (rates included), for an interior
+    # window, one on the reference border, and a stripe.
+    from noise.streams import HOT_PIXELS, generator
+    det = preset("H2RG", naxis1=256, naxis2=256)
+    kw = dict(rate=(0.1, 100.0), refmask=det.reference_mask())
+    full = draw_hot_pixels(det.shape, 0.05, rng=generator(7, HOT_PIXELS), detector=det,
+                           **kw)
+    assert full.any()
+    for x0, y0, nx, ny in ((64, 40, 64, 32), (0, 0, 30, 20), (0, 100, 256, 16)):
+        win = det.window(x0, y0, nx, ny)
+        cut = draw_hot_pixels(win.shape, 0.05, rng=generator(7, HOT_PIXELS),
+                              detector=win, rate=(0.1, 100.0),
+                              refmask=win.reference_mask())
+        assert np.array_equal(cut, full[y0:y0 + ny, x0:x0 + nx])
+
+
 def test_hot_pixels_bad_input():
     with pytest.raises(ParameterError, match="fraction"):
         draw_hot_pixels((8, 8), 1.5, rate=1.0, rng=0)
