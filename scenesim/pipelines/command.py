@@ -19,7 +19,6 @@ truth, prints ``compare``'s report of the rate file; ``scenesim pipeline roman L
 (:func:`scenesim.pipelines.roman.run_ramp_fit`).
 """
 
-import glob
 import os
 
 from noise.errors import ParameterError
@@ -143,17 +142,56 @@ def check_run_products(scene, output=None, *, uncal=False, l1=False, reffiles=Fa
                                  f"--overwrite to replace its files")
 
 
+def _reference_names(prefix):
+    """``(types, required, extension)`` of the reference files of ``prefix``
+    (``'jwst'`` or ``'roman'``) as their writers name them."""
+    if prefix == "jwst":
+        from scenesim.pipelines.jwst import REFERENCE_TYPES, REQUIRED_TYPES
+        return REFERENCE_TYPES + ("refpix",), REQUIRED_TYPES, ".fits"
+    if prefix == "roman":
+        from scenesim.pipelines.roman import REFERENCE_TYPES, REQUIRED_TYPES
+        return REFERENCE_TYPES, REQUIRED_TYPES, ".asdf"
+    raise ParameterError(f"'prefix' must be 'jwst' or 'roman', got {prefix!r}")
+
+
 def reference_paths(directory, prefix):
-    """``{reftype: path}`` of the reference files ``<prefix>_<type>.*`` in
-    ``directory``."""
+    """``{reftype: path}`` of the reference files in the ``--refs`` ``directory``:
+    exactly the names their writers give them, ``jwst_<type>.fits``
+    (:func:`scenesim.pipelines.jwst.write_reference_files`) or ``roman_<type>.asdf``
+    (:func:`scenesim.pipelines.roman.write_reference_files`), one name per type;
+    any other file (``jwst_dark.fits.bak``, ``roman_gain.asdf~``) is not a
+    reference.  Raises a one-line :class:`~noise.errors.ParameterError` naming
+    ``--refs`` when the directory does not exist, is a file, holds none of them, or
+    lacks a type the pipeline needs (:data:`scenesim.pipelines.jwst.REQUIRED_TYPES`,
+    :data:`scenesim.pipelines.roman.REQUIRED_TYPES`; Roman's ``linearity`` and
+    ``inverselinearity`` go together)."""
+    types, required, ext = _reference_names(prefix)
+    directory = os.fspath(directory)
+    make = ("write the reference files with 'scenesim run SCENE --reffiles' (into "
+            "STEM_refs/)")
+    if not os.path.exists(directory):
+        raise ParameterError(f"'--refs' directory {directory!r} does not exist; {make}")
+    if not os.path.isdir(directory):
+        raise ParameterError(f"'--refs' {directory!r} is a file, not a directory of "
+                             f"reference files; give the directory "
+                             f"'scenesim run SCENE --reffiles' writes (STEM_refs/)")
     found = {}
-    for path in sorted(glob.glob(os.path.join(os.fspath(directory), f"{prefix}_*"))):
-        name = os.path.basename(path)
-        found[name[len(prefix) + 1:].split(".")[0]] = path
+    for t in types:
+        path = os.path.join(directory, f"{prefix}_{t}{ext}")
+        if os.path.isfile(path):
+            found[t] = path
     if not found:
-        raise ParameterError(f"'--refs' directory {os.fspath(directory)!r} holds no "
-                             f"{prefix}_<type> reference files; write them with "
-                             f"'scenesim run SCENE --reffiles'")
+        raise ParameterError(f"'--refs' directory {directory!r} holds no {prefix} "
+                             f"reference files ({prefix}_<type>{ext}); {make}")
+    missing = [f"{prefix}_{t}{ext}" for t in required if t not in found]
+    if missing:
+        raise ParameterError(f"'--refs' directory {directory!r} lacks {missing}; {make}")
+    if prefix == "roman" and ("linearity" in found) != ("inverselinearity" in found):
+        have, lack = (("linearity", "inverselinearity") if "linearity" in found
+                      else ("inverselinearity", "linearity"))
+        raise ParameterError(f"'--refs' directory {directory!r} holds roman_{have}.asdf "
+                             f"but not roman_{lack}.asdf (romancal's linearity step "
+                             f"reads both); {make}")
     return found
 
 
@@ -232,22 +270,40 @@ def pipeline_command(args):
     """``scenesim pipeline jwst|roman``: run the pipeline offline, then compare.
 
     Everything is checked before the pipeline runs: the input's kind, the references,
-    ``--truth`` and ``--exposure``, and the products (never one of those files, even
-    with ``--overwrite``)."""
+    ``--truth`` and ``--exposure`` (and that the truth is the input's exposure: its
+    identity cards, :data:`scenesim.validate.compare.SAME_SOURCE_CARDS`, and its
+    size), and the products (never one of those files, even with ``--overwrite``)."""
     from noise.validate import check_existing_file
     require_extra(args.pipeline, f"'scenesim pipeline {args.pipeline}'")
+    if args.pipeline == "jwst":
+        from scenesim.pipelines.jwst import check_uncal_file as check_input
+        from scenesim.pipelines.jwst import uncal_identity as identity
+        kind = "uncal"
+    else:
+        from scenesim.pipelines.roman import check_l1_file as check_input
+        from scenesim.pipelines.roman import l1_identity as identity
+        kind = "L1"
+    source = check_input(args.input)
     refs = reference_paths(args.refs, args.pipeline)
+    ident = identity(source)
+    if args.pipeline == "jwst" and "NRS_NORM" in ident[0] and "refpix" not in refs:
+        raise ParameterError(f"uncal {source!r} is an IRS2 uncal: the '--refs' directory "
+                             f"{os.fspath(args.refs)!r} lacks its 'jwst_refpix.fits'; "
+                             f"write the IRS2 references with 'scenesim run SCENE "
+                             f"--reffiles' of the IRS2 detector")
     read = [check_existing_file(opt, path) for opt, path in
             (("--truth", args.truth), ("--exposure", args.exposure)) if path]
-    if args.truth:          # a truth of the wrong kind is found before the run
+    if args.truth:          # a truth of the wrong kind or of another exposure (the
+        # input's identity cards and size) is found before the run, not after it
         from scenesim.validate.compare import check_compare_inputs
-        check_compare_inputs(args.truth, exposure=args.exposure)
+        check_compare_inputs(args.truth, exposure=args.exposure,
+                             source=(kind, source, *ident))
     # run_detector1 / run_ramp_fit check the input's kind and their products against
     # every file read (these too) before the pipeline runs
     if args.pipeline == "jwst":
         from scenesim.pipelines.jwst import run_detector1
         out_dir = args.output or os.path.dirname(os.path.abspath(args.input))
-        out = run_detector1(args.input, refs, out_dir, overwrite=args.overwrite,
+        out = run_detector1(source, refs, out_dir, overwrite=args.overwrite,
                             inputs=read)
         product = out["rate"]
     else:
@@ -255,7 +311,7 @@ def pipeline_command(args):
         stem = _stem(args.input)
         stem = stem[:-len("_l1")] if stem.endswith("_l1") else stem
         product = args.output or stem + "_l2.asdf"
-        run_ramp_fit(args.input, refs, product, overwrite=args.overwrite, inputs=read)
+        run_ramp_fit(source, refs, product, overwrite=args.overwrite, inputs=read)
     print(f"wrote {product}")
     if args.truth:
         from scenesim.validate.compare import compare_files

@@ -140,7 +140,8 @@ __all__ = ["write_uncal", "uncal_model", "irs2_to_dms", "irs2_filter",
            "check_irs2_detector",
            "write_irs2_reference", "irs2_refpix_exposure", "write_reference_files", "run_detector1",
            "detector1_products", "jwst_frame_time", "check_subarray_name",
-           "offline_crds", "REFERENCE_TYPES", "DEFAULT_DATE_OBS", "SKIPPED_STEPS",
+           "offline_crds", "uncal_identity", "REFERENCE_TYPES", "REQUIRED_TYPES",
+           "DEFAULT_DATE_OBS", "SKIPPED_STEPS",
            "OFFLINE_CONTEXT"]
 
 #: Observation start written when the scene gives none (ISO, UTC).
@@ -150,6 +151,10 @@ DEFAULT_DATE_OBS = "2026-01-01T00:00:00"
 #: an IRS2 detector also gets ``refpix`` (:func:`write_irs2_reference`).
 REFERENCE_TYPES = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark",
                    "mask", "ipc")
+
+#: Reference types :func:`run_detector1` needs (an IRS2 uncal also ``refpix``).
+REQUIRED_TYPES = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark",
+                  "mask")
 
 #: Detector1 steps run without scenesim references (see the module notes).
 SKIPPED_STEPS = ("persistence", "charge_migration", "picture_frame",
@@ -902,6 +907,22 @@ def check_uncal_file(path):
     return path
 
 
+def uncal_identity(path):
+    """``(header, (ny, nx))`` of an uncal file (:func:`check_uncal_file`): its primary
+    header, which the rate file inherits (``NINTS``, ``NGROUPS``, ``READPATT``/
+    ``SSREADPT``, ``TFRAME``, scenesim's ``GAIN``, ``SEED``, ``SCENEID``...), and the
+    image's shape (``SUBSIZE2`` x ``SUBSIZE1``: the detector's window, also for an IRS2
+    uncal, whose ``SCI`` holds the raw layout)."""
+    from astropy.io import fits
+    hdr = fits.getheader(os.fspath(path))
+    try:
+        shape = (int(hdr["SUBSIZE2"]), int(hdr["SUBSIZE1"]))
+    except (KeyError, TypeError, ValueError):
+        sci = fits.getheader(os.fspath(path), "SCI")
+        shape = (sci.get("NAXIS2"), sci.get("NAXIS1"))
+    return hdr, shape
+
+
 def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
                   steps=None, overwrite=False, inputs=()):
     """Run ``calwebb_detector1`` on ``uncal`` offline with scenesim's references.
@@ -948,8 +969,7 @@ def run_detector1(uncal, references, output_dir, *, save_calibrated_ramp=False,
     elif not os.path.isdir(os.path.dirname(os.path.abspath(output_dir))):
         raise ParameterError(f"the Detector1 output directory {output_dir!r}: its parent "
                              f"directory does not exist")
-    need = ("gain", "readnoise", "saturation", "superbias", "linearity", "dark", "mask")
-    missing = [t for t in need if t not in references]
+    missing = [t for t in REQUIRED_TYPES if t not in references]
     if missing:
         raise ParameterError(f"'references' lacks {missing}; write them with "
                              f"write_reference_files")

@@ -16,7 +16,11 @@ own ``create_fake_data`` (every required field present) and then filled:
   so the resultant times agree exactly; ``frame_time`` = scenesim's ``TFRAME``;
   ``nresultants``, ``ma_table_name`` (the pattern name), ``exposure_time`` and
   ``effective_exposure_time``;
-* ``amp33``: the reference output (below), uint16 DN, (nresultants, ny, 128).
+* ``amp33``: the reference output (below), uint16 DN, (nresultants, ny, 128);
+* ``meta.scenesim_cards``: the exposure's ``SEED``, ``SEEDENT``, ``SCENEID`` and
+  ``GAIN`` as its header has them, so that ``scenesim pipeline roman --truth`` refuses the truth
+  of another exposure before romancal runs (:func:`l1_identity`); and, with the
+  run's references, ``meta.scenesim_refid``.
 
 The amp33 reference channel
 ---------------------------
@@ -132,8 +136,9 @@ from scenesim.io.header import readout_from_table
 from scenesim.pipelines.reffiles import (check_reference_id, reference_id,
                                          shift_polynomial)
 
-__all__ = ["write_l1", "l1_model", "write_reference_files", "run_ramp_fit",
-           "read_pattern", "check_amp33_detector", "AMP33_COLUMNS", "REFERENCE_TYPES"]
+__all__ = ["write_l1", "l1_model", "l1_identity", "write_reference_files", "run_ramp_fit",
+           "read_pattern", "check_amp33_detector", "AMP33_COLUMNS", "REFERENCE_TYPES",
+           "REQUIRED_TYPES", "L1_IDENTITY_CARDS"]
 
 #: Columns of the amp33 reference output (one science output's width on the WFI).
 AMP33_COLUMNS = 128
@@ -270,6 +275,10 @@ def l1_model(exposure, *, rng=None):
     from astropy.time import TimeDelta
     ex.end_time = ex.start_time + TimeDelta(ex.exposure_time, format="sec")
     m.meta.filename = "l1.asdf"
+    # the exposure's identity, which 'scenesim pipeline roman --truth' compares with
+    # the truth before romancal runs
+    m.meta["scenesim_cards"] = {k: _asdf_card(hdr[k]) for k in L1_IDENTITY_CARDS
+                                if k in hdr}
     return m
 
 
@@ -305,13 +314,54 @@ def write_l1(exposure, path, *, overwrite=False, reference_id=None):
     return path
 
 
+#: Cards of the exposure an L1 records in ``meta.scenesim_cards`` (:func:`write_l1`),
+#: the identity :func:`l1_identity` gives.
+L1_IDENTITY_CARDS = ("SEED", "SEEDENT", "SCENEID", "GAIN")
+
+
+def _asdf_card(value):
+    """A header card's value as ASDF stores it: an integer beyond 64 bits as its
+    decimal string."""
+    if isinstance(value, (int, np.integer)) and not -2 ** 63 <= int(value) < 2 ** 63:
+        return str(value)
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def l1_identity(path):
+    """``(header, (ny, nx))`` of an L1 file (:func:`check_l1_file`): the FITS-like
+    cards of its exposure that a truth file also has (``NINTS`` 1, ``NGROUPS``
+    (resultants), ``READPATT`` (the MA table's name), ``TFRAME``, and the
+    ``meta.scenesim_cards`` of :func:`write_l1`: ``SEED``, ``SEEDENT``, ``SCENEID``,
+    ``GAIN``; an L1 written before it had them has only the first four) and its image
+    shape."""
+    from astropy.io import fits
+    hdr = fits.Header()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with _rdm().open(os.fspath(path)) as m:
+            shape = tuple(int(n) for n in np.shape(m.data)[-2:])
+            ex = m.meta.get("exposure", {})
+            for key, name in (("READPATT", "ma_table_name"), ("NGROUPS", "nresultants"),
+                              ("TFRAME", "frame_time")):
+                value = ex.get(name) if hasattr(ex, "get") else None
+                if value is not None and not (isinstance(value, str)
+                                              and value.strip() in ("", "?")):
+                    hdr[key] = value
+            hdr["NINTS"] = 1
+            cards = m.meta.get("scenesim_cards", {}) or {}
+            for key in L1_IDENTITY_CARDS:
+                if key in cards:
+                    hdr[key] = cards[key]
+    return hdr, shape
+
+
 #: Roman reference types written by :func:`write_reference_files` (the last three only
 #: for a nonlinear detector, or one with a dark).
 REFERENCE_TYPES = ("gain", "readnoise", "mask", "saturation", "linearity",
                    "inverselinearity", "dark")
 
 #: Reference types every :func:`run_ramp_fit` needs.
-_REQUIRED = ("gain", "readnoise", "mask")
+REQUIRED_TYPES = ("gain", "readnoise", "mask")
 
 
 def _reference_arrays(reference):
@@ -524,7 +574,7 @@ def run_ramp_fit(l1, references, path, *, algorithm=None, overwrite=False,
     """
     rdd = _rdm()
     l1 = check_l1_file(l1)
-    missing = [t for t in _REQUIRED if t not in references]
+    missing = [t for t in REQUIRED_TYPES if t not in references]
     if missing:
         raise ParameterError(f"'references' lacks {missing}; write them with "
                              f"write_reference_files")

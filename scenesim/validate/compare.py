@@ -63,7 +63,7 @@ from scenesim.validate.plots import plot_report
 from scenesim.validate.stats import DEFAULT_EDGES, bin_rows, usable_variance
 
 __all__ = ["DEFAULT_EDGES", "Report", "compare", "compare_files", "check_truth_header",
-           "check_compare_inputs"]
+           "check_compare_inputs", "SAME_RUN_CARDS", "SAME_SOURCE_CARDS"]
 
 
 # ---------------------------------------------------------------------- report
@@ -606,18 +606,27 @@ SAME_RUN_CARDS = ("NINTS", "NGROUPS", "NFRAMES", "GROUPGAP", "READPATT", "TFRAME
                   "SEED", "SEEDENT", "SCENEID")
 
 
-def _check_same_run(fit_hdr, truth_hdr, fit_path, truth_path):
-    """Raise unless the slope file and the truth describe the same exposure: every
-    card of :data:`SAME_RUN_CARDS` both carry agrees (``TFRAME`` to 1e-9; a JWST
-    ``READPATT = 'ANY'`` stands for any pattern of scenesim's own, whose name is in
-    ``SSREADPT``).  The message names both files and both values."""
-    for key in SAME_RUN_CARDS:
+#: Cards the file a pipeline makes the slope file from (a JWST uncal, a Roman L1)
+#: must share with the truth, checked before the pipeline runs
+#: (:func:`check_compare_inputs` with ``source``): those of :data:`SAME_RUN_CARDS`
+#: and the gain the truth's e- and the input's DN are related by.
+SAME_SOURCE_CARDS = SAME_RUN_CARDS + ("GAIN",)
+
+
+def _check_same_run(fit_hdr, truth_hdr, fit_path, truth_path, *, what="slope file",
+                    cards=SAME_RUN_CARDS):
+    """Raise unless the slope file (or another file ``what`` of the run) and the
+    truth describe the same exposure: every card of ``cards`` both carry agrees
+    (``TFRAME`` and ``GAIN`` to 1e-9; a JWST ``READPATT = 'ANY'`` stands for any
+    pattern of scenesim's own, whose name is in ``SSREADPT``).  The message names
+    both files and both values."""
+    for key in cards:
         if key not in fit_hdr or key not in truth_hdr:
             continue
         mine, theirs = fit_hdr[key], truth_hdr[key]
         if key == "READPATT" and str(mine).strip().upper() == "ANY":
             mine = fit_hdr.get("SSREADPT", theirs)
-        if key == "TFRAME":
+        if key in ("TFRAME", "GAIN"):
             try:
                 same = math.isclose(float(mine), float(theirs), rel_tol=1e-9)
             except (TypeError, ValueError):
@@ -626,8 +635,8 @@ def _check_same_run(fit_hdr, truth_hdr, fit_path, truth_path):
             same = str(mine).strip() == str(theirs).strip()
         if not same:
             raise FileFormatError(
-                f"slope file {fit_path!r} and truth file {truth_path!r} are not of the "
-                f"same exposure: {key!r} = {mine!r} in the slope file, {theirs!r} in the "
+                f"{what} {fit_path!r} and truth file {truth_path!r} are not of the "
+                f"same exposure: {key!r} = {mine!r} in the {what}, {theirs!r} in the "
                 f"truth file")
 
 
@@ -705,21 +714,43 @@ def _reference_corrected(fit_hdr):
     return str(value).strip().lower() != "none"
 
 
-def check_compare_inputs(truth_path, exposure=None):
+def check_compare_inputs(truth_path, exposure=None, *, source=None):
     """Check a truth file (and an exposure of the same run) as :func:`compare_files`
     reads them, before a long step makes the slope file to compare (``scenesim
     pipeline --truth --exposure``).
+
+    Parameters
+    ----------
+    truth_path, exposure : str or os.PathLike
+    source : tuple or None, keyword-only
+        ``(what, path, header, shape)`` of the file the slope file will be made from
+        (``'uncal'``, ``'L1'``): its cards of :data:`SAME_SOURCE_CARDS` (those it
+        carries) and its image shape ``(ny, nx)`` must be the truth's, as
+        :func:`compare_files` would find them in the slope file after the run.
 
     Raises
     ------
     noise.errors.FileFormatError, noise.errors.ParameterError
         Naming the file: not a truth file (another kind of scenesim file, a missing
-        card), or an exposure of another run.
+        card), an exposure of another run, or a ``source`` of another exposure.
     """
     truth_path = check_path("truth_path", truth_path)
     if exposure is not None:
         exposure = check_path("exposure", exposure)
-    _truth_and_exposure(truth_path, exposure)
+    truth = _truth_and_exposure(truth_path, exposure)[0]
+    if source is None:
+        return
+    what, path, header, shape = source
+    path = os.fspath(path)
+    _check_same_run(header, truth["header"], path, truth_path, what=what,
+                    cards=SAME_SOURCE_CARDS)
+    rate = truth.get("RATE_IPC", truth.get("RATE"))
+    if rate is not None and tuple(np.shape(rate)) != tuple(shape):
+        ny, nx = np.shape(rate)
+        raise FileFormatError(
+            f"{what} {path!r} and truth file {truth_path!r} are not of the same "
+            f"exposure: the {what} is {shape[0]} x {shape[1]} pixels, the truth file "
+            f"{ny} x {nx}")
 
 
 def _truth_and_exposure(truth_path, exposure):

@@ -465,3 +465,115 @@ def test_an_exp_type_must_be_of_the_inferred_instrument():
                                              r"'NRS1'"):
         resolve_instrument(InstrumentConfig(detector="NRS1", exp_type="NRC_IMAGE"),
                            preset("NIRSPEC"), "NRSRAPID")
+
+
+def test_pipeline_jwst_refuses_the_truth_of_another_exposure_before_running(jwst_loop,
+                                                                           tmp_path):
+    """--truth of another exposure was found only after Detector1 had run and written
+    the rate files ('NINTS' = 2 in the slope file, 1 in the truth file).  Now the
+    uncal's identity cards (NINTS, SEED, SCENEID, GAIN ... as the rate file would
+    carry them) and its size are compared with the truth before the pipeline: one
+    line naming the card and both values, nothing written."""
+    from astropy.io import fits
+    d, _ = jwst_loop
+    w = tmp_path / "w"
+    w.mkdir()
+    for name in ("jwst_loop_uncal.fits", "jwst_loop_truth.fits", "jwst_loop.fits"):
+        shutil.copy(d / name, w / name)
+    shutil.copytree(d / "jwst_loop_refs", w / "refs")
+    # another run of the same scene file: one integration, another seed
+    with open(os.path.join(DATA, "jwst_loop.toml")) as f:
+        text = f.read()
+    assert "seed = 77" in text and "nints = 2" in text
+    (w / "b.toml").write_text(text.replace("seed = 77", "seed = 78")
+                              .replace("nints = 2", "nints = 1")
+                              .replace('"jwst_loop.fits"', '"b.fits"'))
+    _scenesim("run", "b.toml", "-q", cwd=w)
+    # the truth of A with one identity card (or its size) changed
+    for name, edit in (("seed", lambda h: h.update(SEED=78)),
+                       ("scene", lambda h: h.update(SCENEID="0123456789abcdef")),
+                       ("gain", lambda h: h.update(GAIN=2.5))):
+        shutil.copy(w / "jwst_loop_truth.fits", w / f"t_{name}.fits")
+        with fits.open(w / f"t_{name}.fits", mode="update") as hdul:
+            edit(hdul[0].header)
+    shutil.copy(w / "jwst_loop_truth.fits", w / "t_size.fits")
+    with fits.open(w / "t_size.fits", mode="update") as hdul:
+        for ext in ("RATE", "RATE_IPC"):
+            hdul[ext].data = hdul[ext].data[:32]
+    before = _digest(w)
+    for truth, words in (
+            ("b_truth.fits", ["uncal", "b_truth.fits", "'NINTS' = 2 in the uncal",
+                              "1 in the truth file"]),
+            ("t_seed.fits", ["'SEED' = 77 in the uncal", "78 in the truth file"]),
+            ("t_scene.fits", ["'SCENEID'", "'0123456789abcdef' in the truth file"]),
+            ("t_gain.fits", ["'GAIN' = 2.0 in the uncal", "2.5 in the truth file"]),
+            ("t_size.fits", ["the uncal is 64 x 64 pixels", "the truth file 32 x 64"])):
+        line = _refused(["pipeline", "jwst", "jwst_loop_uncal.fits", "--refs", "refs",
+                         "-o", "new", "--truth", truth], w)
+        assert "not of the same exposure" in line and all(
+            word in line for word in words), line
+    # an --exposure of the truth's run does not make another run's uncal acceptable
+    line = _refused(["pipeline", "jwst", "jwst_loop_uncal.fits", "--refs", "refs",
+                     "-o", "new", "--truth", "b_truth.fits", "--exposure", "b.fits"], w)
+    assert "'NINTS' = 2 in the uncal" in line, line
+    assert _digest(w) == before and not (w / "new").exists()
+
+
+def test_reference_paths_takes_only_the_names_the_writer_gives(jwst_loop, tmp_path):
+    """A backup jwst_dark.fits.bak sorted after jwst_dark.fits and was taken as the
+    dark; now only jwst_<type>.fits of the writer's types are references."""
+    d, _ = jwst_loop
+    refs = tmp_path / "refs"
+    shutil.copytree(d / "jwst_loop_refs", refs)
+    written = reference_paths(refs, "jwst")
+    for stray in ("jwst_dark.fits.bak", "jwst_gain.fits~", "jwst_dark.old.fits",
+                  "jwst_foo.fits", "jwst_mask.fits.gz", "jwst_mask.asdf",
+                  "roman_gain.fits"):
+        (refs / stray).write_text("not a reference")
+    found = reference_paths(refs, "jwst")
+    assert found == written
+    assert found["dark"] == os.path.join(str(refs), "jwst_dark.fits")
+    assert {os.path.basename(p) for p in found.values()} == \
+        {f"jwst_{t}.fits" for t in found}
+    assert set(found) <= set(jwst.REFERENCE_TYPES) | {"refpix"}
+
+
+def test_pipeline_refs_errors_name_the_option_and_the_cure(jwst_loop, tmp_path):
+    """--refs that does not exist, is a file, holds no references or lacks some:
+    four distinct lines naming '--refs', the value and 'scenesim run ... --reffiles'
+    (before: 'holds no jwst_<type> reference files' for the first two, and the API's
+    "'references' lacks [...]; write them with write_reference_files"); an IRS2
+    uncal without jwst_refpix.fits names it too."""
+    from astropy.io import fits
+    d, _ = jwst_loop
+    w = tmp_path / "w"
+    w.mkdir()
+    shutil.copy(d / "jwst_loop_uncal.fits", w / "u_uncal.fits")
+    (w / "empty").mkdir()
+    (w / "partial").mkdir()
+    for t in ("gain", "readnoise", "dark"):
+        shutil.copy(d / "jwst_loop_refs" / f"jwst_{t}.fits", w / "partial")
+    (w / "partial" / "jwst_mask.fits.bak").write_text("a backup")
+    shutil.copytree(d / "jwst_loop_refs", w / "refs")
+    shutil.copy(d / "jwst_loop_uncal.fits", w / "irs2_uncal.fits")
+    with fits.open(w / "irs2_uncal.fits", mode="update") as hdul:
+        hdul[0].header["NRS_NORM"] = 16
+    before = _digest(w)
+    lines = []
+    for refs, words in (("nosuchdir", ["'nosuchdir'", "does not exist"]),
+                        ("u_uncal.fits", ["'u_uncal.fits'", "is a file"]),
+                        ("empty", ["'empty'", "holds no jwst reference files"]),
+                        ("partial", ["'partial'", "lacks", "'jwst_saturation.fits'",
+                                     "'jwst_mask.fits'"])):
+        line = _refused(["pipeline", "jwst", "u_uncal.fits", "--refs", refs, "-o",
+                         "new"], w)
+        assert "'--refs'" in line and "scenesim run SCENE --reffiles" in line, line
+        assert all(word in line for word in words), line
+        assert "write_reference_files" not in line and "'references'" not in line
+        lines.append(line)
+    assert len(set(lines)) == 4
+    assert "'jwst_gain.fits'" not in lines[-1]
+    line = _refused(["pipeline", "jwst", "irs2_uncal.fits", "--refs", "refs", "-o",
+                     "new"], w)
+    assert "IRS2" in line and "jwst_refpix.fits" in line and "'--refs'" in line, line
+    assert _digest(w) == before and not (w / "new").exists()

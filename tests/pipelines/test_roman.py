@@ -419,3 +419,83 @@ def test_compare_takes_only_an_l2_and_a_damaged_l1_is_refused_first(roman_loop,
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "cut_l1.asdf" in lines[0], res.stderr
     assert not (tmp_path / "out.asdf").exists()
+
+
+def _refused_line(args, cwd):
+    res = subprocess.run([sys.executable, "-m", "scenesim.cli", *args], cwd=cwd,
+                         capture_output=True, text=True)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    return lines[0]
+
+
+def test_pipeline_roman_refuses_the_truth_of_another_exposure_before_running(
+        roman_loop, tmp_path):
+    """The L1 records its exposure's SEED, SEEDENT, SCENEID and GAIN
+    (meta.scenesim_cards); with its resultants, MA table, frame time and size they
+    are compared with --truth before romancal runs (before: after the L2 was
+    written, and an L1 carried nothing to tell two runs of one MA table apart)."""
+    from astropy.io import fits
+    from scenesim.pipelines.roman import l1_identity
+    d, _ = roman_loop
+    w = tmp_path / "w"
+    w.mkdir()
+    shutil.copy(d / "roman_loop_l1.asdf", w / "l1.asdf")
+    shutil.copy(d / "roman_loop_truth.fits", w / "truth.fits")
+    shutil.copytree(d / "roman_loop_refs", w / "refs")
+    hdr, shape = l1_identity(w / "l1.asdf")
+    truth_hdr = fits.getheader(w / "truth.fits")
+    assert shape == (128, 128)
+    for key in ("SEED", "SEEDENT", "SCENEID", "GAIN", "NGROUPS", "READPATT", "NINTS"):
+        assert hdr[key] == truth_hdr[key], key
+    for name, edit in (("seed", lambda h: h.update(SEED=2032)),
+                       ("scene", lambda h: h.update(SCENEID="0123456789abcdef")),
+                       ("gain", lambda h: h.update(GAIN=2.5)),
+                       ("ngroups", lambda h: h.update(NGROUPS=5))):
+        shutil.copy(w / "truth.fits", w / f"t_{name}.fits")
+        with fits.open(w / f"t_{name}.fits", mode="update") as hdul:
+            edit(hdul[0].header)
+    before = {p: p.read_bytes() for p in w.rglob("*") if p.is_file()}
+    for truth, words in (("t_seed.fits", ["'SEED' = 2031 in the L1", "2032 in the"]),
+                         ("t_scene.fits", ["'SCENEID'", "'0123456789abcdef' in the"]),
+                         ("t_gain.fits", ["'GAIN' = 2.0 in the L1", "2.5 in the"]),
+                         ("t_ngroups.fits", ["'NGROUPS' = 6 in the L1", "5 in the"])):
+        line = _refused_line(["pipeline", "roman", "l1.asdf", "--refs", "refs", "-o",
+                              "l2.asdf", "--truth", truth], w)
+        assert "not of the same exposure" in line and truth in line, line
+        assert all(word in line for word in words), line
+    assert {p: p.read_bytes() for p in w.rglob("*") if p.is_file()} == before
+    assert not (w / "l2.asdf").exists()
+
+
+def test_roman_reference_names_and_refs_errors(roman_loop, tmp_path):
+    """Only roman_<type>.asdf of the writer's types are references (a backup
+    roman_gain.asdf.bak was taken as the gain); a linearity without its inverse and
+    a missing required type name '--refs' and the command that writes them."""
+    from scenesim.pipelines.command import reference_paths
+    d, _ = roman_loop
+    refs = tmp_path / "refs"
+    shutil.copytree(d / "roman_loop_refs", refs)
+    for p in refs.glob("jwst_*"):
+        p.unlink()
+    written = reference_paths(refs, "roman")
+    for stray in ("roman_gain.asdf.bak", "roman_gain.old.asdf", "roman_foo.asdf",
+                  "roman_mask.fits", "jwst_gain.asdf"):
+        (refs / stray).write_text("not a reference")
+    assert reference_paths(refs, "roman") == written
+    assert written["gain"] == os.path.join(str(refs), "roman_gain.asdf")
+    shutil.copy(d / "roman_loop_l1.asdf", tmp_path / "l1.asdf")
+    (refs / "roman_inverselinearity.asdf").unlink(missing_ok=True)
+    shutil.copy(d / "roman_loop_refs" / "roman_gain.asdf",
+                refs / "roman_linearity.asdf")
+    line = _refused_line(["pipeline", "roman", "l1.asdf", "--refs", "refs", "-o",
+                          "l2.asdf"], tmp_path)
+    assert "'--refs'" in line and "roman_linearity.asdf" in line and \
+        "roman_inverselinearity.asdf" in line, line
+    (refs / "roman_mask.asdf").unlink()
+    line = _refused_line(["pipeline", "roman", "l1.asdf", "--refs", "refs", "-o",
+                          "l2.asdf"], tmp_path)
+    assert "'--refs'" in line and "lacks ['roman_mask.asdf']" in line and \
+        "scenesim run SCENE --reffiles" in line, line
+    assert not (tmp_path / "l2.asdf").exists()
