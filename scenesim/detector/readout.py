@@ -66,7 +66,12 @@ MEDIUM8     8         2          NIRCam
 DEEP2       2         18         NIRCam
 DEEP8       8         12         NIRCam
 NRSRAPID    1         0          NIRSpec
+NRSRAPIDD1  1         1          NIRSpec
+NRSRAPIDD2  1         2          NIRSpec
+NRSRAPIDD6  1         6          NIRSpec
 NRS         4         0          NIRSpec
+NISRAPID    1         0          NIRISS
+NIS         4         0          NIRISS
 ==========  ========  =========  ==========
 
 NIRSpec's IRS2 patterns: ``NRSIRS2RAPID`` (1 frame per group, no gap) and ``NRSIRS2`` (5
@@ -107,6 +112,7 @@ __all__ = [
     "NAMED_PATTERNS",
     "IRS2_PATTERNS",
     "NIRSPEC_PATTERNS",
+    "NIRISS_PATTERNS",
     "check_pattern_detector",
     "ROMAN_LIKE_TABLE",
     "ROMAN_LIKE_SKIP_TABLE",
@@ -143,7 +149,12 @@ NAMED_PATTERNS = {
     "DEEP2": (2, 18),
     "DEEP8": (8, 12),
     "NRSRAPID": (1, 0),
+    "NRSRAPIDD1": (1, 1),
+    "NRSRAPIDD2": (1, 2),
+    "NRSRAPIDD6": (1, 6),
     "NRS": (4, 0),
+    "NISRAPID": (1, 0),
+    "NIS": (4, 0),
     "NRSIRS2RAPID": (1, 0),
     "NRSIRS2": (5, 0),
 }
@@ -152,7 +163,9 @@ NAMED_PATTERNS = {
 #: reference samples only.
 IRS2_PATTERNS = ("NRSIRS2RAPID", "NRSIRS2")
 #: NIRSpec's traditional (non-IRS2) patterns: never on a detector that interleaves.
-NIRSPEC_PATTERNS = ("NRSRAPID", "NRS")
+NIRSPEC_PATTERNS = ("NRSRAPID", "NRSRAPIDD1", "NRSRAPIDD2", "NRSRAPIDD6", "NRS")
+#: NIRISS's patterns.
+NIRISS_PATTERNS = ("NISRAPID", "NIS")
 
 
 def _check_label(name, nframes=None, groupgap=None, what="an MA table or read lists"):

@@ -7,7 +7,8 @@ JWST data models accept (``stdatamodels`` 6.0, ``core.schema.yaml`` and
 ``SUBARRAY``).  :class:`InstrumentConfig` holds that choice; an empty field is
 inferred from the readout (:func:`resolve_instrument`):
 
-* the instrument: NIRSpec for the NIRSpec patterns (``NRSRAPID``, ``NRS``), NIRCam
+* the instrument: NIRSpec for the NIRSpec patterns (``NRSRAPID``, ``NRS``, ...),
+  NIRISS for ``NISRAPID`` and ``NIS``, NIRCam
   otherwise;
 * the detector: the instrument's first (``NRCA1``, ``NRS1``, ``NIS``, ``GUIDER1``);
 * the exposure type: ``NRC_IMAGE``, ``NRS_IMAGE``, ``NIS_IMAGE``, ``FGS_IMAGE``;
@@ -38,10 +39,12 @@ INSTRUMENTS = {
 
 #: Readout patterns of the JWST ``READPATT`` enum that scenesim's named patterns use.
 JWST_READPATT = ("RAPID", "BRIGHT1", "BRIGHT2", "SHALLOW2", "SHALLOW4", "MEDIUM2",
-                 "MEDIUM8", "DEEP2", "DEEP8", "NRSRAPID", "NRS", "NRSIRS2RAPID",
-                 "NRSIRS2")
+                 "MEDIUM8", "DEEP2", "DEEP8", "NRSRAPID", "NRSRAPIDD1", "NRSRAPIDD2",
+                 "NRSRAPIDD6", "NRS", "NRSIRS2RAPID", "NRSIRS2", "NISRAPID", "NIS")
 
-_NIRSPEC_PATTERNS = ("NRSRAPID", "NRS", "NRSIRS2RAPID", "NRSIRS2")
+_NIRSPEC_PATTERNS = ("NRSRAPID", "NRSRAPIDD1", "NRSRAPIDD2", "NRSRAPIDD6", "NRS",
+                     "NRSIRS2RAPID", "NRSIRS2")
+_NIRISS_PATTERNS = ("NISRAPID", "NIS")
 
 
 @dataclass(frozen=True)
@@ -107,7 +110,8 @@ def resolve_instrument(config, detector, readout_name):
     if not name and config.detector:
         name = next(n for n, (dets, _) in INSTRUMENTS.items() if config.detector in dets)
     if not name:
-        name = "NIRSPEC" if readout_name.upper() in _NIRSPEC_PATTERNS else "NIRCAM"
+        name = ("NIRSPEC" if readout_name.upper() in _NIRSPEC_PATTERNS else
+                "NIRISS" if readout_name.upper() in _NIRISS_PATTERNS else "NIRCAM")
     dets, exp_type = INSTRUMENTS[name]
     prefix = exp_type.split("_")[0] + "_"
     if config.exp_type and not config.exp_type.startswith(prefix):

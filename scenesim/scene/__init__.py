@@ -169,7 +169,8 @@ curves* (:class:`LightCurveConfig`).
 Every key is optional and inferred when absent:
 
 * ``name``: ``"NIRCAM"``, ``"NIRSPEC"``, ``"NIRISS"`` or ``"FGS"``; default NIRSpec
-  for the ``NRSRAPID``/``NRS`` patterns, else NIRCam.
+  for the NIRSpec patterns (``NRSRAPID``, ``NRSRAPIDD1``/``D2``/``D6``, ``NRS``), NIRISS
+  for ``NISRAPID``/``NIS``, else NIRCam.
 * ``detector``: one of the instrument's (``"NRCA1"`` ... ``"NRCBLONG"``, ``"NRS1"``,
   ``"NRS2"``, ``"NIS"``, ``"GUIDER1"``, ``"GUIDER2"``); default the first.
 * ``exp_type``: JWST ``EXP_TYPE`` with the instrument's prefix (``"NRC_IMAGE"``,

@@ -30,6 +30,10 @@ JDOX = {
     "RAPID": (1, 0), "BRIGHT1": (1, 1), "BRIGHT2": (2, 0), "SHALLOW2": (2, 3),
     "SHALLOW4": (4, 1), "MEDIUM2": (2, 8), "MEDIUM8": (8, 2), "DEEP2": (2, 18),
     "DEEP8": (8, 12), "NRSRAPID": (1, 0), "NRS": (4, 0),
+    # NIRSpec's traditional patterns with dropped frames (JDox "NIRSpec Detector
+    # Readout Modes and Patterns"), and NIRISS's (a probe found them missing)
+    "NRSRAPIDD1": (1, 1), "NRSRAPIDD2": (1, 2), "NRSRAPIDD6": (1, 6),
+    "NISRAPID": (1, 0), "NIS": (4, 0),
     # IRS2: group times 14.589 s and 72.944 s in JWST planning tools (1 and 5 frames
     # of 14.5889 s)
     "NRSIRS2RAPID": (1, 0), "NRSIRS2": (5, 0),
@@ -393,6 +397,7 @@ def test_unknown_pattern_suggests_nearest():
     ("NIRSPEC-IRS2", "NRSRAPID", r"'NRSRAPID' is not an IRS2 pattern, but detector "
                                  r"'NIRSPEC-IRS2' interleaves"),
     ("NIRSPEC-IRS2", "NRS", r"'NRS' is not an IRS2 pattern"),
+    ("NIRSPEC-IRS2", "NRSRAPIDD6", r"'NRSRAPIDD6' is not an IRS2 pattern"),
     ("NIRSPEC", "NRSIRS2RAPID", r"'NRSIRS2RAPID' is an IRS2 pattern, but detector "
                                 r"'NIRSPEC' has no interleaved"),
     ("H2RG", "NRSIRS2", r"'NRSIRS2' is an IRS2 pattern"),

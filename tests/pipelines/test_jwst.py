@@ -465,6 +465,14 @@ def test_an_exp_type_must_be_of_the_inferred_instrument():
                                              r"'NRS1'"):
         resolve_instrument(InstrumentConfig(detector="NRS1", exp_type="NRC_IMAGE"),
                            preset("NIRSPEC"), "NRSRAPID")
+    # the instrument of NIRSpec's dropped-frame and NIRISS's patterns (a probe: a
+    # NIRISS uncal read RAPID, the NIRCam pattern, for want of NIS/NISRAPID)
+    for pattern, name, detector in (("NRSRAPIDD6", "NIRSPEC", "NRS1"),
+                                    ("NIS", "NIRISS", "NIS"),
+                                    ("NISRAPID", "NIRISS", "NIS")):
+        got = resolve_instrument(InstrumentConfig(), det, pattern)
+        assert (got["name"], got["detector"], got["readpatt"]) == (name, detector,
+                                                                    pattern)
 
 
 def test_pipeline_jwst_refuses_the_truth_of_another_exposure_before_running(jwst_loop,
