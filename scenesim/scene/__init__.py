@@ -263,8 +263,9 @@ integrals):
 * ``file`` (``file``): ECSV or FITS table with columns ``time`` and ``flux``
   (relative), read by :meth:`LightCurve.from_file
   <scenesim.sky.lightcurve.LightCurve.from_file>`: a ``time`` column with a unit (e.g.
-  ``h``, ``d``) is converted to seconds, without one it is seconds; used like
-  ``table`` (two equal consecutive times make a step).
+  ``h``, ``d``) is converted to seconds, without one it is seconds; ``flux`` has no
+  unit or a dimensionless one (``%`` is converted), any other (``mag``, ``Jy``) is
+  refused; used like ``table`` (two equal consecutive times make a step).
 
 Seeds
 -----

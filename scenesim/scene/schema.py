@@ -270,7 +270,8 @@ class LightCurveConfig:
         ``table``: sample times (s, strictly increasing) and factors (>= 0).
     file : str or None
         ``file``: ECSV/FITS table with columns ``time`` and ``flux``, read by
-        :meth:`scenesim.sky.lightcurve.LightCurve.from_file` (time units converted).
+        :meth:`scenesim.sky.lightcurve.LightCurve.from_file` (time units converted;
+        ``flux`` without a unit or dimensionless).
     """
 
     name: str
