@@ -122,7 +122,11 @@ Top level
   :func:`scenesim.sky.sources.read_catalogue`: columns ``x``, ``y`` (pixels of the
   read-out image), ``flux`` (e-/s, converted if it has a unit), optional ``id`` and
   ``light_curve`` (the **name** of a ``[sources.light_curves.NAME]`` entry; empty for
-  a constant source).  Column names are case-insensitive.
+  a constant source).  Column names are case-insensitive.  The truth file's
+  ``SOURCES`` lists the inline ``[[sources.stars]]`` first, then the catalogue's rows
+  in its order (catalogue row ``i`` is ``SOURCES`` row ``len(stars) + i``), with the
+  catalogue's ``id`` and its other columns (null on the inline stars' rows; one named
+  as a rendering column, e.g. ``flux_on_array``, as ``catalogue_flux_on_array``).
 
 ``[sources.psf]`` -- the PSF of every point source (:class:`PSFConfig`)
 

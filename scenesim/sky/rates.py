@@ -14,9 +14,13 @@
 * the **variable sources**: one :class:`scenesim.engine.VariableSource` per star with
   a light curve (its rendered stamp at relative flux 1, and the
   :class:`~scenesim.sky.lightcurve.LightCurve` built once per light-curve name);
-* the **rendered catalogue**: the ``info`` table of the rendering (flux on the
-  array, flux lost outside the stamp, ...) of every star, constant ones first, with
-  its ``light_curve`` name; written to the truth file.  ``flux_on_array`` is the rate
+* the **rendered catalogue**: one row per star in the order of
+  :meth:`scenesim.scene.SourcesConfig.star_table` (the inline stars, then the
+  catalogue rows in the catalogue's order): the catalogue's ``id``, the ``info`` table
+  of the rendering (flux on the array, flux lost outside the stamp, ...), the
+  ``light_curve`` name and the catalogue's other columns; written to the truth file
+  as ``SOURCES``, whose row numbers ``LCINTS.SOURCE`` gives (before, the constant
+  stars came first and the catalogue's ``id`` and other columns were dropped).  ``flux_on_array`` is the rate
   the array collects, the QE flat included (before, it left the flat out: a star on
   a flat of 0.5 was recorded at twice what its pixels collected).
 
@@ -78,9 +82,10 @@ def scene_rates(scene):
     rate : ndarray, shape ``detector.shape``, float64, e-/s
         0 on the reference pixels.
     variable : list of scenesim.engine.VariableSource
-        In star order (inline stars, then catalogue rows).
+        In star order (inline stars, then catalogue rows): the ``i``-th is the
+        ``i``-th row of ``rendered`` with a ``light_curve``.
     rendered : astropy.table.Table or None
-        One row per star (constant stars first), ``None`` without stars.
+        One row per star, in star order, ``None`` without stars.
     """
     seed = _seed(scene)
     det = scene.detector
@@ -106,31 +111,47 @@ def scene_rates(scene):
     rendered = None
     if len(stars):
         psf = src.psf.build()
-        static = stars["light_curve"] == ""
+        static = np.asarray(stars["light_curve"]) == ""
+        x, y, flux = (np.asarray(stars[k], dtype=np.float64) for k in ("x", "y", "flux"))
         rendered_parts = []
         if static.any():
             img, info = render_point_sources(
-                det.shape, stars["x"][static], stars["y"][static], stars["flux"][static],
+                det.shape, x[static], y[static], flux[static],
                 psf, min_rate=src.psf.min_rate, blind=refmask, qe=qe)
             rate = rate + img                        # the QE flat is in (qe=)
             info["light_curve"] = [""] * len(info)
             rendered_parts.append(info)
         curves = {}
-        for row in stars[~static]:
-            name = str(row["light_curve"])
+        for i in np.flatnonzero(~static):
+            name = str(stars["light_curve"][i])
             if name not in curves:
                 curves[name] = src.light_curve(name).build()
             img, info = render_point_sources(
-                det.shape, [row["x"]], [row["y"]], [row["flux"]], psf,
+                det.shape, [x[i]], [y[i]], [flux[i]], psf,
                 min_rate=src.psf.min_rate, blind=refmask, qe=qe)
             idx = np.flatnonzero(img)
             variable.append(VariableSource(idx, img.ravel()[idx], curves[name]))
             info["light_curve"] = [name]
             rendered_parts.append(info)
-        rendered = vstack(rendered_parts) if rendered_parts else None
+        rendered = _in_star_order(vstack(rendered_parts), static, stars)
         _warn_missed(rendered, det.shape)
     rate = np.where(refmask, 0.0, rate)
     return rate, variable, rendered
+
+
+def _in_star_order(rendered, static, stars):
+    """The rendering's rows (constant stars, then variable ones) back in the order of
+    :meth:`~scenesim.scene.SourcesConfig.star_table` (inline stars, then the catalogue
+    rows), with the star table's ``id`` first and its other columns (the catalogue's)
+    last."""
+    made = np.concatenate([np.flatnonzero(static), np.flatnonzero(~static)])
+    rendered = rendered[np.argsort(made, kind="stable")]
+    if "id" in stars.colnames:
+        rendered.add_column(stars["id"], index=0, name="id")
+    for name in stars.colnames:
+        if name not in rendered.colnames:
+            rendered[name] = stars[name]
+    return rendered
 
 
 def _warn_missed(rendered, shape):

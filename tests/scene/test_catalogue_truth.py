@@ -10,11 +10,15 @@ huge peak failed with "'rate' (with the variable sources at their peak) ...", na
 no file, row or pixel; a light-curve file's ``flux`` in ``mag`` was used as a factor.
 """
 
+import numpy as np
 import pytest
 from astropy import units as u
+from astropy.io import fits
 from astropy.table import Table
 
 from noise.errors import FileFormatError
+from scenesim import run_scene
+from scenesim.engine import EngineOptions
 from scenesim.scene import parse_scene
 
 IDS = [7, 8, 9]
@@ -37,7 +41,7 @@ def _scene(tmp_path, *, stars=(), curves=None, sources=None, effects=None,
            catalogue="cat.ecsv"):
     src = {"psf": {"kind": "gaussian", "fwhm": 2.0},
            "light_curves": curves or {
-               "tr": {"kind": "transit", "t0": 0.5, "duration": 0.4, "depth": 0.01},
+               "tr": {"kind": "transit", "t0": 0.58, "duration": 0.3, "depth": 0.01},
                "fl": {"kind": "step", "t_on": 0.6, "after": 2.0}}}
     if catalogue is not None:
         src["catalogue"] = catalogue
@@ -64,3 +68,61 @@ def test_a_light_curve_file_in_magnitudes_is_refused_when_the_scene_loads(tmp_pa
     msg = str(info.value)
     assert msg.startswith("[sources.light_curves.tr] light-curve file ")
     assert str(tmp_path / "dip.ecsv") in msg and "'flux'" in msg and "'mag'" in msg
+
+
+# ------------------------------------------------------------ SOURCES and LCINTS
+def _truth(tmp_path, scene):
+    run_scene(scene, progress=False, options=EngineOptions(threads=1, shot_noise=False),
+              overwrite=True)
+    with fits.open(tmp_path / "t_truth.fits") as hdul:
+        return Table.read(hdul["SOURCES"]), Table.read(hdul["LCINTS"])
+
+
+@pytest.mark.parametrize("inline", [0, 1])
+def test_sources_keep_the_catalogue_order_id_and_columns(tmp_path, inline):
+    # rows 7, 8, 9 in the catalogue's order (before: 8, 7, 9 and no id or mag), after
+    # the inline star when there is one; LCINTS.SOURCE is the row of each variable one
+    _catalogue(tmp_path)
+    stars = [{"x": 30.0, "y": 30.0, "flux": 5000.0}][:inline]
+    src, lc = _truth(tmp_path, _scene(tmp_path, stars=stars))
+    assert src.colnames[:4] == ["id", "x", "y", "flux"] and src.colnames[-1] == "mag"
+    assert len(src) == inline + 3
+    cat = src[inline:]
+    assert list(cat["id"]) == IDS and list(cat["x"]) == XS and list(cat["y"]) == YS
+    np.testing.assert_allclose(cat["mag"], [10.1, 10.2, 10.3])
+    assert [str(v) for v in np.ma.filled(cat["light_curve"], "")] == CURVES
+    if inline:                  # the inline star: its own x, y; null id and mag
+        assert src["x"][0] == 30.0 and src["id"].mask[0] and src["mag"].mask[0]
+        assert not np.any(cat["id"].mask)
+    assert list(lc["SOURCE"]) == [inline] * 3 + [inline + 2] * 3
+    for row in lc:
+        assert (row["X"], row["Y"]) == (src["x"][row["SOURCE"]], src["y"][row["SOURCE"]])
+    # the transit (row 7) dips in integration 1 only; the step (row 9) doubles from 2
+    tr, fl = lc[:3], lc[3:]
+    assert tr["LC_MEAN"][0] == pytest.approx(1.0) and tr["LC_MEAN"][1] < 1.0
+    assert fl["LC_MEAN"][0] == pytest.approx(1.0) and fl["LC_MEAN"][2] == \
+        pytest.approx(2.0)
+
+
+def test_catalogue_columns_named_as_rendering_columns_are_kept_renamed(tmp_path):
+    # string ids; a column 'flux_on_array' (a truth's SOURCES used as a catalogue)
+    # is kept as 'catalogue_flux_on_array' beside the rendering's own
+    Table({"id": ["a", "b", "c"], "x": XS, "y": YS, "flux": [2e4] * 3,
+           "light_curve": CURVES, "Flux_On_Array": [1.0, 2.0, 3.0]}).write(
+        tmp_path / "cat.ecsv")
+    src, _ = _truth(tmp_path, _scene(tmp_path))
+    assert list(src["id"]) == ["a", "b", "c"]
+    assert list(src["catalogue_Flux_On_Array"]) == [1.0, 2.0, 3.0]
+    assert src["flux_on_array"][1] == pytest.approx(2e4, rel=1e-6)
+
+
+def test_a_catalogue_column_fits_cannot_hold_is_refused_when_the_scene_loads(tmp_path):
+    table = Table({"id": IDS, "x": XS, "y": YS, "flux": [2e4] * 3,
+                   "light_curve": CURVES})
+    table["tags"] = np.array([{"a": 1}, [1, 2], "x"], dtype=object)
+    table.write(tmp_path / "cat.ecsv")
+    with pytest.raises(FileFormatError) as info:
+        _scene(tmp_path)
+    msg = str(info.value)
+    assert msg.startswith("[sources] catalogue ") and str(tmp_path / "cat.ecsv") in msg
+    assert "'tags'" in msg and "object" in msg and "\n" not in msg
