@@ -218,6 +218,12 @@ Validation rules
   nonlinearity is monotonic up to the full well, ``ramp = false`` needs a fit, ...
 * :func:`load_scene` builds the readout once (:meth:`ReadoutConfig.build`) so an unknown
   pattern name or a bad MA table fails at load time.
+* Charge: no pixel may collect more than 2**53 e- in an integration.  Scalar rates are
+  checked when the scene is built; the sum in each pixel (maps, flat, catalogue rows,
+  ``file`` light curves at their peak) when the run loads them, before any work
+  (:func:`scenesim.sky.rates.scene_rates`), naming what puts the charge there: the map
+  file and the pixel, the catalogue file, row and ``id``, the inline star, the light
+  curve and its peak.
 
 Every error is a :class:`~noise.errors.ParameterError` or
 :class:`~noise.errors.FileFormatError` (both :class:`ValueError`) whose message names the

@@ -25,7 +25,7 @@ import numpy as np
 from astropy.io import fits
 from astropy.table import MaskedColumn, Table, vstack
 
-from noise.clock import Detector, exposure_slots
+from noise.clock import Detector
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.streams import MAX_SEED as SEED_MAX
@@ -43,6 +43,7 @@ from scenesim.pipelines.instrument import InstrumentConfig
 from scenesim.sky.lightcurve import MAX_TIME as LC_MAX_TIME, LightCurve
 from scenesim.sky.maps import FITS_EXTENSIONS
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF
+from scenesim.sky.rates import integration_span
 from scenesim.sky.sources import read_catalogue
 from scenesim.sky.tables import TABLE_EXTENSIONS
 
@@ -1027,19 +1028,16 @@ class Scene:
 
     def _check_charge(self):
         """Refuse scalar rates whose pixel would collect more than
-        :data:`scenesim.engine.MAX_CHARGE` in one integration (FITS maps are checked by
-        the engine when the run loads them)."""
+        :data:`scenesim.engine.MAX_CHARGE` in one integration (FITS maps, catalogue
+        rows, ``file`` light curves and the sum in a pixel are checked when the run
+        loads them, before any work: :func:`scenesim.sky.rates.scene_rates`)."""
         try:
             ro = self.readout.build()
         except ParameterError as exc:
             raise type(exc)(f"[readout] {exc}") from exc
-        t_int = exposure_slots(1, ro.nreads) * self.detector.frame_time
+        t_int, span = integration_span(self.detector, ro)
         src, eff = self.sources, self.effects
         flat = eff.flat if not isinstance(eff.flat, str) else None
-
-        det = self.detector
-        span = (f"{ro.nreads + 1} frames of {det.frame_time:.6g} s: [readout], and "
-                f"[detector] 'dt' x (rows + 'nfoh') x (columns per output + 'nroh')")
         if self.output.fit and t_int > MAX_READ_TIME:
             raise ParameterError(
                 f"[output] 'fit' = {self.output.fit!r}: an integration lasts {t_int:.6g} "

@@ -16,7 +16,7 @@ from astropy import units as u
 from astropy.io import fits
 from astropy.table import Table
 
-from noise.errors import FileFormatError
+from noise.errors import FileFormatError, ParameterError
 from scenesim import run_scene
 from scenesim.engine import EngineOptions
 from scenesim.scene import parse_scene
@@ -126,3 +126,87 @@ def test_a_catalogue_column_fits_cannot_hold_is_refused_when_the_scene_loads(tmp
     msg = str(info.value)
     assert msg.startswith("[sources] catalogue ") and str(tmp_path / "cat.ecsv") in msg
     assert "'tags'" in msg and "object" in msg and "\n" not in msg
+
+
+# ------------------------------------------------- too much charge: name its source
+def _refused(tmp_path, scene):
+    with pytest.raises(ParameterError) as info:
+        run_scene(scene, progress=False, options=EngineOptions(threads=1))
+    assert not list(tmp_path.glob("t*.fits"))          # refused before any work
+    msg = str(info.value)
+    assert "\n" not in msg and "'rate'" not in msg and "2**53" in msg
+    return msg
+
+
+def test_a_too_bright_catalogue_row_is_named_with_its_file_row_and_id(tmp_path):
+    path = _catalogue(tmp_path, flux=(2e4, 1e22, 2e4))
+    msg = _refused(tmp_path, _scene(tmp_path, stars=[{"x": 5.0, "y": 5.0,
+                                                      "flux": 10.0}]))
+    assert msg.startswith(f"[sources] catalogue {path!r} row 1 (id 8) 'flux' = 1e+22 "
+                          f"e-/s puts ")
+    assert "pixel (x, y) = (44, 45)" in msg
+    assert "light_curves" not in msg and "variable" not in msg   # row 8 is constant
+
+
+def test_a_huge_map_pixel_is_named_with_its_file_and_pixel(tmp_path):
+    # the scene has variable stars, but none in that pixel: no light curve named
+    _catalogue(tmp_path)
+    dark = np.full((64, 64), 0.5)
+    dark[10, 12] = 2e19
+    fits.writeto(tmp_path / "dark.fits", dark)
+    msg = _refused(tmp_path, _scene(tmp_path, sources={"dark_current": "dark.fits"}))
+    assert msg.startswith(f"[sources] 'dark_current' map "
+                          f"{str(tmp_path / 'dark.fits')!r} puts 2e+19 e-/s on pixel "
+                          f"(x, y) = (12, 10) of the read-out image, which would collect")
+    assert "light_curves" not in msg and "variable" not in msg
+
+
+def test_a_huge_flat_under_a_variable_star_names_the_row_its_curve_and_the_flat(
+        tmp_path):
+    path = _catalogue(tmp_path)
+    flat = np.ones((64, 64))
+    flat[20, 20] = 1e19
+    fits.writeto(tmp_path / "flat.fits", flat)
+    msg = _refused(tmp_path, _scene(tmp_path, sources={"background": 3.0},
+                                    effects={"flat": "flat.fits"}))
+    flat_name = f"[effects] 'flat' map {str(tmp_path / 'flat.fits')!r} (1e+19 at that " \
+        f"pixel)"
+    assert msg.startswith(f"[sources] catalogue {path!r} row 0 (id 7) 'flux' = 20000 "
+                          f"e-/s x [sources.light_curves.tr] peak 1 x {flat_name} puts ")
+    assert "pixel (x, y) = (20, 20)" in msg
+    assert f"from [sources] 'background' = 3.0 e-/s x {flat_name}" in msg
+
+
+def test_a_file_light_curve_with_a_huge_peak_is_named(tmp_path):
+    # LightCurveConfig.peak() is None for a file curve: the scene could not check it
+    path = _catalogue(tmp_path)
+    Table({"time": [0.0, 0.2, 0.4], "flux": [1.0, 1e18, 1.0]}).write(tmp_path / "lc.ecsv")
+    msg = _refused(tmp_path, _scene(tmp_path, curves={
+        "tr": {"kind": "file", "file": "lc.ecsv"},
+        "fl": {"kind": "step", "t_on": 0.6, "after": 2.0}}))
+    assert msg.startswith(
+        f"[sources] catalogue {path!r} row 0 (id 7) 'flux' = 20000 e-/s x "
+        f"[sources.light_curves.tr] peak 1e+18 (file {str(tmp_path / 'lc.ecsv')!r}) "
+        f"puts ")
+
+
+def test_the_engine_names_the_pixel_and_variable_sources_only_when_there_are_some():
+    from noise.clock import preset
+    from scenesim.detector.readout import Readout
+    from scenesim.engine import ChargeEngine, VariableSource
+    from scenesim.sky.lightcurve import LightCurve
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    rate = np.zeros(det.shape)
+    rate[30, 40] = 1e20
+    ro = Readout.named("RAPID", 20, nints=3)
+    with pytest.raises(ParameterError) as info:
+        ChargeEngine(det, ro, rate=rate, rng=11)
+    msg = str(info.value)
+    assert msg.startswith("'rate' is 1e+20 e-/s at pixel (x, y) = (40, 30), which")
+    assert "variable" not in msg
+    var = VariableSource(np.array([30 * 64 + 40]), np.array([1.0]),
+                         LightCurve([0.0, 1.0], [1.0, 1e20]))
+    with pytest.raises(ParameterError, match=r"^'rate' is 1e\+20 e-/s and "
+                       r"'variable_sources' add 1e\+20 e-/s at their light curves' "
+                       r"peak at pixel \(x, y\) = \(40, 30\)"):
+        ChargeEngine(det, ro, rate=rate, variable_sources=[var], rng=11)
