@@ -32,8 +32,12 @@ reads that some resultant uses are materialised, so a pixel that fills its well 
 skipped frames reports the next read that is actually taken; int16, int32 for a
 readout of more than 32767 reads), ``SATGROUP`` (first resultant containing it),
 ``CRS`` (cosmic-ray deposits: time, pixel, charge, whether a read saw it), ``SOURCES``
-(the catalogue as rendered), ``LCINTS`` (with variable sources: each one's light-curve
-mean and collected rate in every integration's window, the truth of per-integration
+(the stars as rendered, one row each: the inline stars in the scene's order, then the
+catalogue's rows in its order, so catalogue row ``i`` is row ``len(stars) + i``; with a
+catalogue, its ``id`` first and its other columns last, null on the inline stars'
+rows), ``LCINTS`` (with variable sources, ``SOURCE`` its row of ``SOURCES``: each
+one's light-curve mean and collected rate in every integration's window, the truth of
+per-integration
 slopes where the light curve is flat over the window, and of CDS slopes always:
 :func:`_light_curve_table`), ``READS`` (the exposure's table of read indices and
 times, so that a truth grades a fit of any readout without its exposure), and
@@ -452,9 +456,10 @@ def _light_curve_table(engine, sources):
     means = engine.light_curve_means()
     nint = engine.readout.nints
     src = Table(sources)
+    # the i-th variable source is the i-th row with a light curve (star order,
+    # scenesim.sky.rates.scene_rates)
     rows = np.flatnonzero(np.asarray(src["light_curve"]) != "") \
         if "light_curve" in src.colnames else np.arange(len(engine.variable))
-    rows = rows[-len(engine.variable):]            # constant stars come first
     on = np.asarray(src["flux_on_array" if "flux_on_array" in src.colnames else "flux"],
                     dtype=float)[rows]
     return Table({"SOURCE": np.repeat(rows, nint),
@@ -464,6 +469,11 @@ def _light_curve_table(engine, sources):
                   "T_START": np.concatenate([w[0] for w in windows]),
                   "T_END": np.concatenate([w[1] for w in windows]),
                   "LC_MEAN": means.ravel(), "FLUX": (on[:, None] * means).ravel()})
+
+
+#: ``SOURCES`` columns whose units are documented, not stored (a catalogue's own
+#: columns keep theirs).
+_SOURCE_UNITS = ("x", "y", "flux", "flux_on_array", "flux_lost_stamp", "stamp_radius")
 
 
 def _write_truth(engine, path, header, out, raws, sources, overwrite):
@@ -503,7 +513,8 @@ def _write_truth(engine, path, header, out, raws, sources, overwrite):
         src = Table(sources) if sources is not None else Table({"x": [], "y": [],
                                                                 "flux": []})
         for col in src.itercols():
-            col.unit = None        # units are documented (e-/s, pixels), not stored
+            if col.name in _SOURCE_UNITS:
+                col.unit = None    # units are documented (e-/s, pixels), not stored
         s.append_hdu(fits.BinTableHDU(src, name="SOURCES"))
         if lcints is not None:
             s.append_hdu(fits.BinTableHDU(lcints, name="LCINTS"))

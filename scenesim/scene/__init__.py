@@ -122,7 +122,11 @@ Top level
   :func:`scenesim.sky.sources.read_catalogue`: columns ``x``, ``y`` (pixels of the
   read-out image), ``flux`` (e-/s, converted if it has a unit), optional ``id`` and
   ``light_curve`` (the **name** of a ``[sources.light_curves.NAME]`` entry; empty for
-  a constant source).  Column names are case-insensitive.
+  a constant source).  Column names are case-insensitive.  The truth file's
+  ``SOURCES`` lists the inline ``[[sources.stars]]`` first, then the catalogue's rows
+  in its order (catalogue row ``i`` is ``SOURCES`` row ``len(stars) + i``), with the
+  catalogue's ``id`` and its other columns (null on the inline stars' rows; one named
+  as a rendering column, e.g. ``flux_on_array``, as ``catalogue_flux_on_array``).
 
 ``[sources.psf]`` -- the PSF of every point source (:class:`PSFConfig`)
 
@@ -215,6 +219,12 @@ Validation rules
   nonlinearity is monotonic up to the full well, ``ramp = false`` needs a fit, ...
 * :func:`load_scene` builds the readout once (:meth:`ReadoutConfig.build`) so an unknown
   pattern name or a bad MA table fails at load time.
+* Charge: no pixel may collect more than 2**53 e- in an integration.  Scalar rates are
+  checked when the scene is built; the sum in each pixel (maps, flat, catalogue rows,
+  ``file`` light curves at their peak) when the run loads them, before any work
+  (:func:`scenesim.sky.rates.scene_rates`), naming what puts the charge there: the map
+  file and the pixel, the catalogue file, row and ``id``, the inline star, the light
+  curve and its peak.
 
 Every error is a :class:`~noise.errors.ParameterError` or
 :class:`~noise.errors.FileFormatError` (both :class:`ValueError`) whose message names the
@@ -264,8 +274,9 @@ integrals):
 * ``file`` (``file``): ECSV or FITS table with columns ``time`` and ``flux``
   (relative), read by :meth:`LightCurve.from_file
   <scenesim.sky.lightcurve.LightCurve.from_file>`: a ``time`` column with a unit (e.g.
-  ``h``, ``d``) is converted to seconds, without one it is seconds; used like
-  ``table`` (two equal consecutive times make a step).
+  ``h``, ``d``) is converted to seconds, without one it is seconds; ``flux`` has no
+  unit or a dimensionless one (``%`` is converted), any other (``mag``, ``Jy``) is
+  refused; used like ``table`` (two equal consecutive times make a step).
 
 Seeds
 -----

@@ -22,9 +22,10 @@ import secrets
 from dataclasses import dataclass, field
 
 import numpy as np
-from astropy.table import Table
+from astropy.io import fits
+from astropy.table import MaskedColumn, Table, vstack
 
-from noise.clock import Detector, exposure_slots
+from noise.clock import Detector
 from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.params import NoiseParams
 from noise.streams import MAX_SEED as SEED_MAX
@@ -42,6 +43,7 @@ from scenesim.pipelines.instrument import InstrumentConfig
 from scenesim.sky.lightcurve import MAX_TIME as LC_MAX_TIME, LightCurve
 from scenesim.sky.maps import FITS_EXTENSIONS
 from scenesim.sky.psf import AiryPSF, GaussianPSF, ImagePSF
+from scenesim.sky.rates import integration_span
 from scenesim.sky.sources import read_catalogue
 from scenesim.sky.tables import TABLE_EXTENSIONS
 
@@ -61,6 +63,7 @@ __all__ = [
     "READOUT_FORMS",
     "MAX_SEED",
     "check_nonlinearity_range",
+    "RENDER_COLUMNS",
 ]
 
 #: Largest seed: fits a signed 64-bit integer (TOML and FITS).
@@ -270,7 +273,8 @@ class LightCurveConfig:
         ``table``: sample times (s, strictly increasing) and factors (>= 0).
     file : str or None
         ``file``: ECSV/FITS table with columns ``time`` and ``flux``, read by
-        :meth:`scenesim.sky.lightcurve.LightCurve.from_file` (time units converted).
+        :meth:`scenesim.sky.lightcurve.LightCurve.from_file` (time units converted;
+        ``flux`` without a unit or dimensionless).
     """
 
     name: str
@@ -385,6 +389,26 @@ class LightCurveConfig:
 
 
 # ===================================================================== sources
+#: Columns the rendering adds to a star in the truth's ``SOURCES`` table
+#: (:func:`scenesim.sky.psf.render_point_sources`); a catalogue column of one of these
+#: names is kept as ``catalogue_<name>``.
+RENDER_COLUMNS = ("flux_on_array", "frac_on_array", "flux_lost_stamp", "stamp_radius",
+                  "rendered")
+
+
+def _check_fits_column(where, name, col):
+    """Refuse, naming it, a catalogue column a FITS table cannot hold (the truth's
+    ``SOURCES`` keeps it; found when the truth is written, the run would be lost)."""
+    try:
+        fits.BinTableHDU(Table([col], names=[name]))
+    except Exception as exc:                 # astropy raises several types
+        reason = " ".join(str(exc).split())[:200]
+        raise FileFormatError(
+            f"{where}: column {name!r} ({col.dtype}) cannot be written to the truth "
+            f"file's SOURCES table (a FITS table): {reason}; remove it or give it "
+            f"numbers or strings") from exc
+
+
 @dataclass(frozen=True)
 class SourcesConfig:
     """Sources of charge.
@@ -486,7 +510,10 @@ class SourcesConfig:
         self._check_curve(name, "lookup")
 
     def star_table(self):
-        """Every point source: the inline stars, then the catalogue rows.
+        """Every point source, in a fixed order: the inline stars (``[[sources.stars]]``,
+        in the file's order), then the catalogue rows (in the catalogue's order).  So
+        row ``i`` of the catalogue is row ``len(stars) + i``; the truth's ``SOURCES``
+        keeps this order.
 
         Reads the catalogue (:func:`scenesim.sky.sources.read_catalogue`) and checks
         that each of its ``light_curve`` names is defined.
@@ -495,31 +522,64 @@ class SourcesConfig:
         -------
         astropy.table.Table
             Columns ``x``, ``y`` (pixels, read-out image), ``flux`` (e-/s, float64) and
-            ``light_curve`` (str, ``''`` for none).
+            ``light_curve`` (str, ``''`` for none); with a catalogue, first ``id`` (the
+            catalogue's, ``0 .. n-1`` when it has none) and, last, the catalogue's other
+            columns, both masked on the inline stars' rows.  A catalogue column named
+            as a column the rendering adds (:data:`RENDER_COLUMNS`, case-insensitively)
+            is kept as ``catalogue_<name>``.
 
         Raises
         ------
         FileFormatError, ParameterError
-            As :func:`~scenesim.sky.sources.read_catalogue`, or a catalogue row names
-            an undefined light curve.
+            As :func:`~scenesim.sky.sources.read_catalogue`; a catalogue row names an
+            undefined light curve; a catalogue column the truth file cannot hold.
         """
-        x = [s.x for s in self.stars]
-        y = [s.y for s in self.stars]
-        flux = [s.flux for s in self.stars]
-        lc = [s.light_curve or "" for s in self.stars]
-        if self.catalogue is not None:
-            table = read_catalogue(self.catalogue)
-            curves = [str(name) for name in table["light_curve"]]
-            for name in sorted(set(curves) - {""}):
-                self._check_curve(name, f"catalogue {self.catalogue!r}")
-            x += np.asarray(table["x"]).tolist()
-            y += np.asarray(table["y"]).tolist()
-            flux += np.asarray(table["flux"]).tolist()
-            lc += curves
-        return Table({"x": np.array(x, dtype=np.float64),
-                      "y": np.array(y, dtype=np.float64),
-                      "flux": np.array(flux, dtype=np.float64),
-                      "light_curve": np.array(lc, dtype=str)})
+        inline = Table({"x": np.array([s.x for s in self.stars], dtype=np.float64),
+                        "y": np.array([s.y for s in self.stars], dtype=np.float64),
+                        "flux": np.array([s.flux for s in self.stars], dtype=np.float64),
+                        "light_curve": np.array([s.light_curve or "" for s in self.stars],
+                                                dtype=str)})
+        if self.catalogue is None:
+            return inline
+        where = f"catalogue {self.catalogue!r}"
+        table = read_catalogue(self.catalogue)
+        curves = [str(name) for name in table["light_curve"]]
+        for name in sorted(set(curves) - {""}):
+            self._check_curve(name, where)
+        core = ("id", "x", "y", "flux", "light_curve")
+        cat = Table({"id": table["id"], "x": np.asarray(table["x"], dtype=np.float64),
+                     "y": np.asarray(table["y"], dtype=np.float64),
+                     "flux": np.asarray(table["flux"], dtype=np.float64),
+                     "light_curve": np.array(curves, dtype=str)})
+        lower = {name.lower() for name in table.colnames}
+        for name in table.colnames:
+            if name in core:
+                continue
+            out = f"catalogue_{name}" if name.lower() in RENDER_COLUMNS else name
+            if out != name and out.lower() in lower:
+                raise FileFormatError(
+                    f"{where}: column {name!r} is named as a column the truth's SOURCES "
+                    f"table adds ({', '.join(RENDER_COLUMNS)}), and its other name "
+                    f"{out!r} is taken too; rename one of them")
+            _check_fits_column(where, name, table[name])
+            cat[out] = table[name]
+        if not len(inline):
+            return cat
+        n = len(inline)
+        for name in cat.colnames:
+            if name not in inline.colnames:
+                col = cat[name]
+                inline[name] = MaskedColumn(
+                    np.zeros((n,) + col.shape[1:], dtype=col.dtype),
+                    mask=np.ones((n,) + col.shape[1:], dtype=bool), unit=col.unit)
+        out = vstack([inline[cat.colnames], cat], join_type="exact",
+                     metadata_conflicts="silent")
+        if out["id"].dtype.kind in "iu":        # a null value no catalogue id takes
+            info = np.iinfo(out["id"].dtype)
+            ids = set(np.asarray(cat["id"]).tolist())
+            out["id"].fill_value = next(v for v in (info.min, info.max, -1, 0)
+                                        if v not in ids)
+        return out
 
     @property
     def map_files(self):
@@ -968,19 +1028,16 @@ class Scene:
 
     def _check_charge(self):
         """Refuse scalar rates whose pixel would collect more than
-        :data:`scenesim.engine.MAX_CHARGE` in one integration (FITS maps are checked by
-        the engine when the run loads them)."""
+        :data:`scenesim.engine.MAX_CHARGE` in one integration (FITS maps, catalogue
+        rows, ``file`` light curves and the sum in a pixel are checked when the run
+        loads them, before any work: :func:`scenesim.sky.rates.scene_rates`)."""
         try:
             ro = self.readout.build()
         except ParameterError as exc:
             raise type(exc)(f"[readout] {exc}") from exc
-        t_int = exposure_slots(1, ro.nreads) * self.detector.frame_time
+        t_int, span = integration_span(self.detector, ro)
         src, eff = self.sources, self.effects
         flat = eff.flat if not isinstance(eff.flat, str) else None
-
-        det = self.detector
-        span = (f"{ro.nreads + 1} frames of {det.frame_time:.6g} s: [readout], and "
-                f"[detector] 'dt' x (rows + 'nfoh') x (columns per output + 'nroh')")
         if self.output.fit and t_int > MAX_READ_TIME:
             raise ParameterError(
                 f"[output] 'fit' = {self.output.fit!r}: an integration lasts {t_int:.6g} "

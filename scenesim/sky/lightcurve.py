@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from astropy import units as u
 
-from noise.errors import ParameterError, ParameterTypeError
+from noise.errors import FileFormatError, ParameterError, ParameterTypeError
 from noise.validate import check_float, describe
 
 from scenesim.sky.tables import column_values, find_columns, read_table
@@ -351,14 +351,17 @@ class LightCurve:
         The one reader of light-curve files: a scene's ``file`` light curve goes
         through it.  Column names are case-insensitive.  A ``time`` column with a unit
         is converted to seconds (``h``, ``d``, ``min``, ...); without a unit it is taken
-        as seconds.  ``flux`` is relative (dimensionless; a unit is ignored).  The
-        samples are the nodes of the piecewise-linear curve (two equal consecutive
-        times make a step).
+        as seconds.  ``flux`` is the relative factor on the star's flux: without a unit,
+        or with a dimensionless one (``%`` is converted: 99 % is 0.99); any other unit
+        (``mag``, ``Jy``, ``electron / s``) is refused, since it is no factor (before,
+        it was ignored: a dip of 0.01 mag became a factor near 0).  The samples are the
+        nodes of the piecewise-linear curve (two equal consecutive times make a step).
 
         Raises
         ------
         FileFormatError
-            Missing/unreadable file, missing column, or a time unit that is not a time.
+            Missing/unreadable file, missing column, a time unit that is not a time,
+            or a flux unit that is not dimensionless.
         ParameterError
             Invalid values (see :class:`LightCurve`).
         """
@@ -366,5 +369,13 @@ class LightCurve:
         table = read_table(path, what="light-curve file")
         names = find_columns(table, ("time", "flux"), where=where)
         time = column_values(table, names["time"], u.s, where=where)
-        flux = column_values(table, names["flux"], where=where)
+        unit = getattr(table[names["flux"]], "unit", None)
+        if unit is not None and not unit.is_equivalent(u.dimensionless_unscaled):
+            raise FileFormatError(
+                f"{where}: column {names['flux']!r} has unit {unit.to_string()!r}; a "
+                f"light curve's flux is a relative factor on the star's flux: give it "
+                f"without a unit or dimensionless (e.g. '%'), not a magnitude or a "
+                f"flux (for magnitudes m relative to the star's, write 10**(-0.4 m))")
+        flux = column_values(table, names["flux"], u.dimensionless_unscaled,
+                             where=where)
         return cls(time, flux)

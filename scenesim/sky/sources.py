@@ -21,7 +21,9 @@ catalogue`` goes through it.  A catalogue is an ECSV or FITS table (or an astrop
   against the scene's light curves by :meth:`scenesim.scene.SourcesConfig.star_table`.
 
 Column names are matched case-insensitively (:mod:`scenesim.sky.tables`); other
-columns are kept.
+columns are kept, and a scene's run writes them, with ``id``, to the truth's
+``SOURCES`` table, row for row in the catalogue's order
+(:meth:`scenesim.scene.SourcesConfig.star_table`).
 
 Hot pixels
 ----------

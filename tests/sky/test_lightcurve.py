@@ -184,6 +184,27 @@ def test_from_file_ecsv_and_fits(tmp_path):
         LightCurve.from_file(tmp_path / "missing.ecsv")
 
 
+
+def test_from_file_refuses_a_flux_that_is_no_factor(tmp_path):
+    # A tester's probe: a 0..0.01 mag dip read as factors 0..0.01, and the star
+    # vanished silently.  A flux unit that is not dimensionless is refused, naming
+    # the file, the column and the unit; '%' is converted; no unit is a factor.
+    for unit in (u.mag, u.Jy, u.electron / u.s):
+        path = tmp_path / f"lc_{unit.to_string().replace(' / ', '_')}.ecsv"
+        Table({"time": [0.0, 1.0, 2.0], "Flux": [0.0, 0.01, 0.0] * unit}).write(path)
+        with pytest.raises(FileFormatError) as info:
+            LightCurve.from_file(path)
+        msg = str(info.value)
+        assert str(path) in msg and "'Flux'" in msg and repr(unit.to_string()) in msg
+        assert "\n" not in msg
+    path = tmp_path / "pc.fits"
+    Table({"time": [0.0, 1.0], "flux": [100.0, 99.0] * u.percent}).write(path)
+    np.testing.assert_allclose(LightCurve.from_file(path).flux, [1.0, 0.99])
+    path = tmp_path / "none.ecsv"
+    Table({"time": [0.0, 1.0],
+           "flux": [1.0, 0.5] * u.dimensionless_unscaled}).write(path)
+    np.testing.assert_allclose(LightCurve.from_file(path).flux, [1.0, 0.5])
+
 def test_value_semantics():
     a = LightCurve([0.0, 1.0], [1.0, 2.0])
     b = LightCurve(np.array([0.0, 1.0]), np.array([1.0, 2.0]))
