@@ -131,12 +131,12 @@ class Report:
                   "  bias_rep, chi2_rep: mean r/sigma and r^2/sigma^2 with the errors the "
                   "fit reported (0 and 1 if right)",
                   "  bias_opt +- se_bias: mean r/sigma_opt; se_bias counts the pixels of "
-                  "one output and 16 rows as one draw (correlated noise; of one output "
-                  "and column parity after a reference correction); p_bias: the "
-                  "chance of so large a bias from noise alone (Student's t over those "
-                  "draws: few in a bin of few stars); an error common to the whole array",
-                  "    (correlated 1/f noise) is one draw per exposure and not in it: "
-                  "pool realisations (scenesim batch) to measure a bias to that level",
+                  "one output and 16 rows as one draw (correlated noise); p_bias: the "
+                  "chance of so large a bias from that noise alone (Student's t over "
+                  "those draws: few in a bin of few stars); an error common to a whole",
+                  "    output or array (a reference correction's offsets, correlated 1/f "
+                  "noise) is one draw per exposure and not in it: pool realisations "
+                  "(scenesim batch) to measure a bias to that level",
                   "  std_opt: scatter against the white-read-noise optimum (> 1 with 1/f "
                   "noise even for an optimal fitter)",
                   "  std_eff: scatter against the optimum for the noise the data have "
@@ -217,8 +217,8 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
         The fit undid the IPC: it is graded on ``RATE``, not ``RATE_IPC``.
     reference_corrected : bool, keyword-only
         The ramps were corrected with their reference pixels (a per-output, per-read
-        offset common to an output's columns of one parity): the standard error of
-        the bias then takes those columns, whole, as one draw (:func:`_clusters`).
+        offset common to an output's columns of one parity): a note says that the
+        standard error of the bias leaves it out (:func:`_clusters`).
 
     Returns
     -------
@@ -275,11 +275,14 @@ def compare(fit, truth, *, read_times=None, nints=None, read_noise=None, psf=Non
     var_eff = usable_variance(r0, read_times, rn_eff, nints=nints, satgroup=satgroup,
                               resultant_noise=q)
     if reference_corrected:
-        notes.append("se_bias: the ramps were reference-corrected, so the pixels of "
-                     "one output and column parity, whole columns, count as one draw "
-                     "(the correction's offsets are common to them)")
+        notes.append("se_bias and p_bias leave out the reference correction's offsets, "
+                     "common to all the pixels of an output and column parity: one "
+                     "draw per exposure, like the array-wide 1/f noise (in white "
+                     "noise alone they moved the bias of a one-output 128^2 window by "
+                     "~0.07 sigma_opt between seeds); pool realisations (scenesim "
+                     "batch) to test a bias at that level")
     rows = bin_rows(f, rate, var_opt, var_eff, var_ols, edges, use, regular,
-                    clusters=_clusters(hdr, rate.shape, whole=reference_corrected))
+                    clusters=_clusters(hdr, rate.shape))
     jumps = _jumps(truth, dq, regular, readout, read_noise, cr_sigma, notes, collected)
     photometry = {}
     src = truth.get("SOURCES")
@@ -441,15 +444,17 @@ def _effective_noise(f, hdr, read_noise, read_times, notes):
     return rn, averaging_noise(gain, n)
 
 
-def _clusters(hdr, shape, rows=16, whole=False):
+def _clusters(hdr, shape, rows=16):
     """Labels of pixels sharing correlated noise: one output (its columns, from the
-    detector cards; else blocks of 64 columns) and one band of ``rows`` rows; with
-    ``whole``, one output and column parity, all rows: a reference correction
-    subtracts from every read an offset estimated per output (and parity), whose
-    error every pixel there shares (a probe: white read noise only, the 'jwst'
-    correction, a 128^2 window read through one output: the bias of the 10-100 e-/s
-    bin scattered by 0.07 sigma_opt between seeds, with se_bias 0.010 and p_bias
-    down to 1e-17)."""
+    detector cards; else blocks of 64 columns) and one band of ``rows`` rows.
+
+    Not an error common to a whole output: a reference correction's offsets (a
+    probe: white read noise only, the 'jwst' correction, a 128^2 window read through
+    one output, the bias of the 10-100 e-/s bin scattered by 0.07 sigma_opt between
+    seeds where se_bias said 0.010).  Clusters of whole outputs were tried
+    (2026-11-28) and dropped: a window read through one output has two (its column
+    parities), and a standard error of one degree of freedom; the report says so in
+    a note instead (:func:`compare`)."""
     ny, nx = shape
     try:
         det = detector_from_header(hdr)
@@ -458,8 +463,6 @@ def _clusters(hdr, shape, rows=16, whole=False):
         col = None
     if col is None:
         col = np.arange(nx) // 64
-    if whole:
-        return np.broadcast_to(np.asarray(col) * 2 + np.arange(nx) % 2, (ny, nx))
     band = np.arange(ny) // rows
     return band[:, None] * (int(np.max(col)) + 1) + np.asarray(col)[None, :]
 
