@@ -151,8 +151,13 @@ def test_rateints_combine_to_the_rate(jwst_loop):
         if a["n"] >= 10 and a["lo"] < 1e4 and a["frac_flagged"] < 0.05:
             assert b["n"] == a["n"]
             assert b["frac_flagged"] == a["frac_flagged"]
-            assert abs(b["bias_rep"] - a["bias_rep"]) < 0.01
-            assert abs(b["chi2_rep"] / a["chi2_rep"] - 1) < 0.01
+            # a flagged pixel's r/sigma may differ by ~1 between the two
+            # combinations (saturated in some integrations only): its share of the
+            # bin, frac_flagged, is allowed on top (the hot pixels drawn for the full
+            # array since 2026-11-28 put one flagged pixel in a 24-pixel bin, 0.016)
+            tol = 0.01 + a["frac_flagged"]
+            assert abs(b["bias_rep"] - a["bias_rep"]) < tol
+            assert abs(b["chi2_rep"] / a["chi2_rep"] - 1) < tol
             compared += 1
     assert compared >= 2
 
