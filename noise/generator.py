@@ -287,6 +287,7 @@ class NoiseGenerator:
     def _validate(self):
         # per-output values, f_min below every Nyquist, ACN's even columns
         self.params.check_detector(self.detector)
+        self.params = self.params.for_detector(self.detector)
 
     def _stream(self, *key):
         return generator(self.entropy, self.key + key)

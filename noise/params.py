@@ -297,10 +297,13 @@ class NoiseParams:
         n_out = detector.n_out_active
         for name in _PER_OUTPUT:
             value = getattr(self, name)
-            if isinstance(value, tuple) and len(value) != n_out:
+            if isinstance(value, tuple) and len(value) != n_out and not (
+                    n_out != detector.n_out and len(value) == detector.n_out):
+                also = (f" (a window: or the full array's {detector.n_out}, of which "
+                        f"it takes its output's)" if n_out != detector.n_out else "")
                 raise ParameterError(
                     f"{name!r} has {len(value)} per-output values but the detector "
-                    f"reads through {n_out} outputs")
+                    f"reads through {n_out} outputs{also}")
         il = getattr(detector, "interleave", None)
         extra, values = "", f"'nroh' = {detector.nroh}"
         if il is not None:
@@ -499,6 +502,40 @@ class NoiseParams:
         (:meth:`_process_scales`), and the bias pattern, deterministic, is left to
         :meth:`bias_pattern_range`."""
         return math.sqrt(sum(v * v for _, v in self._spread_terms(detector)))
+
+    def for_detector(self, detector):
+        """These amplitudes as ``detector`` reads them.  A window reads through one
+        output: a per-output value given for the full array (``n_out`` values, as for
+        its full frame) becomes the value of the full-array output the window lies
+        on, so one noise table describes a detector's full frame and its windows (a
+        probe: such a table was refused on every window).
+
+        Raises
+        ------
+        noise.errors.ParameterError
+            A window across two full-array outputs given full-array per-output
+            values (it is read as one output: which value is meant?).
+        """
+        n_act = detector.n_out_active
+        if n_act == detector.n_out:
+            return self
+        width = detector.naxis1 // detector.n_out
+        first = detector.x0 // width
+        last = (detector.x0 + detector.nx - 1) // width
+        changes = {}
+        for name in _PER_OUTPUT:
+            value = getattr(self, name)
+            if not (isinstance(value, tuple) and len(value) == detector.n_out
+                    and len(value) != n_act):
+                continue
+            if first != last:
+                raise ParameterError(
+                    f"{name!r} has {len(value)} per-output values of the full array, "
+                    f"but the window (columns {detector.x0}..{detector.x0 + detector.nx - 1}"
+                    f") spans its outputs {first}..{last} and is read as one: give "
+                    f"{name!r} one value")
+            changes[name] = (value[first],)
+        return self.replace(**changes) if changes else self
 
     def per_output(self, name, n_out):
         """Amplitude ``name`` as an array of ``n_out`` values (e-)."""

@@ -1010,6 +1010,8 @@ class Scene:
             # per-output values, f_min below every Nyquist frequency, no noise
             # clipped at the ADC (noise.params module notes)
             self.noise.check_detector(self.detector, where="[detector]")
+            # a window takes its output's value of full-array per-output amplitudes
+            object.__setattr__(self, "noise", self.noise.for_detector(self.detector))
             self.noise.check_adc(eff.gain, eff.adc_bits, self.detector)
         except ParameterError as exc:
             table = "[effects]" if str(exc).startswith("'gain'") else "[noise]"

@@ -838,3 +838,27 @@ def test_a_window_has_the_telegraph_pixels_of_the_full_frame():
         got = {(y0 + y, x0 + x) for y, x in (divmod(int(i), win.nx) for i in idx)}
         want = {(y, x) for y, x in full_set if y0 <= y < y0 + 48 and x0 <= x < x0 + 64}
         assert got == want and len(got) > 50
+
+
+def test_a_window_takes_its_outputs_value_of_full_array_per_output_amplitudes():
+    # A probe: per-output values for the full array (one noise table for a
+    # detector) were refused on every window ("4 per-output values but the detector
+    # reads through 1 outputs").  A window on output 1 (columns 512-1023) of an H2RG
+    # now takes the second value: its white noise is 6 e-, measured on the CDS of
+    # 60^2 regular pixels over 8 read pairs (the std of n = 28800 unit normals has a
+    # standard error 1/sqrt(2n) = 0.0042: 5 of them, 2.1 %).  A window across two
+    # outputs is refused, naming the value to give.
+    p = noise.params.ZERO_NOISE.replace(rd_noise=(3.0, 6.0, 9.0, 12.0))
+    det = noise.preset("H2RG").window(600, 100, 64, 64)
+    gen = noise.NoiseGenerator(det, p, rng=1, threads=1)
+    assert gen.params.rd_noise == (6.0,)
+    f = np.array([fr for _, _, fr in gen.frames(nreads=16)], float)
+    reg = ~det.reference_mask()
+    cds = (f[1::2] - f[0::2])[:, reg] / np.sqrt(2)
+    assert abs(cds.std() / 6.0 - 1) < 5 / np.sqrt(2 * cds.size)
+    with pytest.raises(noise.ParameterError, match=r"spans its outputs 0\.\.1 .*give "
+                                                   r"'rd_noise' one value"):
+        noise.NoiseGenerator(noise.preset("H2RG").window(500, 100, 64, 64), p, rng=1)
+    with pytest.raises(noise.ParameterError, match=r"3 per-output values .* or the "
+                                                   r"full array's 4"):
+        noise.NoiseGenerator(det, p.replace(rd_noise=(1.0, 2.0, 3.0)), rng=1)

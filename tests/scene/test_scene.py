@@ -730,3 +730,16 @@ def test_a_fit_of_an_integration_longer_than_the_fitter_takes_is_refused_first()
         parse_scene(raw)
     raw["output"]["fit"] = ""
     parse_scene(raw)
+
+
+def test_a_window_scene_takes_its_outputs_value_of_per_output_noise():
+    # the scene path of the generator's rule: [noise] rd_noise for the 4 outputs of
+    # the full H2RG (512 columns each), a window on columns 1100-1163, output 2:
+    # the scene's noise is that output's value
+    sc = parse_scene({"detector": {"preset": "H2RG",
+                                   "subarray": {"kind": "window", "x0": 1100, "y0": 8,
+                                                "nx": 64, "ny": 64}},
+                      "noise": {"preset": "none", "rd_noise": [5.0, 6.0, 7.0, 8.0],
+                                "bias_offset": 1000.0},
+                      "readout": {"pattern": "RAPID", "ngroups": 2}})
+    assert sc.noise.rd_noise == (7.0,)
