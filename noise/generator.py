@@ -288,6 +288,7 @@ class NoiseGenerator:
         # per-output values, f_min below every Nyquist, ACN's even columns
         self.params.check_detector(self.detector)
         self.params = self.params.for_detector(self.detector)
+        self.params.warn_precision(self.detector)
 
     def _stream(self, *key):
         return generator(self.entropy, self.key + key)

@@ -438,6 +438,32 @@ class NoiseParams:
                 f"the rounding under 0.58 of it", ScenesimWarning,
                 stacklevel=3)
 
+    def warn_precision(self, detector):
+        """Warn (:class:`~noise.errors.ScenesimWarning`) when the frames' float32
+        cannot hold the white read noise on top of the levels they carry: the
+        largest level, ``|bias_offset|`` plus the bias pattern's extreme plus 5 rms
+        of the rest (:meth:`spread`), has float32 steps over 0.35 of the smallest
+        white read noise per read, so the rounding (``step / sqrt(12)``) adds over
+        1 % to its variance (a probe: ``bias_offset`` 1e8 e- made 5.2 e- of read
+        noise 8.1, 1e9 made it 0, without a word).  Nothing for a noise-free
+        detector or an ADC, whose levels :meth:`check_adc` bounds."""
+        rd = float(np.min(np.asarray(self.rd_noise, dtype=float)))
+        if rd <= 0:
+            return
+        b_lo, b_hi = self.bias_pattern_range(detector)
+        level = abs(self.bias_offset) + max(abs(b_lo), abs(b_hi)) \
+            + BIAS_SPREAD_SIGMA * self.spread(detector)
+        step = float(np.spacing(np.float32(min(level, 3e38))))
+        if step > 0.35 * rd:
+            warnings.warn(
+                f"float32 frames: the levels reach {level:.4g} e- ('bias_offset' "
+                f"{self.bias_offset:g} e-, the bias pattern and 5 x the noise's rms), "
+                f"where float32 steps by {step:.3g} e-, over 0.35 of the white read "
+                f"noise per read ('rd_noise' {rd:g} e-): the rounding adds "
+                f"{step * step / 12 / (rd * rd):.2g} of its variance; keep the levels "
+                f"below {2 ** 24 * 0.35 * rd / 2:.4g} e-", ScenesimWarning,
+                stacklevel=3)
+
     def bias_pattern_range(self, detector):
         """``(lo, hi)``, e-: the least and largest value of the fixed bias pattern,
         ``bias_amp`` times the template (:func:`noise.template.template_for`, from

@@ -7,7 +7,7 @@ import pytest
 
 import noise
 from noise.errors import ParameterTypeError
-from noise.params import NoiseParams
+from noise.params import ZERO_NOISE, NoiseParams
 
 #: Fields that shape a component but add nothing alone (every other field is an
 #: amplitude); kept here, independently of the module, so that a new field must be
@@ -84,3 +84,24 @@ def test_a_gain_whose_rounding_swamps_the_read_noise_is_warned_about():
         warnings.simplefilter("error")
         p.warn_quantisation(6.0)
         NoiseParams(rd_noise=0.0).warn_quantisation(1e4)
+
+
+def test_levels_float32_cannot_carry_the_read_noise_on_are_warned_about():
+    # A probe: bias_offset 1e8 e- made 5.2 e- of white noise read 8.1 (float32 steps
+    # of 8 e- there), 1e9 made every pixel one number; accepted without a word.  The
+    # generator now warns once the steps pass 0.35 of the read noise (the rounding
+    # adds > 1 % of its variance); 1e7 (steps of 1 e-: 0.3 %) and a noise-free
+    # detector are quiet.
+    import warnings
+    from noise import NoiseGenerator, preset
+    from noise.errors import ScenesimWarning
+    det = preset("H2RG", naxis1=64, naxis2=64)
+    with pytest.warns(ScenesimWarning, match=r"float32 steps by 8 e-, over 0.35 of the "
+                                             r"white read noise"):
+        NoiseGenerator(det, ZERO_NOISE.replace(rd_noise=5.2, bias_offset=1e8), rng=1)
+    with pytest.warns(ScenesimWarning, match=r"float32 frames"):
+        NoiseGenerator(det, ZERO_NOISE.replace(rd_noise=5.2, pedestal=3e8), rng=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        NoiseGenerator(det, ZERO_NOISE.replace(rd_noise=5.2, bias_offset=1e7), rng=1)
+        NoiseGenerator(det, ZERO_NOISE.replace(bias_offset=1e9), rng=1)
