@@ -130,7 +130,8 @@ def _parse_noise(tab, base_dir):
     where = "[noise]"
     _check_keys(tab, ("preset",) + _NOISE_FIELDS, where)
     with _section(where):
-        name = check_choice("preset", tab.get("preset", "nirspec"), tuple(NOISE_PRESETS))
+        name = check_choice("preset", tab.get("preset", "nirspec"), tuple(NOISE_PRESETS),
+                            ignore_case=True)   # as [detector] preset is
         changes = {k: tab[k] for k in _NOISE_FIELDS if k in tab}
         for key in ("rd_noise", "u_pink", "acn"):
             if isinstance(changes.get(key), list) and \

@@ -743,3 +743,16 @@ def test_a_window_scene_takes_its_outputs_value_of_per_output_noise():
                                 "bias_offset": 1000.0},
                       "readout": {"pattern": "RAPID", "ngroups": 2}})
     assert sc.noise.rd_noise == (7.0,)
+
+
+def test_the_noise_preset_is_case_insensitive_as_the_detector_preset_is():
+    # a probe: [noise] preset = "NIRSPEC" was refused while [detector] preset takes
+    # any case
+    base = {"detector": {"preset": "h2rg", "naxis1": 64, "naxis2": 64},
+            "readout": {"pattern": "RAPID", "ngroups": 2}}
+    for name in ("NIRSPEC", "NirSpec"):
+        sc = parse_scene({**base, "noise": {"preset": name}})
+        assert sc.noise == parse_scene({**base, "noise": {"preset": "nirspec"}}).noise
+    with pytest.raises(ParameterError, match=r"'preset' must be one of 'nirspec', "
+                                             r"'none', got 'nirspex'"):
+        parse_scene({**base, "noise": {"preset": "nirspex"}})
