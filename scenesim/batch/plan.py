@@ -510,13 +510,23 @@ def plan_batch(path, *, out, realisations=None, seed=None, fit=None, compare=Non
     fitters = _fitters(fit if fit is not None else defaults.get("fit", cfg.fit),
                        "--fit" if fit is not None else (where if "fit" in defaults
                                                         else "[output]"))
-    compare = check_bool("compare", compare if compare is not None
-                         else defaults.get("compare", cfg.compare))
-    ramp = check_bool("ramp", ramp if ramp is not None else defaults.get("ramp", cfg.ramp))
+    def setting(key, given, check):
+        """``check`` of the option, else the batch file's key, else the scene's
+        [output] key; an error names the one that was used."""
+        if given is not None:
+            return check(given)
+        try:
+            return check(defaults.get(key, getattr(cfg, key)))
+        except ParameterError as exc:
+            raise type(exc)(f"{where if key in defaults else '[output]'} {exc}") \
+                from exc
+
+    compare = setting("compare", compare, lambda v: check_bool("compare", v))
+    ramp = setting("ramp", ramp, lambda v: check_bool("ramp", v))
     refpix_from = ("--refpix" if refpix is not None else
                    f"{where} 'refpix'" if "refpix" in defaults else "[output] 'refpix'")
-    refpix = check_choice(refpix_from, refpix if refpix is not None
-                          else defaults.get("refpix", cfg.refpix), SCHEMES)
+    refpix = setting("refpix", refpix,
+                     lambda v: check_choice("refpix", v, SCHEMES))
     if compare and not fitters:
         raise ParameterError("'compare' grades fitted slopes, so it needs at least one "
                              f"fitter ('fit': {', '.join(FITTERS)})")

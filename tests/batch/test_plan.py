@@ -197,6 +197,14 @@ def test_bad_batch_files(small_scene, tmp_path):
         plan_batch(small_scene, out=tmp_path / "g", realisations=0)
     with pytest.raises(ParameterError, match="compare.*fitter"):
         plan_batch(small_scene, out=tmp_path / "g", fit=[], compare=True)
+    # a batch file's compare, ramp and refpix: named with the file (a probe: compare
+    # and ramp named no file, refpix read "batch file ...: 'refpix'" must be ...)
+    for text, match in (('compare = "yes"\n', r"'compare' must be true or false"),
+                        ('ramp = 1\n', r"'ramp' must be true or false, got 1"),
+                        ('refpix = "jwsT"\n', r"'refpix' must be one of .*'jwst'")):
+        path = _batch_file(tmp_path, 'scene = "small.toml"\n' + text)
+        with pytest.raises(ParameterError, match=rf"^batch file .*: {match}"):
+            plan_batch(path, out=tmp_path / "g")
 
 
 def test_an_out_directory_that_cannot_be_written_is_refused_first(tmp_path,
