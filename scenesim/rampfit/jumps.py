@@ -91,8 +91,22 @@ of such pixels).  After the change the probe's step reads 0.99 e-/s (1 flag), th
 1.01 (2 flags); on 10^4-pixel sweeps of 50-500 e- drops at 0.5 and 20 e-/s
 (``tests/tools/jump_drops.py``) mean ``z^2`` fell from 270-5400 to 5-42 in RAPID x
 10, 6 groups x 4 frames and the Roman table, of spikes from 210-5000 to 1.0-190;
-clean ramps and one or two hits are as before (two-hit cells 1.381 -> 1.388 and
-1.382 -> 1.384), RAPID x 4 (3 differences) unchanged.  What is left: a drop that
+clean ramps and single hits are as before, RAPID x 4 (3 differences) unchanged.
+**The price** (a regression probe, 2026-11-28): two hits that both arrive *inside*
+multi-frame groups each raise two differences, and in a short ramp they can leave
+one clean difference that reads like a drop, which then takes the flag and leaves
+the hits in (6 groups x 4 frames, 0.5 e-/s, 10 e-: hits inside groups 1 and 4, 351
+and 489 e-, noiseless: slope 4.59 e-/s for 0.5).  Over 10^4 pixels of two 50-500
+e- hits at random times, mean ``z^2`` 4.5 -> 8.4 (6 x 4 frames), 7.9 -> 14.0 (5 x 8
+frames, gap 4), 1.89 -> 1.93 (Roman), unchanged in RAPID; drops and spikes there
+gained 1850 -> 12, 3700 -> 3.2, 2100 -> 8.  Comparing the drop with the pairs'
+statistics too halves the two-hit cost and a third to a fifth of the drop gain
+(4.5 -> 6.5; drops 64, 40); it is not taken: two hits in one pixel and integration
+are rarer than telegraph pixels' steps (at ~5 cosmic rays per cm^2 and second,
+1e-4-1e-3 of 18 um pixels are hit twice in 1000 s, counting the few pixels a hit
+spreads over; telegraph pixels are reported at the 0.1-few % level and step in most
+integrations).  ``tests/tools/jump_drops.py`` puts hits at resultant boundaries;
+split hits need ``fraction of reads after the hit`` per resultant.  What is left: a drop that
 pushes no clean difference over the threshold stays in, as it did without
 detection (a 300 e- step in the Roman table: 227 of 4096 pixels unflagged, mean
 ``z^2`` 2.5), and a spike in one resultant of multi-read groups still costs many
