@@ -1264,8 +1264,12 @@ def calibrate_darks(ramps, *, f_min=1e-4, pink_spectrum=None, template_file=None
         est["bias_amp"] = _replace_fields(
             est["bias_amp"], note=est["bias_amp"].note + "; written as 0, and "
             "bias_offset is the mean reset level")
-    elif b is not None:
-        var_off += (tbar * est["bias_amp"].sigma) ** 2
+    elif b is not None and s_b is not None:
+        # the regression's own error only: the picture frame's drift, which
+        # bias_amp's sigma adds, is proportional to the template and moves the
+        # level with b x mean(template), so it cancels here (a regression probe:
+        # counted, windows' pulls had widths 0.28-0.67)
+        var_off += (tbar * s_b) ** 2
     off = level - (b or 0.0) * tbar
     note = (f"sigma from the fitted 1/f drift, pedestal, kTC, white noise and the bias "
             f"pattern with f_min = {f_min:g} Hz")
