@@ -324,12 +324,15 @@ def test_run_command_refuses_it_in_one_line(key, cls, tmp_path):
 
 def test_noise_command_refuses_a_gain_that_clips_every_pixel(tmp_path):
     # the 16-bit range at 1e-5 e-/DN is 0.655 e-: the paper's 500 e- of bias
-    # structure (the largest amplitude) alone is 760 times it
+    # structure (the largest amplitude) alone is 760 times it.  The command says
+    # it by its own options: the least --gain (since 2026-11-28; it had named
+    # 'bias_amp', which it does not set)
     res = _cli(["noise", "--naxis", "64", "--frames", "2", "--unit", "DN", "--gain",
                 "1e-5", "-q", "-o", "n.fits"], tmp_path)
     assert res.returncode == 2, res.stderr
-    _one_line(res.stderr, "'bias_amp'", "too large for the ADC", "'gain' 1e-05",
-              "'--unit DN'")
+    _one_line(res.stderr, "'--gain' 1e-05 e-/DN is too small for '--noise nirspec' "
+              "at the 16-bit ADC", "more than 65535 x 1e-05 = 0.65535 e-",
+              "'--gain' must be >= 0.1728 e-/DN")
     assert os.listdir(tmp_path) == []
 
 
