@@ -197,8 +197,8 @@ def _check_charge(scene, rate, variable, parts):
             pix, inv = np.unique(idx, return_inverse=True)
             vals = flat_rate[pix].astype(np.float64) + np.bincount(inv, weights=add,
                                                                    minlength=pix.size)
-            k = int(np.argmax(vals))
-            if vals[k] > top or not np.isfinite(vals[k]):
+            k = int(np.argmax(vals)) if vals.size else -1   # (sources off the array)
+            if k >= 0 and (vals[k] > top or not np.isfinite(vals[k])):
                 top, p = float(vals[k]), int(pix[k])
         if top * t_int <= MAX_CHARGE:
             return
